@@ -1,0 +1,57 @@
+"""`seal` entry point: dispatches to one subcommand module; user errors print one line and exit 2."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# Each module defines `register(subparsers)`, which adds its parser with `set_defaults(func=...)`.
+# A module that does not exist yet is skipped, so the CLI grows with the package.
+SUBCOMMAND_MODULES = (
+    "seal.cli.envs_cmd",
+    "seal.cli.run_cmd",
+    "seal.cli.report_cmd",
+    "seal.cli.eval_cmd",
+    "seal.cli.protocol_cmd",
+    "seal.cli.bench_cmd",
+    "seal.cli.sweep_cmd",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full `seal` argument parser."""
+    parser = argparse.ArgumentParser(prog="seal", description="SEAL: cross-environment multi-task RL.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in SUBCOMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one `seal` command and return its exit code."""
+    from seal.errors import SealError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except SealError as exc:
+        print(f"seal {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"seal {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

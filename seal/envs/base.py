@@ -1,0 +1,130 @@
+"""The adapter interface: the one thing an environment implements to plug into SEAL.
+
+An adapter describes an environment family (its tasks, spaces, episode length and observation
+layout) and builds one gymnasium env per task. Everything above this layer (learner, protocols,
+reports) talks to environments only through this interface, so adding an environment never
+requires editing seal: write a subclass and name it by import path, "package.module:Class".
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ObsLayout:
+    """Which indices of a flat observation hold robot state, object state and the goal.
+
+    `robot + objects` (in that order) is the "state block" that pad-and-fine-tune alignment
+    pads to a common width; `goal` is appended after the aligned one-hot task id.
+    """
+
+    robot: tuple[int, ...]
+    objects: tuple[int, ...]
+    goal: tuple[int, ...]
+
+    @property
+    def state(self) -> tuple[int, ...]:
+        """Robot then object indices: the block that is padded during alignment."""
+        return self.robot + self.objects
+
+    @classmethod
+    def from_slices(cls, robot: Sequence[slice], objects: Sequence[slice], goal: Sequence[slice]) -> ObsLayout:
+        """Build a layout from lists of slices (convenient for observations made of blocks)."""
+
+        def idx(slices: Sequence[slice]) -> tuple[int, ...]:
+            return tuple(i for s in slices for i in range(s.start, s.stop))
+
+        return cls(idx(robot), idx(objects), idx(goal))
+
+
+class EnvAdapter(abc.ABC):
+    """One environment family with named tasks, built as seeded gymnasium envs.
+
+    Subclasses set `name` and `all_tasks`, and implement the abstract members. Every env made by
+    `make` returns flat Box observations of `observation_space.shape`, actions in
+    `action_space`, truncates after `episode_length` steps, and puts `info["success"]` (0.0 or
+    1.0) in every step's info.
+    """
+
+    name: ClassVar[str]
+    all_tasks: ClassVar[tuple[str, ...]]
+    task_sets: ClassVar[dict[str, tuple[str, ...]]] = {}
+    default_episode_length: ClassVar[int]
+
+    def __init__(self, tasks: Sequence[str] | str | None = None, episode_length: int | None = None, **options: Any) -> None:
+        from seal.errors import SealError, UnknownNameError
+
+        if options:
+            raise SealError(f"adapter {self.name!r} takes no option(s) {sorted(options)}; it takes tasks, episode_length")
+        self.tasks: tuple[str, ...] = self.resolve_tasks(tasks)
+        for task in self.tasks:
+            if task not in self.all_tasks:
+                raise UnknownNameError(f"{self.name} task", task, list(self.all_tasks) + sorted(self.task_sets))
+        if len(set(self.tasks)) != len(self.tasks):
+            raise SealError(f"adapter {self.name!r}: task list {list(self.tasks)} repeats a task")
+        length = self.default_episode_length if episode_length is None else int(episode_length)
+        if length < 1:
+            raise SealError(f"adapter {self.name!r}: episode_length must be >= 1, got {length}")
+        self.episode_length = length
+
+    @classmethod
+    def resolve_tasks(cls, tasks: Sequence[str] | str | None) -> tuple[str, ...]:
+        """Expand a task-set name (e.g. "mt10") or list of names into a tuple of task names."""
+        if tasks is None:
+            return tuple(cls.all_tasks)
+        if isinstance(tasks, str):
+            return tuple(cls.task_sets[tasks]) if tasks in cls.task_sets else (tasks,)
+        out: list[str] = []
+        for t in tasks:
+            out.extend(cls.task_sets.get(t, (t,)))
+        return tuple(out)
+
+    @property
+    @abc.abstractmethod
+    def observation_space(self) -> gym.spaces.Box:
+        """The flat observation space shared by all of this adapter's tasks."""
+
+    @property
+    @abc.abstractmethod
+    def action_space(self) -> gym.spaces.Box:
+        """The action space shared by all of this adapter's tasks."""
+
+    @property
+    @abc.abstractmethod
+    def obs_layout(self) -> ObsLayout:
+        """Robot, object and goal indices of the observation."""
+
+    @abc.abstractmethod
+    def make(self, task: str, seed: int) -> gym.Env:
+        """A gymnasium env for `task`, fully determined by `seed` (reset(seed=None) continues it)."""
+
+    def semantic_check(self, task: str, seed: int = 0) -> dict[str, Any]:
+        """Adapter-specific evidence that reward and success mean what they say, for `seal envs check`.
+
+        Returns {"ok": bool, ...figures}. The default has no such evidence and says so.
+        """
+        return {"ok": True, "semantic_check": "none defined for this adapter"}
+
+    @property
+    def obs_dim(self) -> int:
+        return int(np.prod(self.observation_space.shape))
+
+    @property
+    def act_dim(self) -> int:
+        return int(np.prod(self.action_space.shape))
+
+    def describe(self) -> dict[str, Any]:
+        """The summary `seal envs --json` prints for this adapter."""
+        return {
+            "tasks": list(self.tasks),
+            "obs_dim": self.obs_dim,
+            "act_dim": self.act_dim,
+            "episode_length": self.episode_length,
+        }

@@ -1,0 +1,40 @@
+"""Adapters by name (built-ins) or by import path ("package.module:Class", third-party)."""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Sequence
+from typing import Any
+
+from seal.envs.base import EnvAdapter
+from seal.errors import SealError, UnknownNameError
+
+BUILTIN_ADAPTERS: dict[str, str] = {
+    "metaworld": "seal.envs.metaworld:MetaWorldAdapter",
+    "franka_kitchen_dense": "franka_kitchen_dense.adapter:FrankaKitchenDenseAdapter",
+    "point": "seal.envs.point:PointAdapter",
+}
+
+
+def adapter_class(name_or_path: str) -> type[EnvAdapter]:
+    """The adapter class for a built-in name or an import path "package.module:Class"."""
+    path = BUILTIN_ADAPTERS.get(name_or_path, name_or_path)
+    if ":" not in path:
+        raise UnknownNameError("adapter", name_or_path, [*BUILTIN_ADAPTERS, "package.module:Class"])
+    module_name, _, attr = path.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise SealError(f"adapter {name_or_path!r}: cannot import module {module_name!r} ({exc})") from None
+    cls = getattr(module, attr, None)
+    if not (isinstance(cls, type) and issubclass(cls, EnvAdapter)):
+        raise SealError(
+            f"adapter {name_or_path!r}: {module_name}.{attr} is not a seal.envs.EnvAdapter subclass; "
+            f"built-in adapters: {', '.join(BUILTIN_ADAPTERS)}"
+        )
+    return cls
+
+
+def make_adapter(name_or_path: str, tasks: Sequence[str] | str | None = None, **options: Any) -> EnvAdapter:
+    """Build an adapter by name or import path, with its task list and options."""
+    return adapter_class(name_or_path)(tasks=tasks, **options)
