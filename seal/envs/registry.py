@@ -25,7 +25,10 @@ def adapter_class(name_or_path: str) -> type[EnvAdapter]:
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
-        raise SealError(f"adapter {name_or_path!r}: cannot import module {module_name!r} ({exc})") from None
+        raise SealError(
+            f"adapter {name_or_path!r}: cannot import module {module_name!r} ({exc}); "
+            f"valid: {', '.join(BUILTIN_ADAPTERS)} or an importable package.module:Class"
+        ) from None
     cls = getattr(module, attr, None)
     if not (isinstance(cls, type) and issubclass(cls, EnvAdapter)):
         raise SealError(

@@ -1,0 +1,264 @@
+"""Meta-World v2 dense rewards, re-derived for the Franka kitchen from `metaworld.utils.reward_utils`.
+
+SEAL Table 2 gives each kitchen task the reward of a Meta-World counterpart. The functions below
+keep each counterpart's structure and constants (metaworld 3.1.1, `compute_reward` of
+`sawyer_door_v3`, `sawyer_sweep_v3`, `sawyer_dial_turn_v3`, `sawyer_push_v3`,
+`sawyer_pick_place_v3` with `reward_function_version="v2"`, and `SawyerXYZEnv._gripper_caging_reward`)
+and change only what the kitchen forces:
+
+- The object is a site on the moving part (handle, switch lever, knob, kettle handle), and the
+  target is that site at the goal configuration. Tasks whose success is a joint distance (light
+  switch, burners) use the joint distance in `in_place` instead of a position distance.
+- The Sawyer's fingers always close along world y; the Franka's turn with its wrist. Caging terms
+  that Meta-World takes along y use the finger axis `u` instead, and its "x-z" terms use the
+  component perpendicular to `u`.
+- The Sawyer's action[3] is a gripper effort, +1 closing. The kitchen's actions 7 and 8 are finger
+  velocities, negative closing; `grip_effort` maps them to Meta-World's convention.
+
+All rewards lie in [0, 10]. They are pure functions of a `Reading` (the state and action) and
+`Constants` (the task's fixed geometry), so tests can check them against hand-computed numbers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from metaworld.utils.reward_utils import hamacher_product, tolerance
+
+# Meta-World constants, named as in the source they come from.
+DOOR_HANDLE_RADIUS = (
+    0.12 / 2.0
+)  # sawyer_door_v3._reward_pos: bounds=(0, threshold / 2), threshold = 0.12
+DOOR_REACH_MARGIN = 0.5  # sawyer_door_v3._reward_pos: in_place margin
+DOOR_TRYING_ANGLE = np.pi / 90.0  # sawyer_door_v3: "just *trying* to open the door" after 2 degrees
+PAD_SUCCESS_MARGIN = 0.05  # gripper pad to object, all caging rewards
+XZ_SUCCESS_MARGIN = 0.005  # gripper centre to object across the finger axis, all caging rewards
+TCP_NEAR_OBJECT = 0.02  # push / pick-place: "tcp_to_obj < 0.02" bonus condition
+PICK_LIFT = 0.01  # pick-place: "obj[2] - 0.01 > obj_init_pos[2]"
+DIAL_REACH_RADIUS = 0.005  # dial-turn: dial_reach_radius
+FINGER_MAX_OPENING = 0.08  # kitchen: each finger joint travels 0 (closed) to 0.04 m
+
+
+def grip_effort(action: np.ndarray) -> float:
+    """Meta-World's gripper effort from the kitchen's finger actions: -(a7 + a8) / 2, clipped to [-1, 1].
+
+    Upstream actions 7 and 8 are the two finger joints' velocities (+1 opens at full speed, -1
+    closes), so both fingers closing at full speed is effort +1, as the Sawyer's action[3] = +1.
+    """
+    return float(np.clip(-(float(action[7]) + float(action[8])) / 2.0, -1.0, 1.0))
+
+
+@dataclass(frozen=True)
+class Reading:
+    """What a reward reads from one step: positions from the simulator, effort from the action."""
+
+    tcp: np.ndarray
+    """Gripper centre: the `end_effector` site, between the fingertips."""
+    left_pad: np.ndarray
+    """Inner surface of the left finger: tcp + q_left * u (the fingers touch at q = 0)."""
+    right_pad: np.ndarray
+    """Inner surface of the right finger: tcp - q_right * u."""
+    finger_axis: np.ndarray
+    """Unit vector u from the right finger to the left finger (the direction the left finger opens)."""
+    obj: np.ndarray
+    """Position of the task's site (handle, lever, knob or kettle handle)."""
+    distance: float
+    """The success measure: site distance to its goal position (m) or joint distance to its goal (rad)."""
+    progress: float
+    """Joint displacement from its initial value towards the goal (positive = towards the goal)."""
+    finger_opening: float
+    """(q_left + q_right) / 0.08 clipped to [0, 1]: Meta-World's obs[3] ("tcp_opened")."""
+    effort: float
+    """`grip_effort(action)`, in [-1, 1], +1 = closing."""
+
+
+@dataclass(frozen=True)
+class Constants:
+    """A task's fixed geometry, computed once from the initial and goal configurations."""
+
+    target: np.ndarray
+    """The site's position at the goal configuration."""
+    obj_init: np.ndarray
+    """The site's position at the initial configuration."""
+    tcp_init: np.ndarray
+    """The gripper centre at the initial configuration."""
+    left_pad_init: np.ndarray
+    right_pad_init: np.ndarray
+    finger_axis_init: np.ndarray
+    distance_init: float
+    """The success measure at the initial configuration."""
+    threshold: float
+    """Success when `distance <= threshold`."""
+    obj_radius: float
+    """Half-width of the grasped part (caging bounds)."""
+
+
+def _long_tail(x: float, upper: float, margin: float) -> float:
+    """tolerance(x, bounds=(0, upper), margin, "long_tail"): 1 inside, 0.1 at `margin` beyond `upper`."""
+    return float(tolerance(x, bounds=(0.0, upper), margin=margin, sigmoid="long_tail"))
+
+
+def _across(v: np.ndarray, u: np.ndarray) -> float:
+    """Length of v's component perpendicular to unit vector u (Meta-World's world x-z distance)."""
+    return float(np.linalg.norm(v - np.dot(v, u) * u))
+
+
+def _xz_caging(r: Reading, c: Constants) -> float:
+    """Gripper centre to object across the finger axis; margin from the initial configuration."""
+    margin = _across(c.obj_init - c.tcp_init, c.finger_axis_init) - XZ_SUCCESS_MARGIN
+    return _long_tail(_across(r.tcp - r.obj, r.finger_axis), XZ_SUCCESS_MARGIN, max(margin, 0.0))
+
+
+def _signed_pad_caging(r: Reading, c: Constants, upper: float) -> tuple[float, float]:
+    """Sweep / pick-place y-caging along u: signed pad-to-object gaps, margins from the initial pads."""
+    u = r.finger_axis
+    gap_left = float(np.dot(r.left_pad - r.obj, u))
+    gap_right = float(np.dot(r.obj - r.right_pad, u))
+    margin_left = abs(abs(float(np.dot(r.obj - c.left_pad_init, u))) - PAD_SUCCESS_MARGIN)
+    margin_right = abs(abs(float(np.dot(r.obj - c.right_pad_init, u))) - PAD_SUCCESS_MARGIN)
+    bounds = (c.obj_radius, upper)
+    left = float(tolerance(gap_left, bounds=bounds, margin=margin_left, sigmoid="long_tail"))
+    right = float(tolerance(gap_right, bounds=bounds, margin=margin_right, sigmoid="long_tail"))
+    return left, right
+
+
+def caging_base(r: Reading, c: Constants) -> float:
+    """`SawyerXYZEnv._gripper_caging_reward(obj_radius, pad_success_thresh=0.05, xz_thresh=0.005,
+    high_density=True)`, as push-v3 calls it, with y replaced by the finger axis."""
+    u = r.finger_axis
+    caging_lr = []
+    for pad in (r.left_pad, r.right_pad):
+        to_obj = abs(float(np.dot(pad - r.obj, u)))
+        to_obj_init = abs(float(np.dot(pad - c.obj_init, u)))
+        margin = abs(to_obj_init - PAD_SUCCESS_MARGIN)
+        caging_lr.append(
+            float(
+                tolerance(
+                    to_obj,
+                    bounds=(c.obj_radius, PAD_SUCCESS_MARGIN),
+                    margin=margin,
+                    sigmoid="long_tail",
+                )
+            )
+        )
+    caging = hamacher_product(hamacher_product(*caging_lr), _xz_caging(r, c))
+    gripping = min(max(0.0, r.effort), 1.0) if caging > 0.97 else 0.0
+    return (hamacher_product(caging, gripping) + caging) / 2.0
+
+
+def caging_sweep(r: Reading, c: Constants) -> float:
+    """sweep-v3's `_gripper_caging_reward`: caging plus a tighter "gripping" band; it ignores the effort."""
+    left, right = _signed_pad_caging(r, c, PAD_SUCCESS_MARGIN)
+    left_grip, right_grip = _signed_pad_caging(r, c, c.obj_radius + 0.01)
+    caging = hamacher_product(hamacher_product(right, left), _xz_caging(r, c))
+    gripping = hamacher_product(right_grip, left_grip) if caging > 0.95 else 0.0
+    return (caging + gripping) / 2.0
+
+
+def caging_pick_place(r: Reading, c: Constants) -> float:
+    """pick-place-v3's `_gripper_caging_reward` (high-density form, gripping = closing effort)."""
+    left, right = _signed_pad_caging(r, c, PAD_SUCCESS_MARGIN)
+    caging = hamacher_product(hamacher_product(left, right), _xz_caging(r, c))
+    gripping = min(max(0.0, r.effort), 1.0) if caging > 0.97 else 0.0
+    return (hamacher_product(caging, gripping) + caging) / 2.0
+
+
+def door_open(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
+    """door-open-v3 (v2 reward): 2 * hamacher(ready, grab) + 8 * opened; 10 on success.
+
+    `ready` is the gripper's closeness to the handle (the Sawyer door's "floor" funnel is omitted:
+    it shapes an approach from above the Sawyer's table-top door and has no kitchen counterpart).
+    `opened` = 0.2 once the joint has moved 2 degrees towards the goal, plus 0.8 * a long-tail
+    tolerance of the handle's distance to its goal position (bounds = the 5 cm success radius,
+    margin = the initial distance; Meta-World's angle bounds and margin fit only its own door).
+    """
+    ready = _long_tail(float(np.linalg.norm(r.tcp - r.obj)), DOOR_HANDLE_RADIUS, DOOR_REACH_MARGIN)
+    grab = (float(np.clip(r.effort, -1.0, 1.0)) + 1.0) / 2.0
+    opened = 0.2 * float(r.progress > DOOR_TRYING_ANGLE) + 0.8 * _long_tail(
+        r.distance, c.threshold, c.distance_init
+    )
+    reward = 2.0 * hamacher_product(ready, grab) + 8.0 * opened
+    if r.distance <= c.threshold:
+        reward = 10.0
+    return reward, {"near_object": ready, "grasp_reward": grab, "in_place_reward": opened}
+
+
+def sweep(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
+    """sweep-v3 (v2 reward): 2 * grasped + 6 * hamacher(grasped, in_place); 10 on success.
+
+    `in_place` tolerates the switch joint's distance to its goal (bounds = the 0.3 success
+    threshold, margin = the initial joint distance), since the lever's site moves only 5.5 cm.
+    """
+    in_place = _long_tail(r.distance, c.threshold, c.distance_init)
+    grasped = caging_sweep(r, c)
+    reward = 2.0 * grasped + 6.0 * hamacher_product(grasped, in_place)
+    if r.distance <= c.threshold:
+        reward = 10.0
+    return reward, {"grasp_reward": grasped, "in_place_reward": in_place}
+
+
+def dial_turn(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
+    """dial-turn-v3 (v2 reward): 10 * hamacher(hamacher(reach, closed), in_place); no success override.
+
+    `reach` is a Gaussian tolerance of the gripper centre's distance to the knob site (bounds
+    5 mm, margin = initial distance - 5 mm); `in_place` a long-tail tolerance of the knob joint's
+    distance to its goal (bounds = 0.3 rad, margin = initial distance - 0.3, Meta-World's form).
+    """
+    in_place = _long_tail(r.distance, c.threshold, abs(c.distance_init - c.threshold))
+    reach_margin = abs(float(np.linalg.norm(c.obj_init - c.tcp_init)) - DIAL_REACH_RADIUS)
+    reach = float(
+        tolerance(
+            float(np.linalg.norm(r.obj - r.tcp)),
+            bounds=(0.0, DIAL_REACH_RADIUS),
+            margin=reach_margin,
+            sigmoid="gaussian",
+        )
+    )
+    reach = hamacher_product(reach, min(max(0.0, r.effort), 1.0))
+    reward = 10.0 * hamacher_product(reach, in_place)
+    return reward, {"grasp_reward": reach, "in_place_reward": in_place}
+
+
+def push(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
+    """push-v3 (v2 reward): 2 * grasped, plus (1 + 2 * grasped + 5 * in_place) with the gripper
+    within 2 cm of the handle and not shut; 10 on success."""
+    in_place = _long_tail(r.distance, c.threshold, c.distance_init)
+    grasped = caging_base(r, c)
+    reward = 2.0 * grasped
+    if float(np.linalg.norm(r.obj - r.tcp)) < TCP_NEAR_OBJECT and r.finger_opening > 0:
+        reward += 1.0 + reward + 5.0 * in_place
+    if r.distance <= c.threshold:
+        reward = 10.0
+    return reward, {"grasp_reward": grasped, "in_place_reward": in_place}
+
+
+def pick_place(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
+    """pick-place-v3 (v2 reward): hamacher(grasped, in_place), plus (1 + 5 * in_place) with the
+    gripper within 2 cm of the kettle handle, not shut, and the kettle lifted 1 cm; 10 on success."""
+    in_place = _long_tail(r.distance, c.threshold, c.distance_init)
+    grasped = caging_pick_place(r, c)
+    reward = hamacher_product(grasped, in_place)
+    lifted = r.obj[2] - PICK_LIFT > c.obj_init[2]
+    if float(np.linalg.norm(r.obj - r.tcp)) < TCP_NEAR_OBJECT and r.finger_opening > 0 and lifted:
+        reward += 1.0 + 5.0 * in_place
+    if r.distance <= c.threshold:
+        reward = 10.0
+    return reward, {"grasp_reward": grasped, "in_place_reward": in_place}
+
+
+REWARD_FAMILIES = {
+    "door-open": door_open,
+    "sweep": sweep,
+    "dial-turn": dial_turn,
+    "push": push,
+    "pick-place": pick_place,
+}
+
+
+def compute_reward(
+    family: str, reading: Reading, constants: Constants
+) -> tuple[float, dict[str, float]]:
+    """The `family`'s reward in [0, 10] and its named terms."""
+    reward, terms = REWARD_FAMILIES[family](reading, constants)
+    return float(np.clip(reward, 0.0, 10.0)), terms

@@ -1,0 +1,718 @@
+"""`seal bench`: speed of the learner and of collection, side by side in one run, as ratios.
+
+Every figure is a ratio of two measurements taken in the same process, one after the other, so
+machine load affects both sides (the load is recorded with the results):
+
+- ``sac_vs_sb3``: gradient updates/s of our single-task SAC / stable-baselines3 SAC (widths
+  (400, 400), batch 256, CPU, same torch threads), both including replay sampling. First, the two
+  are shown to compute the same update (`sac_loss_check`).
+- ``mt10_update_flops_fraction``: matmul FLOPs an ideal MT10 MTMHSAC update needs
+  (`ideal_update_gemms`), per second of our update, / the FLOP/s torch.mm reaches on exactly those
+  GEMM shapes. Equivalently: time of the update's GEMMs alone / time of the whole update.
+- ``collect_mt10_speedup`` / ``collect_fk_speedup``: env steps/s of `Collector` over the 10 tasks /
+  a plain single-process loop over envs built by the same adapter (same wrappers), with the same
+  actions; both must end on identical observations.
+
+`seal bench --learn` adds the learning evidence (MTMHSAC on `point` with and without the one-hot,
+SAC on Meta-World reach-v3); it is slow and not part of CI.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from seal.errors import SealError
+
+# ---------------------------------------------------------------- shared helpers
+
+
+def _timeit(fn: Callable[[], Any], repeats: int) -> float:
+    """Best-of-`repeats` wall time of fn(): the least-disturbed run on a shared machine."""
+    best = math.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def machine_load() -> dict[str, Any]:
+    """Load averages and CPU count, recorded next to every figure."""
+    one, five, fifteen = os.getloadavg()
+    return {"loadavg_1m": round(one, 2), "loadavg_5m": round(five, 2), "loadavg_15m": round(fifteen, 2), "cpus": os.cpu_count(), "torch_threads": torch.get_num_threads()}
+
+
+def _rel(a: float, b: float) -> float:
+    """|a - b| relative to the larger magnitude (0 when both are 0)."""
+    scale = max(abs(a), abs(b))
+    return 0.0 if scale == 0 else abs(a - b) / scale
+
+
+# ---------------------------------------------------------------- SAC vs stable-baselines3
+
+SB3_OBS_DIM, SB3_ACT_DIM = 39, 4  # Meta-World's shapes
+SB3_WIDTHS = (400, 400)
+
+
+def _sb3_env() -> Any:
+    import gymnasium as gym
+
+    class BoxEnv(gym.Env):
+        """Meta-World-shaped spaces; SB3 only needs them to build its networks and buffer."""
+
+        observation_space = gym.spaces.Box(-np.inf, np.inf, (SB3_OBS_DIM,), np.float32)
+        action_space = gym.spaces.Box(-1.0, 1.0, (SB3_ACT_DIM,), np.float32)
+
+        def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+            return np.zeros(SB3_OBS_DIM, np.float32), {}
+
+        def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+            return np.zeros(SB3_OBS_DIM, np.float32), 0.0, False, False, {}
+
+    return BoxEnv()
+
+
+def _require_sb3() -> Any:
+    try:
+        import stable_baselines3
+    except ImportError:
+        raise SealError("sac_vs_sb3 needs stable-baselines3, a benchmark-only extra: pip install -e '.[bench]'") from None
+    return stable_baselines3
+
+
+def _twin_sacs(seed: int, batch_size: int, buffer_size: int) -> tuple[Any, Any]:
+    """Our single-task SAC and an SB3 SAC with identical weights, (400, 400), on CPU."""
+    _require_sb3()
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.logger import Logger
+
+    from seal.learner import Agent, AgentConfig, EnvSpec
+
+    # One task, no one-hot: the plain single-task SAC that SB3 implements.
+    config = AgentConfig(hidden=SB3_WIDTHS, one_hot=False, multi_head_policy=False, device="cpu")
+    ours = Agent([EnvSpec("bench", SB3_OBS_DIM, SB3_ACT_DIM, 1)], config, seed)
+    sb3 = SAC(
+        "MlpPolicy",
+        _sb3_env(),
+        batch_size=batch_size,
+        buffer_size=buffer_size,
+        learning_starts=0,
+        policy_kwargs={"net_arch": list(SB3_WIDTHS)},
+        device="cpu",
+        seed=seed,
+    )
+    sb3.set_logger(Logger(folder=None, output_formats=[]))
+    _copy_weights(ours, sb3)
+    return ours, sb3
+
+
+def _copy_weights(ours: Any, sb3: Any) -> None:
+    """Load our networks' weights into SB3's (our layers store (in, out); torch Linear (out, in))."""
+    key = ours._keys["bench"]
+    actor, critic = ours.actor, ours.critic
+    with torch.no_grad():
+        linears = [m for m in sb3.actor.latent_pi if isinstance(m, torch.nn.Linear)]
+        for lin, w, b in zip(linears, actor.trunk.weights, actor.trunk.biases, strict=True):
+            lin.weight.copy_(w[0].T)
+            lin.bias.copy_(b[0, 0])
+        head_w, head_b = actor.heads[key].weight[0], actor.heads[key].bias[0, 0]
+        sb3.actor.mu.weight.copy_(head_w[:, :SB3_ACT_DIM].T)
+        sb3.actor.mu.bias.copy_(head_b[:SB3_ACT_DIM])
+        sb3.actor.log_std.weight.copy_(head_w[:, SB3_ACT_DIM:].T)
+        sb3.actor.log_std.bias.copy_(head_b[SB3_ACT_DIM:])
+        for q, qf in enumerate(sb3.critic.q_networks):
+            layers = [m for m in qf if isinstance(m, torch.nn.Linear)]
+            weights = [*critic.trunk.weights, critic.heads[key].weight]
+            biases = [*critic.trunk.biases, critic.heads[key].bias]
+            for lin, w, b in zip(layers, weights, biases, strict=True):
+                lin.weight.copy_(w[q].T)
+                lin.bias.copy_(b[q, 0])
+        sb3.critic_target.load_state_dict(sb3.critic.state_dict())
+
+
+@contextlib.contextmanager
+def _fixed_normal_noise(queue: list[torch.Tensor]) -> Iterator[None]:
+    """Make torch Normal.rsample (used by SB3's squashed Gaussian) take its noise from `queue`."""
+    original = torch.distributions.Normal.rsample
+
+    def rsample(self: torch.distributions.Normal, sample_shape: Any = ()) -> torch.Tensor:
+        return self.loc + self.scale * queue.pop(0)
+
+    torch.distributions.Normal.rsample = rsample  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        torch.distributions.Normal.rsample = original  # type: ignore[method-assign]
+
+
+def sac_loss_check(seed: int = 0, updates: int = 3, batch_size: int = 256) -> dict[str, Any]:
+    """From identical weights and the same batches and noise, compare our and SB3's losses per update.
+
+    Known differences, handled rather than hidden: SB3's critic loss is 0.5 * (mse1 + mse2),
+    ours mse1 + mse2 (compared as 2 x SB3; Adam makes the gradient scale immaterial up to its
+    eps); SB3 draws the policy noise for s before that for s', ours the other way round (the
+    same noise is fed to both). Returns per-update losses and the largest relative difference.
+    """
+    from stable_baselines3.common.type_aliases import ReplayBufferSamples
+
+    from seal.learner import Batch
+
+    torch.manual_seed(seed)
+    ours, sb3 = _twin_sacs(seed, batch_size, buffer_size=batch_size)
+    rng = np.random.default_rng(seed)
+    rows: list[dict[str, float]] = []
+    worst = 0.0
+    for _ in range(updates):
+        obs, next_obs = (torch.from_numpy(rng.normal(size=(batch_size, SB3_OBS_DIM)).astype(np.float32)) for _ in range(2))
+        actions = torch.from_numpy(rng.uniform(-1, 1, (batch_size, SB3_ACT_DIM)).astype(np.float32))
+        rewards = torch.from_numpy(rng.uniform(0, 10, batch_size).astype(np.float32))
+        terms = torch.from_numpy((rng.random(batch_size) < 0.1).astype(np.float32))
+        # Our update draws the s' noise (critic target), then the s noise (actor), from its own
+        # generator; predict both from a copy of it and hand them to SB3 in SB3's order (s, s').
+        gen = torch.Generator().set_state(ours._update_generator.get_state())
+        noise_next = torch.randn(batch_size, SB3_ACT_DIM, generator=gen)
+        noise_obs = torch.randn(batch_size, SB3_ACT_DIM, generator=gen)
+        metrics = ours.update({"bench": Batch(obs, actions, rewards, next_obs, terms, torch.zeros(batch_size, dtype=torch.int64))})
+        fields = {f: None for f in ReplayBufferSamples._fields}
+        fields.update(observations=obs, actions=actions, next_observations=next_obs, dones=terms[:, None], rewards=rewards[:, None])
+        sample = ReplayBufferSamples(**fields)
+        sb3.replay_buffer.sample = lambda *_a, _s=sample, **_k: _s  # type: ignore[method-assign]
+        with _fixed_normal_noise([noise_obs, noise_next]):
+            sb3.train(gradient_steps=1, batch_size=batch_size)
+        logged = sb3.logger.name_to_value
+        row = {
+            "critic_ours": metrics["losses/bench/critic"],
+            "critic_sb3_x2": 2.0 * float(logged["train/critic_loss"]),
+            "actor_ours": metrics["losses/bench/actor"],
+            "actor_sb3": float(logged["train/actor_loss"]),
+            "alpha_loss_ours": metrics["losses/bench/alpha"],
+            "alpha_loss_sb3": float(logged["train/ent_coef_loss"]),
+            "alpha_ours": metrics["charts/bench/alpha/0"],
+            "alpha_sb3": float(logged["train/ent_coef"]),
+        }
+        rows.append(row)
+        for a, b in (("critic_ours", "critic_sb3_x2"), ("actor_ours", "actor_sb3"), ("alpha_ours", "alpha_sb3")):
+            worst = max(worst, _rel(row[a], row[b]))
+        # The temperature loss is 0 at the first update (log alpha = 0): compare it absolutely.
+        worst = max(worst, abs(row["alpha_loss_ours"] - row["alpha_loss_sb3"]) / max(1.0, abs(row["alpha_loss_sb3"])))
+    return {"updates": rows, "max_rel_diff": worst, "match_1e-4": worst <= 1e-4}
+
+
+def bench_sac_vs_sb3(updates: int = 300, repeats: int = 3, seed: int = 0) -> dict[str, Any]:
+    """Gradient updates/s of our SAC and SB3's, each sampling batch 256 from its own filled replay."""
+    from seal.learner import MultiTaskReplay
+    from seal.learner.config import EnvSpec
+
+    batch_size, filled = 256, 20_000
+    ours, sb3 = _twin_sacs(seed, batch_size, buffer_size=filled)
+    rng = np.random.default_rng(seed)
+    data = {
+        "obs": rng.normal(size=(filled, SB3_OBS_DIM)).astype(np.float32),
+        "actions": rng.uniform(-1, 1, (filled, SB3_ACT_DIM)).astype(np.float32),
+        "rewards": rng.uniform(0, 10, filled).astype(np.float32),
+        "next_obs": rng.normal(size=(filled, SB3_OBS_DIM)).astype(np.float32),
+        "terminations": np.zeros(filled, np.float32),
+    }
+    replay = MultiTaskReplay([EnvSpec("bench", SB3_OBS_DIM, SB3_ACT_DIM, 1)], capacity=filled)
+    replay.add("bench", np.zeros(filled, np.int64), data["obs"], data["actions"], data["rewards"], data["next_obs"], data["terminations"])
+    buf = sb3.replay_buffer
+    buf.observations[:filled, 0] = data["obs"]
+    buf.next_observations[:filled, 0] = data["next_obs"]
+    buf.actions[:filled, 0] = data["actions"]
+    buf.rewards[:filled, 0] = data["rewards"]
+    buf.dones[:filled, 0] = data["terminations"]
+    buf.full = True
+    counts = {"bench": np.array([batch_size])}
+    sample_rng = np.random.default_rng(seed + 1)
+
+    def ours_run(n: int) -> None:
+        for _ in range(n):
+            ours.update(replay.sample(counts, sample_rng))
+
+    def sb3_run(n: int) -> None:
+        sb3.train(gradient_steps=n, batch_size=batch_size)
+
+    ours_run(10)
+    sb3_run(10)  # warm-up: allocator, Adam state
+    t_ours = _timeit(lambda: ours_run(updates), repeats)
+    t_sb3 = _timeit(lambda: sb3_run(updates), repeats)
+    return {
+        "ours_updates_per_s": updates / t_ours,
+        "sb3_updates_per_s": updates / t_sb3,
+        "sac_vs_sb3": t_sb3 / t_ours,
+        "updates_timed": updates,
+        "repeats": repeats,
+    }
+
+
+# ---------------------------------------------------------------- MT10 update FLOPs
+
+
+@dataclass(frozen=True)
+class UpdateShape:
+    """The shapes of one MTMHSAC update: widths, batch and what an implementation computes.
+
+    `actor_heads` / `critic_heads` are the heads whose outputs are computed (1 for an ideal
+    implementation, which computes only each sample's task head); `critic_input_grad` is the
+    number of critic input columns whose gradient the actor step computes (ideal: the action).
+    """
+
+    obs_dim: int = 39
+    act_dim: int = 4
+    num_tasks: int = 10
+    hidden: tuple[int, ...] = (400, 400, 400)
+    batch: int = 1280
+    one_hot: bool = True
+    actor_heads: int = 1
+    critic_heads: int = 1
+    critic_input_grad: int | None = None  # None: act_dim
+
+    @property
+    def actor_dims(self) -> list[int]:
+        """Layer widths of the actor, input to output."""
+        return [self.obs_dim + (self.num_tasks if self.one_hot else 0), *self.hidden, 2 * self.act_dim * self.actor_heads]
+
+    @property
+    def critic_dims(self) -> list[int]:
+        """Layer widths of one critic, input to output."""
+        return [self.actor_dims[0] + self.act_dim, *self.hidden, self.critic_heads]
+
+
+Gemm = tuple[int, int, int]  # (m, k, n): an (m, k) @ (k, n) product, 2 m k n FLOPs
+
+
+def _forward(b: int, dims: Sequence[int]) -> list[Gemm]:
+    return [(b, i, o) for i, o in zip(dims[:-1], dims[1:], strict=True)]
+
+
+def _grad_weights(b: int, dims: Sequence[int]) -> list[Gemm]:
+    return [(i, b, o) for i, o in zip(dims[:-1], dims[1:], strict=True)]  # dW = X^T dY
+
+
+def _grad_inputs(b: int, dims: Sequence[int], first_layer_cols: int) -> list[Gemm]:
+    out = [(b, o, i) for i, o in zip(dims[1:-1], dims[2:], strict=True)]  # dX = dY W^T
+    if first_layer_cols:
+        out.insert(0, (b, dims[1], first_layer_cols))
+    return out
+
+
+def ideal_update_gemms(shape: UpdateShape) -> list[Gemm]:
+    """Every matrix product one SAC update needs (cleanrl order), twin critics counted twice.
+
+    Critic step: policy on s' (no grad), 2 target Qs on (s', a'), 2 online Qs on (s, a) forward and
+    backward (weight grads; input grads of all but the first layer). Actor step: policy on s, 2 Qs
+    on (s, pi(s)) forward and backward to the action only (no critic weight grads), policy backward
+    (weight grads; input grads of all but the first layer). Elementwise work (ReLU, Adam, Polyak,
+    log-probs) is not counted.
+    """
+    b, a, c = shape.batch, shape.actor_dims, shape.critic_dims
+    cols = shape.act_dim if shape.critic_input_grad is None else shape.critic_input_grad
+    critic_step = _forward(b, a) + 2 * _forward(b, c) + 2 * (_forward(b, c) + _grad_weights(b, c) + _grad_inputs(b, c, 0))
+    actor_step = _forward(b, a) + 2 * (_forward(b, c) + _grad_inputs(b, c, cols)) + _grad_weights(b, a) + _grad_inputs(b, a, 0)
+    return critic_step + actor_step
+
+
+def gemm_flops(gemms: Sequence[Gemm]) -> int:
+    """2 FLOPs per multiply-add."""
+    return sum(2 * m * k * n for m, k, n in gemms)
+
+
+def _mt10_agent(seed: int, num_tasks: int = 10, hidden: tuple[int, ...] = (400, 400, 400)) -> Any:
+    from seal.learner import Agent, AgentConfig, EnvSpec
+
+    return Agent([EnvSpec("metaworld", 39, 4, num_tasks)], AgentConfig(hidden=hidden, device="cpu"), seed)
+
+
+def _random_batch(num_tasks: int, per_task: int, seed: int, obs_dim: int = 39, act_dim: int = 4) -> Any:
+    from seal.learner import Batch
+
+    g = torch.Generator().manual_seed(seed)
+    n = num_tasks * per_task
+    return Batch(
+        torch.randn(n, obs_dim, generator=g),
+        torch.rand(n, act_dim, generator=g) * 2 - 1,
+        torch.rand(n, generator=g),
+        torch.randn(n, obs_dim, generator=g),
+        torch.zeros(n),
+        torch.arange(num_tasks).repeat_interleave(per_task),
+    )
+
+
+def flop_formula_check(num_tasks: int = 3, per_task: int = 8, hidden: tuple[int, ...] = (32, 32, 32)) -> dict[str, Any]:
+    """FlopCounterMode's count of one real update vs the formula set to what our update computes.
+
+    Our update computes every policy head (then gathers) and the critic's input gradient over
+    all its input columns; the formula with actor_heads=num_tasks and critic_input_grad = the
+    critic's input width must then equal the counter exactly. The ideal count is also returned.
+    """
+    from torch.utils.flop_counter import FlopCounterMode
+
+    agent = _mt10_agent(0, num_tasks, hidden)
+    batch = {"metaworld": _random_batch(num_tasks, per_task, 0)}
+    with FlopCounterMode(display=False) as counter:
+        agent.update(batch)
+    counted = int(counter.get_total_flops())
+    as_implemented = UpdateShape(num_tasks=num_tasks, hidden=hidden, batch=num_tasks * per_task, actor_heads=num_tasks, critic_input_grad=39 + num_tasks + 4)
+    ideal = UpdateShape(num_tasks=num_tasks, hidden=hidden, batch=num_tasks * per_task)
+    formula = gemm_flops(ideal_update_gemms(as_implemented))
+    return {"flop_counter": counted, "formula_as_implemented": formula, "formula_ideal": gemm_flops(ideal_update_gemms(ideal)), "equal": counted == formula}
+
+
+def _time_gemms(gemms: Sequence[Gemm], repeats: int) -> float:
+    """Seconds torch.mm needs for all `gemms` (fp32, contiguous operands), best of `repeats`."""
+    distinct: dict[Gemm, int] = {}
+    for g in gemms:
+        distinct[g] = distinct.get(g, 0) + 1
+    total, inner = 0.0, 20
+    for (m, k, n), count in distinct.items():
+        x, w, out = torch.randn(m, k), torch.randn(k, n), torch.empty(m, n)
+
+        def run(x: torch.Tensor = x, w: torch.Tensor = w, out: torch.Tensor = out) -> None:
+            for _ in range(inner):
+                torch.mm(x, w, out=out)
+
+        run()
+        total += count * _timeit(run, repeats) / inner
+    return total
+
+
+def bench_mt10_flops(updates: int = 50, repeats: int = 3, seed: int = 0) -> dict[str, Any]:
+    """FLOP/s of the MT10 MTMHSAC update (defaults: 3 x 400, 128 per task x 10) / torch.mm FLOP/s at its shapes."""
+    shape = UpdateShape()
+    gemms = ideal_update_gemms(shape)
+    flops = gemm_flops(gemms)
+    agent = _mt10_agent(seed)
+    batch = {"metaworld": _random_batch(10, 128, seed)}
+    for _ in range(5):
+        agent.update(batch)
+
+    def run() -> None:
+        for _ in range(updates):
+            agent.update(batch)
+
+    t_update = _timeit(run, repeats) / updates
+    t_mm = _time_gemms(gemms, repeats)
+    return {
+        "ideal_flops_per_update": flops,
+        "update_s": t_update,
+        "update_gflops": flops / t_update / 1e9,
+        "matmul_gflops_same_shapes": flops / t_mm / 1e9,
+        "mt10_update_flops_fraction": t_mm / t_update,
+        "updates_timed": updates,
+    }
+
+
+# ---------------------------------------------------------------- collection
+
+
+def _plain_loop(adapter: Any, env_name: str, seed: int, actions: np.ndarray) -> tuple[float, list[np.ndarray]]:
+    """The reference: one process, one env after another, same adapter-built envs and actions.
+
+    Returns (seconds, last observation of each task).
+    """
+    from seal.learner.collection import instance_seed
+
+    envs = [adapter.make(task, instance_seed(seed, env_name, task)) for task in adapter.tasks]
+    episodes, length = actions.shape[:2]
+    last: list[np.ndarray] = [np.empty(0)] * len(envs)
+    start = time.perf_counter()
+    for ep in range(episodes):
+        for i, (env, task) in enumerate(zip(envs, adapter.tasks, strict=True)):
+            last[i], _ = env.reset(seed=instance_seed(seed, env_name, task) if ep == 0 else None)
+        for t in range(length):
+            for i, env in enumerate(envs):
+                last[i], _, terminated, truncated, _ = env.step(actions[ep, t, i])
+    elapsed = time.perf_counter() - start
+    for env in envs:
+        env.close()
+    return elapsed, last
+
+
+def _collector_run(adapter: Any, env_name: str, seed: int, actions: np.ndarray, backend: str, num_workers: int | None) -> tuple[float, float, list[np.ndarray]]:
+    """(startup seconds, collection seconds, last observation of each task) of our Collector."""
+    from seal.learner.collection import Collector
+
+    start = time.perf_counter()
+    collector = Collector({env_name: adapter}, seed=seed, backend=backend, num_workers=num_workers)
+    startup = time.perf_counter() - start
+    last: list[np.ndarray] = [np.empty(0)] * len(adapter.tasks)
+    step = [0, 0]  # episode, t
+
+    def policy(env: str, obs: np.ndarray, task_ids: np.ndarray) -> np.ndarray:
+        a = actions[step[0], step[1], task_ids]
+        step[1] += 1
+        return a
+
+    def sink(env: str, task_ids: np.ndarray, obs: np.ndarray, act: np.ndarray, rew: np.ndarray, next_obs: np.ndarray, term: np.ndarray) -> None:
+        for k, i in enumerate(task_ids):
+            last[int(i)] = next_obs[k]
+
+    try:
+        start = time.perf_counter()
+        for ep in range(actions.shape[0]):
+            step[:] = [ep, 0]
+            collector.collect_episodes(policy, sink=sink)
+        elapsed = time.perf_counter() - start
+    finally:
+        collector.close()
+    return startup, elapsed, last
+
+
+def bench_collection(adapter_name: str, episodes: int = 2, episode_length: int | None = None, backends: Sequence[str] = ("sync", "subproc-batched", "gym-async"), num_workers: int | None = None, seed: int = 0) -> dict[str, Any]:
+    """Env steps/s of each collection backend and of the plain loop over all tasks of an adapter.
+
+    Speedup = backend steps/s / plain loop steps/s; `speedup` is that of the `auto` backend.
+    Raises AssertionError if any backend ends on other observations than the plain loop.
+    """
+    from seal.envs import make_adapter
+    from seal.learner.collection import Collector
+
+    adapter = make_adapter(adapter_name, episode_length=episode_length)  # all tasks: MT10, the 10 kitchens
+    n, length = len(adapter.tasks), adapter.episode_length
+    space = adapter.action_space
+    actions = np.random.default_rng(seed).uniform(space.low, space.high, (episodes, length, n, *space.shape)).astype(space.dtype)
+    steps = episodes * length * n
+    plain_s, plain_last = _plain_loop(adapter, adapter_name, seed, actions)
+    result: dict[str, Any] = {"tasks": n, "episodes": episodes, "episode_length": length, "env_steps": steps, "plain_steps_per_s": steps / plain_s, "backends": {}}
+    for backend in backends:
+        startup, elapsed, last = _collector_run(adapter, adapter_name, seed, actions, backend, num_workers)
+        for task, a, b in zip(adapter.tasks, plain_last, last, strict=True):
+            if not np.array_equal(a, b):
+                raise AssertionError(f"collection backend {backend!r} ended task {task!r} on other observations than the plain loop")
+        result["backends"][backend] = {"steps_per_s": steps / elapsed, "speedup": plain_s / elapsed, "startup_s": startup, "same_final_obs": True}
+    with Collector({adapter_name: adapter}, seed=seed, backend="auto", num_workers=num_workers) as probe:
+        result["auto_backend"] = probe.backend_name
+    chosen = result["backends"].get(result["auto_backend"])
+    result["speedup"] = chosen["speedup"] if chosen else None
+    return result
+
+
+# ---------------------------------------------------------------- learning evidence
+
+
+def train_multitask(
+    adapter: Any,
+    config: Any,
+    env_steps: int,
+    seed: int = 0,
+    warmup_steps: int = 4000,
+    batch_per_task: int = 128,
+    updates_per_round: int | None = None,
+    eval_episodes: int = 10,
+    eval_every_rounds: int = 0,
+    stop_at_success: float | None = None,
+) -> dict[str, Any]:
+    """A plain MTMHSAC/SAC run on one adapter: random warm-up, then per round one episode of every
+    task followed by `updates_per_round` (default: the episode length, i.e. one update per
+    vector step, as metaworld-algorithms) updates of `batch_per_task` per task; then evaluation.
+
+    `warmup_steps` counts env steps over all tasks. Returns env steps, updates, wall time and the
+    deterministic success rate per task (`eval_episodes` episodes each, separately seeded envs).
+    `stop_at_success` ends early once every task's evaluated success reaches it.
+    """
+    from seal.learner import Agent, EnvSpec, MultiTaskReplay
+    from seal.learner.collection import Collector
+
+    name = adapter.name
+    n = len(adapter.tasks)
+    spec = EnvSpec(name, adapter.obs_dim, adapter.act_dim, n)
+    agent = Agent([spec], config, seed)
+    replay = MultiTaskReplay([spec], capacity=max(env_steps + n * adapter.episode_length, 1000))
+    rng = np.random.default_rng(seed)
+    rounds = updates_per_round or adapter.episode_length
+    counts = {name: np.full(n, batch_per_task)}
+    start = time.perf_counter()
+    updates, evaluated = 0, None
+    with Collector({name: adapter}, seed=seed) as train, Collector({name: adapter}, seed=seed + 1_000_003) as evaluation:
+
+        def act(env: str, obs: np.ndarray, ids: np.ndarray) -> np.ndarray:
+            return agent.act(env, obs, ids, deterministic=False)
+
+        def act_det(env: str, obs: np.ndarray, ids: np.ndarray) -> np.ndarray:
+            return agent.act(env, obs, ids, deterministic=True)
+
+        round_no = 0
+        while train.total_env_steps < env_steps:
+            warm = train.total_env_steps < warmup_steps
+            train.collect_episodes(act, random_actions=warm, sink=replay.add)
+            round_no += 1
+            if train.total_env_steps >= warmup_steps:
+                for _ in range(rounds):
+                    agent.update(replay.sample(counts, rng))
+                    updates += 1
+            if eval_every_rounds and round_no % eval_every_rounds == 0 and not warm:
+                evaluated = evaluation.evaluate(act_det, eval_episodes)[name]
+                if stop_at_success is not None and min(v["success_rate"] for v in evaluated.values()) >= stop_at_success:
+                    break
+        if evaluated is None or not eval_every_rounds or round_no % eval_every_rounds:
+            evaluated = evaluation.evaluate(act_det, eval_episodes)[name]
+        env_steps_done = train.total_env_steps
+    return {
+        "env_steps": env_steps_done,
+        "gradient_updates": updates,
+        "wall_s": time.perf_counter() - start,
+        "success": {task: v["success_rate"] for task, v in evaluated.items()},
+    }
+
+
+def random_success(adapter: Any, episodes: int = 20, seed: int = 0) -> dict[str, float]:
+    """Success rate per task of uniform random actions."""
+    from seal.learner.collection import Collector
+
+    with Collector({adapter.name: adapter}, seed=seed, backend="sync") as col:
+        runs = [col.collect_episodes(None, random_actions=True) for _ in range(episodes)]
+    return {task: float(np.mean([r.successes[adapter.name][i] for r in runs])) for i, task in enumerate(adapter.tasks)}
+
+
+# Small nets for the point check: the env is 4-d with 4 goals; 3 x 400 would only cost time.
+POINT_LEARN = {"hidden": (64, 64), "env_steps": 16_000, "warmup_steps": 2_000, "batch_per_task": 64, "updates_per_round": 25}
+
+
+def learn_point(one_hot: bool = True, seed: int = 0, **overrides: Any) -> dict[str, Any]:
+    """MTMHSAC on `point` (4 tasks) with small nets; with one_hot=False the policy cannot tell the tasks apart."""
+    from seal.envs.point import PointAdapter
+    from seal.learner import AgentConfig
+
+    settings = {**POINT_LEARN, **overrides}
+    config = AgentConfig(hidden=settings.pop("hidden"), one_hot=one_hot, device="cpu")
+    return train_multitask(PointAdapter(), config, seed=seed, eval_every_rounds=10, stop_at_success=1.0 if one_hot else None, **settings)
+
+
+def learn_reach(seed: int = 0, env_steps: int = 200_000) -> dict[str, Any]:
+    """SAC (the one-task MTMHSAC: one head, one-hot of width 1) on Meta-World reach-v3, 200-step episodes."""
+    from seal.envs.metaworld import MetaWorldAdapter
+    from seal.learner import AgentConfig
+
+    config = AgentConfig(hidden=(400, 400, 400), device="cpu")
+    adapter = MetaWorldAdapter(tasks=["reach-v3"], episode_length=200)
+    return train_multitask(adapter, config, env_steps=env_steps, seed=seed, warmup_steps=4000, batch_per_task=256, eval_every_rounds=25, stop_at_success=0.9)
+
+
+# ---------------------------------------------------------------- the command
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    """Repeat counts of `seal bench`; `quick()` is for smoke runs (numbers are noisier)."""
+
+    sac_updates: int = 300
+    flops_updates: int = 50
+    repeats: int = 3
+    collect_episodes: int = 2
+    mt10_episode_length: int | None = None  # None: the adapter's 500
+    fk_episode_length: int | None = None  # None: the adapter's 280
+
+    @classmethod
+    def quick(cls) -> BenchSettings:
+        """Few repeats and short episodes."""
+        return cls(sac_updates=40, flops_updates=10, repeats=1, collect_episodes=1, mt10_episode_length=100, fk_episode_length=60)
+
+
+def run_bench(settings: BenchSettings, only: Sequence[str] | None = None, learn: bool = False, log: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+    """Run the benchmarks (all, or the keys in `only`) and return one JSON-able dict."""
+    keys = ("sac_vs_sb3", "mt10_update_flops_fraction", "collect_mt10_speedup", "collect_fk_speedup")
+    chosen = list(only or keys)
+    unknown = [k for k in chosen if k not in keys]
+    if unknown:
+        from seal.errors import UnknownNameError
+
+        raise UnknownNameError("benchmark", unknown[0], keys)
+    out: dict[str, Any] = {"load_before": machine_load(), "settings": settings.__dict__, "details": {}}
+    if "sac_vs_sb3" in chosen:
+        log("sac_vs_sb3: loss check")
+        out["details"]["sac_loss_check"] = sac_loss_check()
+        log("sac_vs_sb3: timing")
+        d = bench_sac_vs_sb3(settings.sac_updates, settings.repeats)
+        out["details"]["sac_vs_sb3"] = d
+        out["sac_vs_sb3"] = d["sac_vs_sb3"]
+    if "mt10_update_flops_fraction" in chosen:
+        log("mt10_update_flops_fraction")
+        out["details"]["flop_formula_check"] = flop_formula_check()
+        d = bench_mt10_flops(settings.flops_updates, settings.repeats)
+        out["details"]["mt10_update_flops"] = d
+        out["mt10_update_flops_fraction"] = d["mt10_update_flops_fraction"]
+    for key, adapter, length in (("collect_mt10_speedup", "metaworld", settings.mt10_episode_length), ("collect_fk_speedup", "franka_kitchen_dense", settings.fk_episode_length)):
+        if key in chosen:
+            log(key)
+            try:
+                d = bench_collection(adapter, settings.collect_episodes, length)
+            except SealError as exc:
+                out["details"][key] = {"skipped": str(exc)}
+                out[key] = None
+                continue
+            out["details"][key] = d
+            out[key] = d["speedup"]
+    if learn:
+        out["learn"] = run_learn(log)
+    out["load_after"] = machine_load()
+    return out
+
+
+def run_learn(log: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+    """The learning evidence of issue 3: point with and without one-hot, random baseline, reach-v3."""
+    from seal.envs.point import PointAdapter
+
+    out: dict[str, Any] = {}
+    log("learn: point random baseline")
+    out["point_random"] = random_success(PointAdapter())
+    log("learn: point MTMHSAC")
+    out["point_mtmhsac"] = learn_point(one_hot=True)
+    log("learn: point MTMHSAC without one-hot")
+    out["point_no_one_hot"] = learn_point(one_hot=False)
+    log("learn: reach-v3 SAC")
+    out["reach_v3_sac"] = learn_reach()
+    out["checks"] = {
+        "point_all_tasks_100pct": all(v == 1.0 for v in out["point_mtmhsac"]["success"].values()),
+        "point_random_le_20pct": all(v <= 0.2 for v in out["point_random"].values()),
+        "point_no_one_hot_fails_a_task": any(v < 1.0 for v in out["point_no_one_hot"]["success"].values()),
+        "reach_v3_ge_90pct": out["reach_v3_sac"]["success"]["reach-v3"] >= 0.9,
+    }
+    return out
+
+
+GOALS = {"sac_vs_sb3": 1.3, "mt10_update_flops_fraction": 0.75, "collect_mt10_speedup": 1.7, "collect_fk_speedup": 1.7}
+
+
+def format_table(result: Mapping[str, Any]) -> str:
+    """The human-readable summary of `run_bench` output."""
+    lines = [f"{'key':<28} {'value':>8} {'goal':>7}  detail", "-" * 90]
+    d = result["details"]
+    detail = {
+        "sac_vs_sb3": lambda: f"ours {d['sac_vs_sb3']['ours_updates_per_s']:.0f}/s, sb3 {d['sac_vs_sb3']['sb3_updates_per_s']:.0f}/s; losses match to {d['sac_loss_check']['max_rel_diff']:.1e} rel",
+        "mt10_update_flops_fraction": lambda: (
+            f"update {d['mt10_update_flops']['update_gflops']:.1f} GFLOP/s, mm {d['mt10_update_flops']['matmul_gflops_same_shapes']:.1f} GFLOP/s "
+            f"({d['mt10_update_flops']['update_s'] * 1e3:.1f} ms/update); formula==FlopCounter: {d['flop_formula_check']['equal']}"
+        ),
+    }
+    for key in ("collect_mt10_speedup", "collect_fk_speedup"):
+        if key in d and "backends" in d[key]:
+            c = d[key]
+            parts = ", ".join(f"{b} {v['steps_per_s']:.0f}" for b, v in c["backends"].items())
+            detail[key] = lambda c=c, parts=parts: f"plain {c['plain_steps_per_s']:.0f} steps/s; {parts}; auto={c['auto_backend']}; same final obs"
+        elif key in d:
+            detail[key] = lambda k=key: f"skipped: {d[k]['skipped']}"
+    for key, goal in GOALS.items():
+        if key not in result:
+            continue
+        value = result[key]
+        shown = "n/a" if value is None else f"{value:.2f}"
+        lines.append(f"{key:<28} {shown:>8} {'>=' + str(goal):>7}  {detail[key]()}")
+    load = result["load_before"]
+    lines.append(f"load before: {load['loadavg_1m']} (1 min) on {load['cpus']} CPUs, torch threads {load['torch_threads']}; after: {result['load_after']['loadavg_1m']}")
+    if "learn" in result:
+        learn = result["learn"]
+        for key in ("point_mtmhsac", "point_no_one_hot", "reach_v3_sac"):
+            r = learn[key]
+            lines.append(f"{key}: success {r['success']}; {r['env_steps']} env steps, {r['gradient_updates']} updates, {r['wall_s']:.0f} s")
+        lines.append(f"point_random: {learn['point_random']}")
+        lines.append(f"checks: {learn['checks']}")
+    return "\n".join(lines)

@@ -1,0 +1,50 @@
+"""`seal bench [--json] [--quick] [--learn]`: learner and collection speed as ratios, learning evidence."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the `bench` subcommand."""
+    parser = subparsers.add_parser(
+        "bench",
+        help="benchmark the learner and collection against references (ratios)",
+        description=(
+            "Measures sac_vs_sb3, mt10_update_flops_fraction, collect_mt10_speedup and collect_fk_speedup "
+            "side by side in one run and prints a table (or one JSON object with --json). "
+            "--learn adds the slow learning checks (point with/without one-hot, reach-v3)."
+        ),
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    parser.add_argument("--quick", action="store_true", help="few repeats and short episodes (noisier numbers)")
+    parser.add_argument("--learn", action="store_true", help="also run the learning evidence (slow; not for CI)")
+    parser.add_argument("--only", nargs="+", metavar="KEY", help="run only these keys, e.g. --only sac_vs_sb3")
+    parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads for both sides (default: torch's)")
+    parser.add_argument("--repeats", type=int, default=None, help="timing repeats (best of N); overrides the preset")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the benchmark and print the result."""
+    import dataclasses
+
+    import torch
+
+    from seal.bench import BenchSettings, format_table, run_bench
+    from seal.errors import SealError
+
+    if args.threads is not None:
+        if args.threads < 1:
+            raise SealError(f"--threads must be >= 1, got {args.threads}")
+        torch.set_num_threads(args.threads)
+    settings = BenchSettings.quick() if args.quick else BenchSettings()
+    if args.repeats is not None:
+        if args.repeats < 1:
+            raise SealError(f"--repeats must be >= 1, got {args.repeats}")
+        settings = dataclasses.replace(settings, repeats=args.repeats)
+    result = run_bench(settings, only=args.only, learn=args.learn, log=lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True))
+    print(json.dumps(result, indent=2, default=float) if args.json else format_table(result))
+    return 0

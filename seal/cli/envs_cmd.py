@@ -1,0 +1,82 @@
+"""`seal envs`: list adapters and their tasks; `seal envs check NAME`: check one adapter."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add `seal envs [--json]` and `seal envs check NAME [--tasks ...] [--seed N] [--json]`."""
+    parser = subparsers.add_parser("envs", help="list environment adapters, or check one")
+    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    parser.set_defaults(func=list_adapters)
+    sub = parser.add_subparsers(dest="envs_command", metavar="SUBCOMMAND")
+    check = sub.add_parser("check", help="check an adapter's API conformance and reward semantics")
+    check.add_argument(
+        "name", help="a built-in adapter name or an import path package.module:Class"
+    )
+    check.add_argument(
+        "--tasks", nargs="+", help="task names or task-set names (default: the adapter's tasks)"
+    )
+    check.add_argument("--seed", type=int, default=0, help="seed for envs and random actions")
+    # SUPPRESS keeps a --json given before `check` (seal envs --json check NAME) from being reset.
+    check.add_argument(
+        "--json", action="store_true", default=argparse.SUPPRESS, help="print the report as JSON"
+    )
+    check.set_defaults(func=check_command)
+
+
+def list_adapters(args: argparse.Namespace) -> int:
+    """Print every built-in adapter's tasks and sizes; an adapter that fails to load shows its error."""
+    from seal.envs.registry import BUILTIN_ADAPTERS, make_adapter
+
+    listing: dict[str, dict[str, Any]] = {}
+    for name in BUILTIN_ADAPTERS:
+        try:
+            listing[name] = make_adapter(name).describe()
+        except Exception as exc:  # noqa: BLE001 - one broken adapter must not hide the others
+            listing[name] = {"error": f"{type(exc).__name__}: {exc}"}
+    if args.json:
+        print(json.dumps({"adapters": listing}, indent=2))
+        return 0
+    for name, info in listing.items():
+        if "error" in info:
+            print(f"{name}: unavailable ({info['error']})")
+            continue
+        print(
+            f"{name}: obs_dim {info['obs_dim']}, act_dim {info['act_dim']}, episode_length {info['episode_length']}"
+        )
+        print(f"  tasks: {', '.join(info['tasks'])}")
+    return 0
+
+
+def check_command(args: argparse.Namespace) -> int:
+    """Run `check_adapter`; exit 0 when every task is ok, 1 otherwise (bad names exit 2 via SealError)."""
+    from seal.envs.check import check_adapter
+    from seal.envs.registry import make_adapter
+
+    adapter = make_adapter(args.name, tasks=args.tasks)
+    as_json = getattr(args, "json", False)
+    progress = None if as_json else (lambda line: print(line, file=sys.stderr, flush=True))
+    report = check_adapter(adapter, seed=args.seed, progress=progress)
+    if as_json:
+        print(json.dumps(report, indent=2))
+    else:
+        for task, result in report["tasks"].items():
+            figures = ", ".join(
+                f"{k} {_fmt(v)}"
+                for k, v in result.items()
+                if k not in ("ok", "errors", "api_ok", "semantic_ok")
+            )
+            print(f"{'ok  ' if result['ok'] else 'FAIL'} {task}: {figures}")
+            for error in result["errors"]:
+                print(f"     {error}")
+        print(f"{report['adapter']}: {'ok' if report['ok'] else 'NOT ok'}")
+    return 0 if report["ok"] else 1
+
+
+def _fmt(value: Any) -> str:
+    return f"{value:.3g}" if isinstance(value, float) else str(value)

@@ -1,0 +1,38 @@
+"""`seal protocol explain FILE [--set TABLE.KEY=VALUE] [--scale F]`: the resolved protocol with its docs."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add `seal protocol explain` and `seal protocol check`."""
+    from seal.cli.run_cmd import add_protocol_arguments
+
+    p = subparsers.add_parser("protocol", help="inspect protocol files", description=__doc__)
+    sub = p.add_subparsers(dest="protocol_command", metavar="SUBCOMMAND", required=True)
+    explain = sub.add_parser("explain", help="print every resolved value with its documentation")
+    add_protocol_arguments(explain)
+    explain.add_argument("--toml", action="store_true", help="print the resolved config as TOML (what a run saves as config.toml)")
+    explain.set_defaults(func=run_explain)
+    check = sub.add_parser("check", help="validate a protocol file; exit 2 with the offending key if it is invalid")
+    add_protocol_arguments(check)
+    check.set_defaults(func=run_check)
+
+
+def run_explain(args: argparse.Namespace) -> int:
+    """Print the resolved config (docs or TOML)."""
+    from seal.protocols import config_to_dict, dumps_toml, explain, load_protocol
+
+    config = load_protocol(args.file, args.overrides, args.scale)
+    print(dumps_toml(config_to_dict(config)) if args.toml else explain(config), end="")
+    return 0
+
+
+def run_check(args: argparse.Namespace) -> int:
+    """Validate only."""
+    from seal.protocols import load_protocol
+
+    config = load_protocol(args.file, args.overrides, args.scale)
+    print(f"{args.file}: ok (protocol {config.name!r}, kind {config.kind}, envs {', '.join(config.envs)})")
+    return 0

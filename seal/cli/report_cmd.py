@@ -1,0 +1,67 @@
+"""`seal report RUN_OR_GROUP... [--json] [--out DIR] [--threshold T] [--x grad_steps|epoch]`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    """Add the `report` subcommand."""
+    parser = subparsers.add_parser(
+        "report",
+        help="tables (update counts, success) and plots from run or group directories",
+        description=(
+            "Merge the seeds of one or more groups (reports/<protocol>/<group-id>/) or single runs "
+            "(.../seed-<n>/) into the paper's update-count table (Task x {Single Env, 50/50, High FK, "
+            "High MW, Pre-train on X, Fine-tune on Y}) with the percent change against Single Env, "
+            "a final-success table, success curves per environment and critic-loss curves. "
+            "Writes <out>/tables/ (Markdown, CSV, LaTeX) and <out>/plots/ (PNG)."
+        ),
+    )
+    parser.add_argument(
+        "paths", nargs="+", metavar="RUN_OR_GROUP", help="run directories and/or group directories"
+    )
+    parser.add_argument(
+        "--out",
+        metavar="DIR",
+        default=None,
+        help="output directory (default: the run or group when there is one, else <reports root>/comparison/<protocols>)",
+    )
+    parser.add_argument(
+        "--threshold",
+        type=float,
+        default=None,
+        help="success rate a task must reach for the update-count metric (default: the runs' [evaluation].threshold, else 0.9)",
+    )
+    parser.add_argument(
+        "--x",
+        choices=("grad_steps", "epoch"),
+        default="grad_steps",
+        help="x axis of the plots (default: grad_steps)",
+    )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON line with the paths and update-count numbers",
+    )
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Build the report and print where it went (or one JSON line)."""
+    from seal.reports import report
+
+    result = report(args.paths, out=args.out, threshold=args.threshold, x=args.x)
+    for note in result.skipped:
+        print(f"seal report: note: {note}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(result.to_json()))
+        return 0
+    print((result.tables["update_counts.md"]).read_text())
+    print(f"tables: {result.out_dir / 'tables'}")
+    for path in result.plots:
+        print(f"plot:   {path}")
+    return 0

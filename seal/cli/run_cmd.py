@@ -1,0 +1,83 @@
+"""`seal run FILE`: run a protocol's seeds into one group (or `--resume RUN_DIR` one of them)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import traceback
+from pathlib import Path
+
+
+def add_protocol_arguments(parser: argparse.ArgumentParser) -> None:
+    """FILE, --set and --scale: shared by `seal run` and `seal protocol explain`."""
+    parser.add_argument("file", metavar="FILE", help="protocol TOML file, e.g. protocols/quickstart.toml")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="TABLE.KEY=VALUE", help="override one value (TOML syntax), e.g. --set protocol.epochs=200; repeatable")
+    parser.add_argument("--scale", type=float, default=None, metavar="F", help="multiply total epochs and every schedule duration by F (floor 1); per-epoch quantities are unchanged")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add `seal run`."""
+    p = subparsers.add_parser("run", help="run a protocol (all its seeds) and write run directories", description=__doc__)
+    add_protocol_arguments(p)
+    p.add_argument("--out", default="reports", metavar="DIR", help="reports root; runs go to DIR/<protocol>/<group>/seed-<n> (default: reports)")
+    p.add_argument("--seeds", default=None, metavar="N|A-B|A,B", help="run these seeds instead of the protocol's (e.g. 0-1 or 3)")
+    p.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue this seed directory from its last checkpoint (uses the config saved in it)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help='end with one JSON line: {"run_dir", "update_counts", "final_success"[, "run_dirs"]}')
+    p.add_argument("--no-report", action="store_true", help="do not make tables and plots at the end")
+    p.set_defaults(func=run)
+
+
+def parse_seeds(text: str) -> list[int]:
+    """ "3" -> [3], "0-2" -> [0, 1, 2], "1,4" -> [1, 4]."""
+    from seal.errors import SealError
+
+    seeds: list[int] = []
+    try:
+        for part in text.split(","):
+            lo, sep, hi = part.strip().partition("-")
+            seeds.extend(range(int(lo), int(hi) + 1) if sep else [int(lo)])
+    except ValueError:
+        raise SealError(f"--seeds {text!r}: expected N, A-B or A,B,... of non-negative ints") from None
+    if not seeds or min(seeds) < 0:
+        raise SealError(f"--seeds {text!r}: expected N, A-B or A,B,... of non-negative ints")
+    return seeds
+
+
+def run(args: argparse.Namespace) -> int:
+    """Load (validating before anything is written), run every seed, report, print JSON."""
+    from seal.protocols import load_protocol
+    from seal.protocols.runner import new_group_dir, result_json, resume_run, run_seed
+
+    config = load_protocol(args.file, args.overrides, args.scale)
+    command = [Path(sys.argv[0]).name, *sys.argv[1:]]
+    if args.resume:
+        results = [resume_run(args.resume, quiet=args.quiet, protocol_name=config.name)]
+        group = Path(args.resume).parent
+    else:
+        seeds = parse_seeds(args.seeds) if args.seeds else config.seeds
+        group = new_group_dir(config, args.out)
+        results = [run_seed(config, s, group, quiet=args.quiet, command=command) for s in seeds]
+    if not args.no_report:
+        _report(group, quiet=args.quiet)
+    if not args.quiet and not args.json:
+        print(f"runs written to {group}")
+    if args.json:
+        print(result_json(results))
+    return 0
+
+
+def _report(group: Path, quiet: bool) -> None:
+    """Tables and plots for the group, if the reports layer is there; a failure here never loses the run."""
+    try:
+        from seal import reports
+    except ImportError:
+        return
+    report = getattr(reports, "report", None)
+    if report is None:
+        return
+    try:
+        report([group], out=group)
+    except Exception:  # noqa: BLE001 - the runs are on disk; say what failed and go on
+        print(f"seal run: warning: making tables and plots for {group} failed (the runs are complete; retry with `seal report {group}`):", file=sys.stderr)
+        traceback.print_exc(file=sys.stderr)

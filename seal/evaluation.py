@@ -1,0 +1,197 @@
+"""Layer 3: run a policy on an adapter's tasks and return numbers (Appendix B's evaluation).
+
+Evaluation is deterministic (the policy's mean action), one fresh episode after another per task,
+and a task's episode succeeds if `info["success"]` is 1 at any step. Episodes of all tasks step
+together through a `seal.learner.collection.Collector` seeded apart from training, so policy
+inference is batched across tasks.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from seal.envs.base import EnvAdapter
+from seal.errors import SealError
+
+PolicyFn = Callable[[str, np.ndarray, np.ndarray], np.ndarray]
+"""(env name, raw observations [n, obs_dim], adapter task indices [n]) -> env actions [n, act_dim]."""
+
+
+class AgentPolicy:
+    """Calls `agent.act` on an environment's raw observations, through an alignment if there is one.
+
+    Without `alignment` the agent sees raw observations and the adapter's task indices. With an
+    `Alignment` (pad-and-fine-tune) observations become [padded state, aligned one-hot, goal],
+    task ids become the aligned ids, the agent is addressed as `agent_env`, and its padded
+    actions are cut back to the environment's own action size.
+    """
+
+    def __init__(
+        self,
+        agent: Any,
+        *,
+        deterministic: bool,
+        alignment: Any = None,
+        agent_env: Mapping[str, str] | None = None,
+        alignment_names: Mapping[str, str] | None = None,
+    ) -> None:
+        self.agent = agent
+        self.deterministic = deterministic
+        self.alignment = alignment
+        self.agent_env = dict(agent_env or {})
+        self.alignment_names = dict(alignment_names or {})  # env name -> the alignment's (adapter) name
+
+    def agent_inputs(self, env: str, obs: np.ndarray, task_ids: np.ndarray) -> tuple[str, np.ndarray, np.ndarray]:
+        """(agent env name, agent observations, agent task ids) for raw `obs` of `env`."""
+        if self.alignment is None:
+            return self.agent_env.get(env, env), np.asarray(obs, dtype=np.float32), np.asarray(task_ids)
+        name = self.alignment_names.get(env, env)
+        aligned = self.alignment.transform_obs(name, obs, task_ids)
+        ids = self.alignment.task_ids(name)[np.asarray(task_ids, dtype=np.intp)]
+        return self.agent_env.get(env, env), aligned, ids
+
+    def __call__(self, env: str, obs: np.ndarray, task_ids: np.ndarray) -> np.ndarray:
+        name, agent_obs, ids = self.agent_inputs(env, obs, task_ids)
+        actions = np.asarray(self.agent.act(name, agent_obs, ids, self.deterministic))
+        if self.alignment is not None:
+            actions = self.alignment.unpad_action(self.alignment_names.get(env, env), actions)
+        return actions
+
+
+def evaluate(
+    policy: PolicyFn,
+    adapters: Mapping[str, EnvAdapter],
+    *,
+    episodes: int,
+    seed: int,
+    tasks: Mapping[str, Sequence[str]] | None = None,
+    collector: Any = None,
+    backend: str = "auto",
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Success rate and mean return per task: {env: {task: {"success": s, "return": r}}}.
+
+    `policy` should be deterministic. Pass a persistent `collector` (built with a seed of its
+    own) to avoid rebuilding envs; otherwise one is built from `adapters`, `seed` and `tasks`.
+    """
+    from seal.learner.collection import Collector
+
+    if episodes < 1:
+        raise SealError(f"evaluation episodes must be >= 1, got {episodes}")
+    own = collector is None
+    if own:
+        collector = Collector(adapters, seed=seed, tasks=tasks, backend=backend)
+    try:
+        raw = collector.evaluate(policy, episodes)
+    finally:
+        if own:
+            collector.close()
+    return {
+        env: {task: {"success": float(v["success_rate"]), "return": float(v["mean_return"])} for task, v in per_task.items()}
+        for env, per_task in raw.items()
+    }
+
+
+def mean_success(results: Mapping[str, Mapping[str, Mapping[str, float]]]) -> float:
+    """Mean success over every (env, task) of an `evaluate` result."""
+    values = [v["success"] for per_task in results.values() for v in per_task.values()]
+    return float(np.mean(values)) if values else 0.0
+
+
+# ---------------------------------------------------------------- videos
+
+
+_RENDER_PROBE = """
+import mujoco
+model = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom size='.1'/></worldbody></mujoco>")
+renderer = mujoco.Renderer(model, 32, 32)
+renderer.update_scene(mujoco.MjData(model))
+renderer.render()
+print("ok")
+"""
+
+
+def rendering_problem() -> str | None:
+    """Why offscreen MuJoCo rendering fails here (None when it works).
+
+    Probed in a child process: a failed GL context can print noise, leave broken state or even
+    crash the process that tried it.
+    """
+    import subprocess
+
+    try:
+        probe = subprocess.run([sys.executable, "-c", _RENDER_PROBE], capture_output=True, text=True, timeout=120)
+    except (OSError, subprocess.SubprocessError) as exc:
+        return f"the rendering probe could not run ({exc})"
+    if probe.returncode == 0 and "ok" in probe.stdout:
+        return None
+    lines = [ln for ln in probe.stderr.strip().splitlines() if ln.strip()]
+    errors = [ln for ln in lines if "Error" in ln or "error" in ln]
+    return (errors or lines or [f"exit code {probe.returncode}"])[-1].strip()
+
+
+def _check_rendering() -> None:
+    """Raise SealError saying why offscreen MuJoCo rendering does not work here, if it does not."""
+    problem = rendering_problem()
+    if problem is not None:
+        backend = os.environ.get("MUJOCO_GL", "")
+        raise SealError(
+            f"--video: offscreen MuJoCo rendering does not work on this machine (MUJOCO_GL={backend or 'unset'}: {problem}). "
+            "It needs EGL with a GPU driver (MUJOCO_GL=egl) or OSMesa (apt-get install libosmesa6, then MUJOCO_GL=osmesa). "
+            "Evaluation without --video works."
+        )
+
+
+def _mp4_writer() -> Any:
+    try:
+        import imageio.v2 as imageio
+        import imageio_ffmpeg  # noqa: F401 - imageio's MP4 backend
+    except ImportError:
+        raise SealError("--video: writing MP4 needs imageio and imageio-ffmpeg (pip install imageio imageio-ffmpeg)") from None
+    return imageio
+
+
+def record_videos(
+    policy: PolicyFn,
+    adapters: Mapping[str, EnvAdapter],
+    out_dir: str | Path,
+    *,
+    seed: int,
+    tasks: Mapping[str, Sequence[str]] | None = None,
+    episodes: int = 1,
+    fps: int = 30,
+) -> list[Path]:
+    """One MP4 per (env, task, episode) of the deterministic policy, written under `out_dir`."""
+    _check_rendering()
+    imageio = _mp4_writer()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    for env_name, adapter in adapters.items():
+        chosen = tuple(tasks[env_name]) if tasks and env_name in tasks else adapter.tasks
+        for task in chosen:
+            task_id = np.array([adapter.tasks.index(task)])
+            env = adapter.make(task, seed)
+            env.unwrapped.render_mode = "rgb_array"
+            for episode in range(episodes):
+                obs, _ = env.reset(seed=seed + episode)
+                frames = []
+                for _ in range(adapter.episode_length):
+                    frame = env.render()
+                    if frame is None:
+                        raise SealError(f"--video: adapter {adapter.name!r} task {task!r} cannot render rgb frames")
+                    frames.append(np.asarray(frame))
+                    action = policy(env_name, np.asarray(obs)[None], task_id)[0]
+                    obs, _, terminated, truncated, _ = env.step(action)
+                    if terminated or truncated:
+                        break
+                path = out / f"{env_name}-{task}-{episode}.mp4"
+                imageio.mimwrite(path, frames, fps=fps)
+                written.append(path)
+            env.close()
+    return written

@@ -1,0 +1,203 @@
+"""Networks of the learner: batched MLPs, batched multi-head outputs and the SEAL forward pass.
+
+Two architectures share one building block, `TaskNetwork`, which for environment i computes
+
+    head_i( trunk( translator_i( x ) ), task_id )
+
+- **mtmhsac** (Yu et al. 2019; SEAL §3.1): one environment, no translator, the trunk is the
+  3 x 400 ReLU MLP over [obs, one-hot], and the head holds one output per task.
+- **seal** (SEAL §3.3, Fig. 1c): the policy is g_phi_i(pi_eta(f_theta_i(s))) with a per-env state
+  translator f_theta_i (input: obs_i and the one-hot over env i's tasks; 400 hidden, then the
+  400-wide latent, ReLU after both: the prototype's "2 x 400"), the shared latent trunk pi_eta
+  (3 x 400, ReLU) and a per-env action head g_phi_i with one linear output per task of env i,
+  each 2 * act_dim_i wide (tanh-Gaussian mean and log std). The critics follow the same pattern:
+  a per-env translator over (obs_i, one-hot, action_i), a shared critic trunk, and per-env,
+  per-task Q heads; the twin Qs are two independent copies of all of that, and the target critics
+  are deep copies that share no tensor with the online ones. Optimisers (see `seal.learner.sac`):
+  with optimizer="per_env", env i has one actor Adam over {f_theta_i, pi_eta, g_phi_i} and one
+  critic Adam over {critic translator_i, critic trunk, critic heads_i} (twin Qs included), as
+  SEAL §3.3 says ("optimizer i is operating on f_theta_i, g_phi_i and pi_eta"); the shared trunk's
+  Adam moments are therefore kept per env. With optimizer="shared", one actor Adam and one critic
+  Adam own every parameter. The per-task log temperatures have their own Adam.
+
+Speed: an ensemble of G identical MLPs (the twin Q, G=2) is one `baddbmm` per layer over stacked
+weights of shape (G, in, out); all heads of a layer are one matmul whose output is reshaped to
+(B, heads, out) and the task's row gathered. No Python loop over tasks or heads, so the number of
+torch ops of a forward pass does not depend on the number of tasks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+# garage's TanhGaussianMLPPolicy (the Meta-World MTMHSAC) and stable-baselines3 clamp log std to
+# [-20, 2]; cleanrl squashes it into [-5, 2] instead. We clamp, which also makes our losses
+# comparable term by term with stable-baselines3 in `seal bench`.
+LOG_STD_MIN = -20.0
+LOG_STD_MAX = 2.0
+_HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
+
+# Input layer segments: (name, width) pairs in the order they are concatenated. Transfer maps
+# columns segment by segment, so a one-hot that grows (MT1 -> MT10) keeps the old columns in place.
+Segments = tuple[tuple[str, int], ...]
+
+
+def _uniform_(tensor: torch.Tensor, fan_in: int, generator: torch.Generator) -> None:
+    """torch.nn.Linear's default init, U(-1/sqrt(fan_in), 1/sqrt(fan_in)), from our own generator."""
+    bound = 1.0 / math.sqrt(fan_in)
+    with torch.no_grad():
+        tensor.uniform_(-bound, bound, generator=generator)
+
+
+class StackedMLP(nn.Module):
+    """`ensemble` independent ReLU MLPs of the same shape, one batched matmul per layer.
+
+    Weights are (ensemble, in, out), biases (ensemble, 1, out). With ensemble == 1 inputs and
+    outputs are (B, width); otherwise inputs are (B, in) shared by all members or
+    (ensemble, B, in), and outputs are (ensemble, B, width). ReLU follows every layer.
+    """
+
+    def __init__(self, in_dim: int, widths: Sequence[int], ensemble: int = 1) -> None:
+        super().__init__()
+        self.in_dim, self.widths, self.ensemble = in_dim, tuple(widths), ensemble
+        dims = (in_dim, *self.widths)
+        self.weights = nn.ParameterList(nn.Parameter(torch.empty(ensemble, i, o)) for i, o in zip(dims[:-1], dims[1:], strict=True))
+        self.biases = nn.ParameterList(nn.Parameter(torch.empty(ensemble, 1, o)) for o in dims[1:])
+
+    @property
+    def out_dim(self) -> int:
+        """Width of the last layer."""
+        return self.widths[-1]
+
+    def reset_parameters(self, generator: torch.Generator) -> None:
+        """Re-draw every weight and bias with nn.Linear's default init."""
+        for weight, bias in zip(self.weights, self.biases, strict=True):
+            _uniform_(weight, weight.shape[1], generator)
+            _uniform_(bias, weight.shape[1], generator)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Apply all layers; see the class docstring for shapes."""
+        for weight, bias in zip(self.weights, self.biases, strict=True):
+            if self.ensemble == 1:
+                x = torch.addmm(bias[0], x, weight[0])
+            else:
+                if x.dim() == 2:
+                    x = x.expand(self.ensemble, *x.shape)
+                x = torch.baddbmm(bias, x, weight)
+            # In place: addmm/baddbmm keep their inputs, not their output, for backward.
+            x = F.relu(x, inplace=True)
+        return x
+
+
+class MultiHeadLinear(nn.Module):
+    """A linear output layer with `num_heads` heads of width `out_dim`, for `ensemble` members.
+
+    All heads are computed in one matmul and the row of each sample's task is gathered, so the
+    cost in torch ops is independent of the number of heads. With num_heads == 1 the task ids are
+    ignored (single-head ablations).
+    """
+
+    def __init__(self, in_dim: int, out_dim: int, num_heads: int, ensemble: int = 1) -> None:
+        super().__init__()
+        self.in_dim, self.out_dim, self.num_heads, self.ensemble = in_dim, out_dim, num_heads, ensemble
+        self.weight = nn.Parameter(torch.empty(ensemble, in_dim, num_heads * out_dim))
+        self.bias = nn.Parameter(torch.empty(ensemble, 1, num_heads * out_dim))
+
+    def reset_parameters(self, generator: torch.Generator) -> None:
+        """Re-draw with nn.Linear's default init (each head as its own Linear(in_dim, out_dim))."""
+        _uniform_(self.weight, self.in_dim, generator)
+        _uniform_(self.bias, self.in_dim, generator)
+
+    def forward(self, x: torch.Tensor, task_ids: torch.Tensor) -> torch.Tensor:
+        """(B, in) or (ensemble, B, in) -> (B, out_dim) or (ensemble, B, out_dim) of each sample's task head."""
+        if self.ensemble == 1:
+            y = torch.addmm(self.bias[0], x, self.weight[0])
+        else:
+            if x.dim() == 2:
+                x = x.expand(self.ensemble, *x.shape)
+            y = torch.baddbmm(self.bias, x, self.weight)
+        if self.num_heads == 1:
+            return y
+        y = y.unflatten(-1, (self.num_heads, self.out_dim))  # (..., B, heads, out)
+        index = task_ids.view(-1, 1, 1).expand(*y.shape[:-2], 1, self.out_dim)
+        return torch.gather(y, -2, index).squeeze(-2)
+
+
+class TaskNetwork(nn.Module):
+    """Per environment i: head_i(trunk(translator_i(x)), task_id); see the module docstring.
+
+    `segments[env]` names the input columns of env i (e.g. obs, task, action), `out_dims[env]`
+    the width of each head and `num_heads[env]` the number of heads. With `translator=None`
+    (MTMHSAC) there is exactly one environment and its input goes straight into the trunk.
+    """
+
+    def __init__(
+        self,
+        segments: dict[str, Segments],
+        out_dims: dict[str, int],
+        num_heads: dict[str, int],
+        trunk_hidden: Sequence[int],
+        translator: tuple[tuple[int, ...], int] | None,
+        ensemble: int = 1,
+    ) -> None:
+        super().__init__()
+        self.segments = dict(segments)
+        self.ensemble = ensemble
+        self.translators = nn.ModuleDict()
+        if translator is None:
+            if len(segments) != 1:
+                raise ValueError("a TaskNetwork without translators serves exactly one environment")
+            (only,) = segments.values()
+            trunk_in = sum(width for _, width in only)
+        else:
+            translator_hidden, latent_dim = translator
+            for key, segs in segments.items():
+                self.translators[key] = StackedMLP(sum(width for _, width in segs), (*translator_hidden, latent_dim), ensemble)
+            trunk_in = latent_dim
+        self.trunk = StackedMLP(trunk_in, trunk_hidden, ensemble)
+        self.heads = nn.ModuleDict({key: MultiHeadLinear(self.trunk.out_dim, out_dims[key], num_heads[key], ensemble) for key in segments})
+
+    def reset_parameters(self, generator: torch.Generator) -> None:
+        """Re-draw every parameter, in a fixed order (translators, trunk, heads)."""
+        for module in (*self.translators.values(), self.trunk, *self.heads.values()):
+            module.reset_parameters(generator)
+
+    def input_layer(self, key: str) -> StackedMLP:
+        """The module whose first layer reads env `key`'s input columns."""
+        return self.translators[key] if key in self.translators else self.trunk
+
+    def env_parameters(self, key: str) -> list[nn.Parameter]:
+        """Parameters used by env `key`: its translator, the shared trunk and its heads."""
+        modules = [self.translators[key]] if key in self.translators else []
+        return [p for m in (*modules, self.trunk, self.heads[key]) for p in m.parameters()]
+
+    def forward(self, key: str, x: torch.Tensor, task_ids: torch.Tensor) -> torch.Tensor:
+        """Output of env `key`'s head for each sample's task: (B, out) or (ensemble, B, out)."""
+        if key in self.translators:
+            x = self.translators[key](x)
+        return self.heads[key](self.trunk(x), task_ids)
+
+
+def tanh_gaussian(mean_log_std: torch.Tensor, noise: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Action and log-probability of a tanh-squashed Gaussian policy output.
+
+    `mean_log_std` is (B, 2 * act_dim): the mean, then the log std (clamped to [LOG_STD_MIN,
+    LOG_STD_MAX]). With `noise` (B, act_dim) of standard normals the action is
+    tanh(mean + std * noise) (reparameterised); with None it is tanh(mean) and log_prob is that
+    of the mode. log_prob = sum_j [log N(u_j; mean_j, std_j) - log(1 - tanh(u_j)^2 + 1e-6)],
+    the same correction (and epsilon) as cleanrl and stable-baselines3.
+    """
+    mean, log_std = mean_log_std.chunk(2, dim=-1)
+    log_std = log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
+    if noise is None:
+        noise = torch.zeros_like(mean)
+    x_t = mean + log_std.exp() * noise
+    y_t = torch.tanh(x_t)
+    # log N(x_t; mean, std) = -noise^2 / 2 - log std - log(2 pi) / 2, since (x_t - mean) / std = noise
+    log_prob = -0.5 * noise.square() - log_std - _HALF_LOG_2PI - torch.log1p(1e-6 - y_t.square())
+    return y_t, log_prob.sum(-1)

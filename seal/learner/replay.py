@@ -1,0 +1,226 @@
+"""Multi-task replay: one preallocated float32 ring buffer per (environment, task).
+
+Each environment's buffers are stored as arrays of shape (num_tasks, capacity_per_task, ...), so
+task t's buffer is the slice [t] and a batch over all tasks is one fancy-indexing gather. The caller
+(a data-ratio scheduler) decides how many transitions each task contributes to an update;
+`counts_from_ratio` turns environment proportions into those per-task counts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+
+from seal.errors import SealError, UnknownNameError
+from seal.learner.config import Batch, EnvSpec
+
+DEFAULT_CAPACITY = 1_000_000  # transitions per environment (Meta-World), split evenly over its tasks
+_FIELDS = ("obs", "actions", "rewards", "next_obs", "terminations")
+
+
+def available_memory_bytes() -> int | None:
+    """Memory available to new allocations: psutil when installed, else /proc/meminfo, else None."""
+    try:
+        import psutil  # type: ignore[import-not-found]
+
+        return int(psutil.virtual_memory().available)
+    except ImportError:
+        pass
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def replay_bytes(specs: Sequence[EnvSpec], capacity: int | Mapping[str, int] = DEFAULT_CAPACITY) -> int:
+    """Bytes the float32 buffers of `specs` take at `capacity` transitions per environment."""
+    total = 0
+    for spec in specs:
+        per_task = _capacity_of(spec, capacity) // spec.num_tasks
+        total += spec.num_tasks * per_task * (2 * spec.obs_dim + spec.act_dim + 2) * 4
+    return total
+
+
+def _capacity_of(spec: EnvSpec, capacity: int | Mapping[str, int]) -> int:
+    value = capacity[spec.name] if isinstance(capacity, Mapping) else capacity
+    if not isinstance(value, int | np.integer) or value < spec.num_tasks:
+        raise SealError(f"replay capacity of {spec.name!r} must be an int >= its number of tasks ({spec.num_tasks}), got {value!r}")
+    return int(value)
+
+
+def counts_from_ratio(ratios: Mapping[str, float], num_tasks: Mapping[str, int], batch_per_task: int, rng: np.random.Generator | None = None) -> dict[str, np.ndarray]:
+    """Per-task sample counts of one update from environment proportions.
+
+    The update's total is batch_per_task * (total number of tasks of all envs in `num_tasks`),
+    e.g. 128 * 10 = 1280 for MT10 alone. Env e gets total * ratio_e / sum(ratios), rounded by the
+    largest-remainder method so the env counts sum exactly to the total. Within an env the count is
+    split uniformly over its tasks: each gets n // T and the n % T left over go one each to tasks
+    drawn at random without replacement from `rng` (or to the lowest task indices when rng is None),
+    so no task is favoured on average. Envs missing from `ratios` get ratio 0.
+    """
+    unknown = sorted(set(ratios) - set(num_tasks))
+    if unknown:
+        raise UnknownNameError("environment", unknown[0], list(num_tasks))
+    if batch_per_task < 1:
+        raise SealError(f"batch_per_task must be >= 1, got {batch_per_task}")
+    names = list(num_tasks)
+    weights = np.array([float(ratios.get(n, 0.0)) for n in names])
+    if (weights < 0).any() or not np.isfinite(weights).all() or weights.sum() <= 0:
+        raise SealError(f"data ratios must be finite, >= 0 and not all 0, got {dict(ratios)}")
+    total = batch_per_task * sum(num_tasks.values())
+    exact = total * weights / weights.sum()
+    env_counts = np.floor(exact).astype(np.int64)
+    # Largest remainder; ties broken by env order so the split is deterministic.
+    leftover = total - int(env_counts.sum())
+    env_counts[np.argsort(-(exact - env_counts), kind="stable")[:leftover]] += 1
+    counts: dict[str, np.ndarray] = {}
+    for name, n in zip(names, env_counts, strict=True):
+        tasks = num_tasks[name]
+        per_task = np.full(tasks, n // tasks, dtype=np.int64)
+        extra = int(n % tasks)
+        chosen = np.arange(extra) if rng is None else rng.choice(tasks, size=extra, replace=False)
+        per_task[chosen] += 1
+        counts[name] = per_task
+    return counts
+
+
+class MultiTaskReplay:
+    """One preallocated float32 ring buffer per (environment, task), with per-task `consumed` counters.
+
+    `capacity` is per environment (an int for all, or a dict by env name) and is split evenly over
+    the env's tasks (capacity // num_tasks each). Before allocating, the total size is checked
+    against available memory and a SealError with the numbers is raised if it does not fit.
+    `consumed[env][t]` counts the transitions of task t that `sample` has handed to updates
+    (cumulative, int64); the update-count metric reads it.
+    """
+
+    def __init__(self, specs: Sequence[EnvSpec], capacity: int | Mapping[str, int] = DEFAULT_CAPACITY, device: str | torch.device = "cpu", check_memory: bool = True) -> None:
+        self.specs = {s.name: s for s in specs}
+        self.device = torch.device(device)
+        needed = replay_bytes(specs, capacity)
+        if check_memory:
+            available = available_memory_bytes()
+            if available is not None and needed > available:
+                per_env = ", ".join(f"{s.name}: {_capacity_of(s, capacity):,} transitions = {replay_bytes([s], capacity) / 2**30:.2f} GiB" for s in specs)
+                raise SealError(
+                    f"replay needs {needed / 2**30:.2f} GiB ({per_env}) but only {available / 2**30:.2f} GiB of memory is available; lower the replay capacity or train fewer tasks"
+                )
+        self.capacity_per_task: dict[str, int] = {}
+        self.storage: dict[str, dict[str, np.ndarray]] = {}
+        self.size: dict[str, np.ndarray] = {}
+        self.position: dict[str, np.ndarray] = {}
+        self.consumed: dict[str, np.ndarray] = {}
+        for spec in specs:
+            per_task = _capacity_of(spec, capacity) // spec.num_tasks
+            shape = (spec.num_tasks, per_task)
+            self.capacity_per_task[spec.name] = per_task
+            # np.zeros maps pages lazily, so untouched capacity costs no resident memory.
+            self.storage[spec.name] = {
+                "obs": np.zeros((*shape, spec.obs_dim), np.float32),
+                "actions": np.zeros((*shape, spec.act_dim), np.float32),
+                "rewards": np.zeros(shape, np.float32),
+                "next_obs": np.zeros((*shape, spec.obs_dim), np.float32),
+                "terminations": np.zeros(shape, np.float32),
+            }
+            self.size[spec.name] = np.zeros(spec.num_tasks, np.int64)
+            self.position[spec.name] = np.zeros(spec.num_tasks, np.int64)
+            self.consumed[spec.name] = np.zeros(spec.num_tasks, np.int64)
+
+    def _spec(self, env: str) -> EnvSpec:
+        if env not in self.specs:
+            raise UnknownNameError("environment", env, list(self.specs))
+        return self.specs[env]
+
+    def add(self, env: str, task_ids: np.ndarray, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray, terminations: np.ndarray) -> None:
+        """Store one step of N instances of `env`; instance i belongs to task task_ids[i] (repeats allowed)."""
+        spec = self._spec(env)
+        task_ids = np.asarray(task_ids, dtype=np.int64).reshape(-1)
+        n = task_ids.shape[0]
+        if n == 0:
+            return
+        if task_ids.min() < 0 or task_ids.max() >= spec.num_tasks:
+            raise SealError(f"replay.add({env!r}): task ids must be in [0, {spec.num_tasks}), got {sorted(set(task_ids.tolist()))}")
+        # Rank of each instance among those of the same task, so repeats get consecutive slots.
+        order = np.argsort(task_ids, kind="stable")
+        sorted_ids = task_ids[order]
+        rank = np.empty(n, np.int64)
+        rank[order] = np.arange(n) - np.searchsorted(sorted_ids, sorted_ids, side="left")
+        cap = self.capacity_per_task[env]
+        slots = (self.position[env][task_ids] + rank) % cap
+        store = self.storage[env]
+        values = {"obs": obs, "actions": actions, "rewards": rewards, "next_obs": next_obs, "terminations": terminations}
+        for field in _FIELDS:
+            store[field][task_ids, slots] = np.asarray(values[field], dtype=np.float32).reshape(n, *store[field].shape[2:])
+        added = np.bincount(task_ids, minlength=spec.num_tasks)
+        self.position[env] = (self.position[env] + added) % cap
+        self.size[env] = np.minimum(self.size[env] + added, cap)
+
+    def sample(self, counts: Mapping[str, np.ndarray], rng: np.random.Generator) -> dict[str, Batch]:
+        """Draw counts[env][t] transitions uniformly with replacement from each task's buffer.
+
+        Returns one Batch per env with a non-zero total, rows grouped by task in task order, and
+        adds the counts to `consumed` (each sample feeds one update).
+        """
+        batches: dict[str, Batch] = {}
+        for env, env_counts in counts.items():
+            spec = self._spec(env)
+            env_counts = np.asarray(env_counts, dtype=np.int64)
+            if env_counts.shape != (spec.num_tasks,) or (env_counts < 0).any():
+                raise SealError(f"replay.sample: counts of {env!r} must be {spec.num_tasks} non-negative ints (one per task), got {env_counts.tolist()}")
+            if env_counts.sum() == 0:
+                continue
+            empty = np.flatnonzero((env_counts > 0) & (self.size[env] == 0))
+            if empty.size:
+                raise SealError(f"replay.sample: {env!r} task(s) {empty.tolist()} have no transitions yet but were asked for {env_counts[empty].tolist()}")
+            task_ids = np.repeat(np.arange(spec.num_tasks), env_counts)
+            rows = rng.integers(0, self.size[env][task_ids])
+            store = self.storage[env]
+            arrays = {field: store[field][task_ids, rows] for field in _FIELDS}
+            batches[env] = Batch(
+                *(torch.from_numpy(arrays[field]).to(self.device) for field in _FIELDS),
+                task_ids=torch.from_numpy(task_ids).to(self.device),
+            )
+            self.consumed[env] += env_counts
+        return batches
+
+    def state_dict(self) -> dict[str, Any]:
+        """Contents (only the filled rows) and counters, as tensors so torch.load(weights_only=True) reads them."""
+        state: dict[str, Any] = {"capacity_per_task": dict(self.capacity_per_task), "envs": {}}
+        for env, store in self.storage.items():
+            filled = int(self.size[env].max())
+            state["envs"][env] = {
+                **{field: torch.from_numpy(store[field][:, :filled].copy()) for field in _FIELDS},
+                "size": torch.from_numpy(self.size[env].copy()),
+                "position": torch.from_numpy(self.position[env].copy()),
+                "consumed": torch.from_numpy(self.consumed[env].copy()),
+            }
+        return state
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Restore `state_dict` output into buffers of the same envs and capacities."""
+        if dict(state["capacity_per_task"]) != self.capacity_per_task:
+            raise SealError(f"replay state has capacities per task {dict(state['capacity_per_task'])}, but this replay has {self.capacity_per_task}")
+        for env, saved in state["envs"].items():
+            self._spec(env)
+            store = self.storage[env]
+            previous = int(self.size[env].max())
+            for field in _FIELDS:
+                filled = saved[field].shape[1]
+                store[field][:, :filled] = saved[field].numpy()
+                # Clear only rows this replay had filled: zeroing the whole capacity would make
+                # every lazily mapped page resident.
+                store[field][:, filled:previous] = 0.0
+            self.size[env] = saved["size"].numpy().copy()
+            self.position[env] = saved["position"].numpy().copy()
+            self.consumed[env] = saved["consumed"].numpy().copy()
+
+    def consumed_counts(self) -> dict[str, np.ndarray]:
+        """A copy of the per-task counters of transitions used by updates."""
+        return {env: c.copy() for env, c in self.consumed.items()}

@@ -1,0 +1,268 @@
+"""The update-count metric (SEAL Appendix B): a task's transitions used by updates until it is learned.
+
+Appendix B counts, per task, the network updates it took to reach 90% success for the first time,
+as C x GS x BS (epoch x gradient steps per epoch x that task's samples per step). Run directories
+record that product exactly in `metrics.csv`'s `updates` column (millions of the task's
+transitions consumed by gradient updates so far), which also stays exact when the batch
+composition changes (data-ratio schedules, schedulers). This module reads that column; it never
+recomputes C x GS x BS.
+
+Everything here is a pure function of pandas DataFrames, so it can be tested on hand-written
+tables and reused by `seal run --json` and `seal report`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+import pandas as pd
+
+from seal.errors import SealError
+
+DEFAULT_THRESHOLD = 0.9
+"""Success rate a task must reach (Appendix B: 90%)."""
+
+NEVER_REACHED = "—"
+"""How a task that never reached the threshold is rendered; the number stays 0 in CSVs and totals."""
+
+# Success rates are means of 0/1 outcomes; a mean that should equal the threshold (45/50 = 0.9)
+# may come out a rounding error below it, and must still count as reaching it.
+SUCCESS_TOLERANCE = 1e-9
+
+METRICS_COLUMNS = (
+    "seed",
+    "phase",
+    "epoch",
+    "env",
+    "task",
+    "success",
+    "return",
+    "grad_steps",
+    "env_steps",
+    "updates",
+    "wall_s",
+)
+"""Columns of a run directory's `metrics.csv`, one row per evaluation and task."""
+
+_FIRST_REACH_NEEDS = (
+    "seed",
+    "phase",
+    "epoch",
+    "env",
+    "task",
+    "success",
+    "grad_steps",
+    "env_steps",
+    "updates",
+)
+
+Style = Literal["plain", "markdown", "latex"]
+
+
+def _require_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
+    missing = [c for c in columns if c not in frame.columns]
+    if missing:
+        raise SealError(f"{what} lacks column(s) {missing}; it has {list(frame.columns)}")
+
+
+def first_reach(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> pd.DataFrame:
+    """Per (seed, phase, env, task): the first evaluation with success >= threshold.
+
+    Returns one row per (seed, phase, env, task) present in `metrics`, in order of first
+    appearance, with columns `reached` (bool), `epoch`, `updates` (millions of the task's
+    transitions), `grad_steps` and `env_steps` at that evaluation. A task that never reached the
+    threshold has `reached=False` and 0 in the numeric columns (Tables 4-7 write 0 for it).
+    Phases are kept apart: update counts restart at each phase (pre-train / fine-tune).
+    """
+    _require_columns(metrics, _FIRST_REACH_NEEDS, "metrics table")
+    keys = ["seed", "phase", "env", "task"]
+    values = ["epoch", "updates", "grad_steps", "env_steps"]
+    # Evaluations in training order; "first" is the earliest epoch of the phase.
+    ordered = metrics.sort_values([*keys, "epoch", "grad_steps"], kind="stable")
+    hits = ordered[ordered["success"] >= threshold - SUCCESS_TOLERANCE]
+    first = hits.groupby(keys, sort=False).head(1)[keys + values]
+    all_tasks = metrics[keys].drop_duplicates()
+    out = all_tasks.merge(first, on=keys, how="left", indicator=True)
+    out["reached"] = out.pop("_merge") == "both"
+    for column in values:
+        out[column] = out[column].fillna(0)
+    out["epoch"] = out["epoch"].astype(np.int64)
+    out["grad_steps"] = out["grad_steps"].astype(np.int64)
+    out["env_steps"] = out["env_steps"].astype(np.int64)
+    out["updates"] = out["updates"].astype(float)
+    return out[[*keys, "reached", *values]].reset_index(drop=True)
+
+
+def aggregate_seeds(
+    per_seed: pd.DataFrame, keys: Sequence[str] = ("phase", "env", "task")
+) -> pd.DataFrame:
+    """Across seeds: mean ± std of the update count over the seeds that reached it, and k of n.
+
+    `per_seed` is `first_reach`'s output (possibly with extra key columns such as a report
+    column). Returns one row per `keys` with `updates_mean`, `updates_std`, `grad_steps_mean`,
+    `env_steps_mean` (over reaching seeds), `reached` (k) and `seeds` (n). With k = 0 the means
+    are 0 (never reached); with k < 2 the std is NaN, since one seed has no spread.
+    """
+    keys = list(keys)
+    _require_columns(
+        per_seed, [*keys, "reached", "updates", "grad_steps", "env_steps"], "per-seed table"
+    )
+    groups = per_seed.groupby(keys, sort=False)
+    counts = pd.DataFrame(
+        {"reached": groups["reached"].sum().astype(np.int64), "seeds": groups.size()}
+    )
+    reached = per_seed[per_seed["reached"]]
+    # Sample std (ddof=1): the spread of seeds drawn from the run's distribution, as in Fig. 2 shading.
+    stats = reached.groupby(keys, sort=False).agg(
+        updates_mean=("updates", "mean"),
+        updates_std=("updates", "std"),
+        grad_steps_mean=("grad_steps", "mean"),
+        env_steps_mean=("env_steps", "mean"),
+    )
+    out = counts.join(stats, how="left")
+    for column in ("updates_mean", "grad_steps_mean", "env_steps_mean"):
+        out[column] = out[column].fillna(0.0)
+    out = out.reset_index()
+    return out[
+        [
+            *keys,
+            "updates_mean",
+            "updates_std",
+            "grad_steps_mean",
+            "env_steps_mean",
+            "reached",
+            "seeds",
+        ]
+    ]
+
+
+def env_totals(aggregated: pd.DataFrame, keys: Sequence[str] = ("phase", "env")) -> pd.DataFrame:
+    """Totals per environment, as the "Total Network Updates" rows of Tables 4-7.
+
+    The total is the sum of the per-task means, a never-reached task counting 0 as in the paper;
+    `tasks_reached` says how many tasks contribute (reached by at least one seed) of `tasks`.
+    """
+    keys = list(keys)
+    _require_columns(aggregated, [*keys, "updates_mean", "reached"], "aggregated table")
+    groups = aggregated.groupby(keys, sort=False)
+    out = pd.DataFrame(
+        {
+            "updates_total": groups["updates_mean"].sum(),
+            "tasks_reached": groups["reached"].apply(lambda k: int((k > 0).sum())),
+            "tasks": groups.size(),
+        }
+    )
+    return out.reset_index()
+
+
+def percent_change(
+    value: float, baseline: float, value_reached: bool = True, baseline_reached: bool = True
+) -> float | None:
+    """(value - baseline) / baseline in percent; None where either side never reached the threshold.
+
+    Negative means fewer updates than the single-environment baseline (Table 1's bold entries).
+    A baseline that never reached it gives "n/a"; so does a variant that never reached it, since
+    "0 updates" there means "not learned", not "learned for free".
+    """
+    if not (baseline_reached and value_reached) or not math.isfinite(baseline) or baseline <= 0:
+        return None
+    return 100.0 * (value - baseline) / baseline
+
+
+def add_percent_change(
+    aggregated: pd.DataFrame,
+    baseline_column: str,
+    column_key: str = "column",
+    on: Sequence[str] = ("env", "task"),
+) -> pd.DataFrame:
+    """Add `pct_change` (vs. the rows whose `column_key` is `baseline_column`, matched on `on`).
+
+    Baseline rows and rows without a matching baseline get NaN, as do rows where either side was
+    never reached.
+    """
+    on = list(on)
+    _require_columns(aggregated, [column_key, *on, "updates_mean", "reached"], "aggregated table")
+    base = aggregated[aggregated[column_key] == baseline_column][[*on, "updates_mean", "reached"]]
+    base = base.rename(columns={"updates_mean": "baseline_mean_", "reached": "baseline_reached_"})
+    merged = aggregated.merge(base, on=on, how="left")
+    pct = []
+    for row in merged.itertuples(index=False):
+        is_baseline = getattr(row, column_key) == baseline_column
+        base_reached = row.baseline_reached_
+        if is_baseline or pd.isna(base_reached):
+            pct.append(math.nan)
+            continue
+        change = percent_change(
+            row.updates_mean, row.baseline_mean_, row.reached > 0, base_reached > 0
+        )
+        pct.append(math.nan if change is None else change)
+    merged["pct_change"] = pct
+    return merged.drop(columns=["baseline_mean_", "baseline_reached_"])
+
+
+def update_counts_by_env(
+    metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD
+) -> dict[str, dict[str, float]]:
+    """One seed's update counts as {env: {task: millions}}, 0 where never reached (for `seal run --json`).
+
+    If an environment appears in several phases, the last phase's counts are kept (the fine-tune
+    phase of a same-environment fine-tune), since that is the phase the run ends in.
+    """
+    counts: dict[str, dict[str, float]] = {}
+    for row in first_reach(metrics, threshold).itertuples(index=False):
+        counts.setdefault(str(row.env), {})[str(row.task)] = float(row.updates)
+    return counts
+
+
+# --------------------------------------------------------------------------- rendering
+
+
+def format_number(value: float) -> str:
+    """Four significant digits without exponent: 0.192, 6.4, 42.7, 211.2, 1536."""
+    if not math.isfinite(value):
+        return "nan"
+    return np.format_float_positional(value, precision=4, unique=True, fractional=False, trim="-")
+
+
+def format_percent(pct: float | None) -> str:
+    """Signed percent with one decimal ("-62.5%", "+12.0%"), or "n/a"."""
+    if pct is None or not math.isfinite(pct):
+        return "n/a"
+    return f"{pct:+.1f}%"
+
+
+def format_count(
+    mean: float,
+    std: float,
+    reached: int,
+    seeds: int,
+    pct: float | None = None,
+    show_pct: bool = False,
+    style: Style = "plain",
+) -> str:
+    """One table cell: "mean ± std (pct) [k/n]", "—" if never reached; bold (md/LaTeX) when pct < 0.
+
+    `show_pct` adds the percent change ("n/a" when it is undefined); the baseline column leaves it off.
+    """
+    pm = r"$\pm$" if style == "latex" else "±"
+    dash = "---" if style == "latex" else NEVER_REACHED
+    seeds_part = f"[{reached}/{seeds}]"
+    if reached == 0:
+        return f"{dash} {seeds_part}"
+    text = format_number(mean)
+    if std is not None and math.isfinite(std):
+        text += f" {pm} {format_number(std)}"
+    if show_pct:
+        pct_text = format_percent(pct)
+        if style == "latex":
+            pct_text = pct_text.replace("%", r"\%")
+        text += f" ({pct_text})"
+    if pct is not None and math.isfinite(pct) and pct < 0:
+        if style == "markdown":
+            text = f"**{text}**"
+        elif style == "latex":
+            text = rf"\textbf{{{text}}}"
+    return f"{text} {seeds_part}"

@@ -1,0 +1,23 @@
+"""Layer 4: protocols. TOML schema, loader, runners and the run directory they write.
+
+Python API (used by `seal run` and by the Ray sweep):
+
+    config = load_protocol("protocols/quickstart.toml", overrides=["protocol.seeds=1"], scale=0.1)
+    result = run_seed(config, seed=0, group_dir=Path("reports/quickstart/my-group"))
+    result.run_dir, result.update_counts, result.final_success
+"""
+
+from __future__ import annotations
+
+from seal.protocols.config import ProtocolConfig
+from seal.protocols.loader import config_to_dict, dumps_toml, explain, load_protocol
+
+__all__ = ["ProtocolConfig", "RunResult", "config_to_dict", "dumps_toml", "explain", "load_protocol", "run_protocol", "run_seed"]
+
+
+def __getattr__(name: str):  # noqa: ANN202 - lazy: the runner imports torch and the learner
+    if name in ("RunResult", "run_seed", "run_protocol", "new_group_dir"):
+        from seal.protocols import runner
+
+        return getattr(runner, name)
+    raise AttributeError(name)

@@ -1,0 +1,225 @@
+"""The protocol TOML schema: frozen, keyword-only dataclasses whose fields carry docstrings.
+
+A protocol file has one table per dataclass below (`[protocol]`, `[envs.<name>]`, `[agent]`,
+`[replay]`, `[training]`, `[evaluation]`, `[scheduler]`, `[finetune]`, `[checkpoint]`,
+`[logging]`, and the pass-through tables `[search]` and `[resources]`). Loading validates every
+key and value and raises `ConfigError` naming the file, `table.key`, the bad value and what is
+valid, before anything is written. Defaults are the paper-scale values of issue 4.
+
+`[agent]` is validated against `seal.learner.AgentConfig` and `[scheduler]` against the scheduler
+configs of `seal.schedulers`, so those layers own their own fields and docs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+Kind = Literal["baseline", "finetune", "joint"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class ProtocolTable:
+    """[protocol]: what is run and how often."""
+
+    name: str = ""
+    """Protocol name: the folder under the reports root (default: the file's stem)."""
+    kind: Kind = "baseline"
+    """baseline (MTMHSAC on one env), finetune (pre-train on A, fine-tune on B) or joint (SEAL on all envs)."""
+    description: str = ""
+    """One line saying what the protocol is for."""
+    seeds: int = 2
+    """Number of seeds, run one after another into one group (Appendix B: 2)."""
+    first_seed: int = 0
+    """Seeds are first_seed, first_seed + 1, ..., first_seed + seeds - 1."""
+    epochs: int = 10_000
+    """Epochs per phase (Appendix D: 10,000). An epoch collects one episode per task, then trains."""
+    device: str = "auto"
+    """Torch device: "auto" (CUDA if present, else CPU), "cpu", "cuda", "cuda:1", ..."""
+    threads: int = 0
+    """torch intra-op CPU threads; 0 keeps torch's default. 1 is far faster for small networks on a busy machine."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class EnvConfig:
+    """[envs.<name>]: one environment; <name> is how the run's tables and files refer to it."""
+
+    adapter: str = ""
+    """Built-in adapter name (metaworld, franka_kitchen_dense, point) or "package.module:Class" (default: <name>)."""
+    tasks: tuple[str, ...] = ()
+    """Task names or set names (e.g. "mt10"); empty means all of the adapter's tasks."""
+    episode_length: int = 0
+    """Steps per episode (truncation); 0 means the adapter's default (Meta-World 500, kitchen 280)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReplayConfig:
+    """[replay]: the per-(env, task) replay buffers."""
+
+    capacity_per_env: int = 1_000_000
+    """Transitions kept per environment, split evenly over its tasks (Meta-World: 1e6)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainingConfig:
+    """[training]: the epoch loop (garage MTSAC convention)."""
+
+    warmup_steps: int = 4_000
+    """Env steps per environment with uniform random actions before the first gradient update."""
+    batch_per_task: int = 128
+    """Transitions per task in one update at uniform composition (MT10: 10 x 128 = 1280)."""
+    grad_steps_per_epoch: int = -1
+    """Gradient steps after each epoch's collection; -1 = as many as the env steps of one collected episode.
+
+    With environments of different episode lengths, -1 means the longest episode among the
+    environments that collected this epoch (e.g. 500 when Meta-World and the kitchen both
+    collect), so no environment's episode contributes more env steps than there are updates.
+    """
+    collector: Literal["auto", "sync", "subproc-batched", "gym-async"] = "auto"
+    """Collection backend (seal.learner.collection): "auto" uses worker processes when there are >= 2 CPUs."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class EvaluationConfig:
+    """[evaluation]: Appendix B's evaluation procedure."""
+
+    interval: int = 100
+    """Evaluate every this many epochs (and after the last epoch)."""
+    episodes: int = 50
+    """Deterministic episodes per task per evaluation (paper: 100; 50 halves the cost)."""
+    threshold: float = 0.9
+    """Success rate at which a task counts as learned for the update-count metric."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class FinetuneConfig:
+    """[finetune]: pre-train on `source`, fine-tune on `target` (kind = "finetune" only)."""
+
+    source: str = ""
+    """The [envs.<name>] pre-trained on (phase "pretrain")."""
+    target: str = ""
+    """The [envs.<name>] fine-tuned on (phase "finetune")."""
+    pretrain_epochs: int = 0
+    """Epochs of pre-training; 0 means [protocol].epochs."""
+    finetune_epochs: int = 0
+    """Epochs of fine-tuning; 0 means [protocol].epochs."""
+    lr_factor: float = 1.0
+    """Learning-rate multiplier while fine-tuning; 1.0 because Appendix D trains all parameters as before."""
+    reinit_critic: bool = False
+    """Also re-initialise the critic (Appendix D keeps it)."""
+    alignment: dict[str, str] = field(default_factory=dict)
+    """Overrides of the aligned one-hot table, task -> task it shares an id with (default: the paper's Table 3)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class CheckpointConfig:
+    """[checkpoint]: what is saved for resume and for `seal eval`."""
+
+    interval: int = 100
+    """Save a checkpoint every this many epochs (and after the last)."""
+    keep_last: int = 2
+    """Keep the last K epoch checkpoints (ckpt-<epoch>.pt); best.pt is kept besides."""
+    save_replay: bool = True
+    """Store the replay in epoch checkpoints; resume needs it (best.pt never holds it)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class LoggingConfig:
+    """[logging]: training-curve logs (train.csv and TensorBoard)."""
+
+    train_interval: int = 10
+    """Log losses, mean Q and temperatures every this many epochs."""
+    tensorboard: bool = True
+    """Also write TensorBoard events under tb/."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ProtocolConfig:
+    """A fully resolved protocol: everything a run needs, with the file it came from."""
+
+    path: str = "<memory>"
+    """The protocol file (for error messages and provenance)."""
+    protocol: ProtocolTable
+    envs: dict[str, EnvConfig]
+    agent: Any = None
+    """The resolved seal.learner.AgentConfig (or the raw [agent] table when the learner is absent)."""
+    replay: ReplayConfig = field(default_factory=ReplayConfig)
+    training: TrainingConfig = field(default_factory=TrainingConfig)
+    evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
+    scheduler: dict[str, Any] = field(default_factory=dict)
+    """The [scheduler] table as given, validated by seal.schedulers (empty: every task collects, uniform batch)."""
+    finetune: FinetuneConfig | None = None
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+    logging: LoggingConfig = field(default_factory=LoggingConfig)
+    search: dict[str, Any] = field(default_factory=dict)
+    """[search]: passed through to `seal sweep`."""
+    resources: dict[str, Any] = field(default_factory=dict)
+    """[resources]: passed through to `seal sweep`."""
+
+    @property
+    def name(self) -> str:
+        """The protocol's name."""
+        return self.protocol.name
+
+    @property
+    def kind(self) -> str:
+        """baseline, finetune or joint."""
+        return self.protocol.kind
+
+    @property
+    def seeds(self) -> list[int]:
+        """The seeds this protocol runs."""
+        return list(range(self.protocol.first_seed, self.protocol.first_seed + self.protocol.seeds))
+
+    def replace(self, **changes: Any) -> ProtocolConfig:
+        """A copy with some top-level fields changed."""
+        return dataclasses.replace(self, **changes)
+
+
+# Valid ranges: (min, max) inclusive, None = unbounded. Checked at load time.
+BOUNDS: dict[tuple[type, str], tuple[float | None, float | None]] = {
+    (ProtocolTable, "seeds"): (1, None),
+    (ProtocolTable, "first_seed"): (0, None),
+    (ProtocolTable, "epochs"): (1, None),
+    (ProtocolTable, "threads"): (0, None),
+    (EnvConfig, "episode_length"): (0, None),
+    (ReplayConfig, "capacity_per_env"): (1, None),
+    (TrainingConfig, "warmup_steps"): (0, None),
+    (TrainingConfig, "batch_per_task"): (1, None),
+    (TrainingConfig, "grad_steps_per_epoch"): (-1, None),
+    (EvaluationConfig, "interval"): (1, None),
+    (EvaluationConfig, "episodes"): (1, None),
+    (EvaluationConfig, "threshold"): (0.0, 1.0),
+    (FinetuneConfig, "pretrain_epochs"): (0, None),
+    (FinetuneConfig, "finetune_epochs"): (0, None),
+    (FinetuneConfig, "lr_factor"): (0.0, None),
+    (CheckpointConfig, "interval"): (1, None),
+    (CheckpointConfig, "keep_last"): (1, None),
+    (LoggingConfig, "train_interval"): (1, None),
+}
+
+# Tables that map one-to-one onto a dataclass.
+SIMPLE_TABLES: dict[str, type] = {
+    "protocol": ProtocolTable,
+    "replay": ReplayConfig,
+    "training": TrainingConfig,
+    "evaluation": EvaluationConfig,
+    "finetune": FinetuneConfig,
+    "checkpoint": CheckpointConfig,
+    "logging": LoggingConfig,
+}
+ALL_TABLES: tuple[str, ...] = (
+    "protocol",
+    "envs",
+    "agent",
+    "replay",
+    "training",
+    "evaluation",
+    "scheduler",
+    "finetune",
+    "checkpoint",
+    "logging",
+    "search",
+    "resources",
+)

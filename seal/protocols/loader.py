@@ -1,0 +1,499 @@
+"""Load, override, validate, scale, explain and write protocol TOML files.
+
+`load_protocol(path, overrides, scale)` is the one entry point: it reads the file, applies
+`--set table.key=value` overrides, checks every key and value against the schema in
+`seal.protocols.config` (and `seal.learner.AgentConfig` / `seal.schedulers` for their tables),
+resolves adapters and task lists, applies `--scale`, and returns a frozen `ProtocolConfig`.
+Every user mistake raises `ConfigError` naming the file, `table.key`, the value and what is valid.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import functools
+import inspect
+import math
+import textwrap
+import tomllib
+import types
+import typing
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from seal.errors import ConfigError, SealError
+from seal.protocols import scheduling
+from seal.protocols.config import (
+    ALL_TABLES,
+    BOUNDS,
+    SIMPLE_TABLES,
+    EnvConfig,
+    FinetuneConfig,
+    ProtocolConfig,
+    ProtocolTable,
+)
+
+# ---------------------------------------------------------------- reading and overrides
+
+
+def parse_override(text: str, path: str = "--set") -> tuple[list[str], Any]:
+    """Split "table.key=value" into (["table", "key"], value); the value is parsed as TOML.
+
+    A value that is not valid TOML is taken as a plain string, so `--set protocol.device=cpu` works.
+    """
+    key, sep, raw = text.partition("=")
+    parts = [p.strip() for p in key.strip().split(".")]
+    if not sep or len(parts) < 2 or not all(parts):
+        raise ConfigError(f"{path}: override {text!r} must look like table.key=value (e.g. protocol.epochs=100)")
+    try:
+        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return parts, value
+
+
+def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], path: str) -> dict[str, Any]:
+    """`raw` with each "table.key=value" override set (tables created as needed)."""
+    for text in overrides:
+        parts, value = parse_override(text, path)
+        node = raw
+        for part in parts[:-1]:
+            child = node.setdefault(part, {})
+            if not isinstance(child, dict):
+                raise ConfigError(f"{path}: override {text!r}: {part!r} is a value, not a table")
+            node = child
+        node[parts[-1]] = value
+    return raw
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """The parsed TOML file, or ConfigError naming the file and the syntax problem."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{p}: no such protocol file")
+    try:
+        return tomllib.loads(p.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+
+
+# ---------------------------------------------------------------- generic dataclass validation
+
+
+@functools.cache
+def field_docs(cls: type) -> dict[str, str]:
+    """Attribute docstrings (the string literal under each field) of a dataclass, by field name."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        try:
+            tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
+        except (OSError, TypeError, SyntaxError):
+            continue
+        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+        for node, nxt in zip(body, body[1:], strict=False):
+            if (
+                isinstance(node, ast.AnnAssign)
+                and isinstance(node.target, ast.Name)
+                and isinstance(nxt, ast.Expr)
+                and isinstance(nxt.value, ast.Constant)
+                and isinstance(nxt.value.value, str)
+            ):
+                docs[node.target.id] = inspect.cleandoc(nxt.value.value)
+    return docs
+
+
+def _type_name(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    if origin is typing.Literal:
+        return " | ".join(repr(a) for a in typing.get_args(tp))
+    if origin in (typing.Union, types.UnionType):
+        return " | ".join(_type_name(a) for a in typing.get_args(tp))
+    if origin is not None:
+        args = ", ".join("..." if a is Ellipsis else _type_name(a) for a in typing.get_args(tp))
+        return f"{getattr(origin, '__name__', str(origin))}[{args}]"
+    if tp is type(None):
+        return "none"
+    return getattr(tp, "__name__", str(tp))
+
+
+def coerce(value: Any, tp: Any, where: str) -> Any:
+    """`value` checked against the annotation `tp` (TOML ints are accepted as floats; lists as tuples).
+
+    Raises ConfigError mentioning `where` ("file: table.key") and the expected type.
+    """
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    bad = ConfigError(f"{where} = {value!r} has the wrong type; expected {_type_name(tp)}")
+    if tp is Any or tp is object:
+        return value
+    if origin is typing.Literal:
+        if value in args and not isinstance(value, bool):
+            return value
+        raise ConfigError(f"{where} = {value!r} is not valid; valid: {', '.join(repr(a) for a in args)}")
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for arg in args:
+            if arg is type(None):
+                continue
+            try:
+                return coerce(value, arg, where)
+            except ConfigError as exc:
+                errors.append(exc)
+        if len(errors) == 1:
+            raise errors[0]
+        raise bad
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        raise bad
+    if tp is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise bad
+    if tp is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        raise bad
+    if tp is str:
+        if isinstance(value, str):
+            return value
+        raise bad
+    if origin in (tuple, list):
+        if isinstance(value, str) and origin is tuple and args and args[0] is str:
+            value = [value]  # a single task name or set name is a one-element list
+        if not isinstance(value, (list, tuple)):
+            raise bad
+        if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
+            items = [coerce(v, args[0], f"{where}[{i}]") for i, v in enumerate(value)]
+        elif origin is tuple and args:
+            if len(args) != len(value):
+                raise bad
+            items = [coerce(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True))]
+        else:
+            items = [coerce(v, args[0], f"{where}[{i}]") if args else v for i, v in enumerate(value)]
+        return tuple(items) if origin is tuple else items
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise bad
+        if args:
+            return {coerce(k, args[0], where): coerce(v, args[1], f"{where}.{k}") for k, v in value.items()}
+        return dict(value)
+    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
+        if not isinstance(value, dict):
+            raise bad
+        return build_dataclass(tp, value, where.rsplit(" = ", 1)[0])
+    if isinstance(tp, type):
+        if isinstance(value, tp):
+            return value
+        raise bad
+    return value
+
+
+def build_dataclass(cls: type, table: Mapping[str, Any], where: str, defaults: Mapping[str, Any] | None = None) -> Any:
+    """An instance of dataclass `cls` from a TOML table, every key and value checked.
+
+    `where` is "file: table" for messages; `defaults` replace the class defaults for keys the
+    table leaves out (e.g. the agent's architecture by protocol kind).
+    """
+    if not isinstance(table, Mapping):
+        raise ConfigError(f"{where} must be a table, got {table!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(table) - set(fields))
+    if unknown:
+        raise ConfigError(f"{where}.{unknown[0]} is not a valid key; valid keys: {', '.join(fields)}")
+    kwargs: dict[str, Any] = dict(defaults or {})
+    for key, value in table.items():
+        kwargs[key] = coerce(value, hints.get(key, Any), f"{where}.{key}")
+        lo, hi = BOUNDS.get((cls, key), (None, None))
+        if (lo is not None and kwargs[key] < lo) or (hi is not None and kwargs[key] > hi):
+            span = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
+            raise ConfigError(f"{where}.{key} = {value!r} is out of range; valid: {span}")
+    kwargs = {k: v for k, v in kwargs.items() if k in fields}
+    try:
+        return cls(**kwargs)
+    except SealError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+# ---------------------------------------------------------------- scaling
+
+
+def scale_duration(value: int, factor: float) -> int:
+    """A duration multiplied by `factor`, rounded, with a floor of 1."""
+    return max(1, int(round(value * factor)))
+
+
+def scale_config(config: ProtocolConfig, factor: float) -> ProtocolConfig:
+    """`config` with total epochs and every schedule duration multiplied by `factor` (floor 1).
+
+    Per-epoch quantities (batch, gradient steps per epoch, episode length, evaluation episodes,
+    warm-up) are unchanged.
+    """
+    if not (isinstance(factor, (int, float)) and math.isfinite(factor) and factor > 0):
+        raise ConfigError(f"{config.path}: --scale {factor!r} must be a positive number")
+    rep = dataclasses.replace
+    s = functools.partial(scale_duration, factor=factor)
+    finetune = config.finetune
+    if finetune is not None:
+        finetune = rep(
+            finetune,
+            pretrain_epochs=s(finetune.pretrain_epochs),
+            finetune_epochs=s(finetune.finetune_epochs),
+        )
+    scheduler = scheduling.resolve_table(config.scheduler, config.path, factor)
+    return rep(
+        config,
+        protocol=rep(config.protocol, epochs=s(config.protocol.epochs)),
+        evaluation=rep(config.evaluation, interval=s(config.evaluation.interval)),
+        checkpoint=rep(config.checkpoint, interval=s(config.checkpoint.interval)),
+        logging=rep(config.logging, train_interval=s(config.logging.train_interval)),
+        finetune=finetune,
+        scheduler=scheduler,
+    )
+
+
+# ---------------------------------------------------------------- the protocol
+
+
+def _agent_config_class() -> type | None:
+    try:
+        from seal.learner import AgentConfig
+    except ImportError:
+        return None
+    return AgentConfig
+
+
+def _build_envs(raw: Any, file: str) -> dict[str, EnvConfig]:
+    from seal.envs import adapter_class
+
+    if not isinstance(raw, dict) or not raw:
+        raise ConfigError(f"{file}: envs must have at least one [envs.<name>] table, e.g. [envs.mw] adapter = \"metaworld\"")
+    envs: dict[str, EnvConfig] = {}
+    for name, table in raw.items():
+        where = f"{file}: envs.{name}"
+        if not isinstance(table, dict):
+            raise ConfigError(f"{where} must be a table with keys adapter, tasks, episode_length")
+        env = build_dataclass(EnvConfig, table, where)
+        adapter_name = env.adapter or name
+        try:
+            cls = adapter_class(adapter_name)
+        except SealError as exc:
+            raise ConfigError(f"{where}.adapter: {exc}") from None
+        try:
+            adapter = cls(tasks=list(env.tasks) or None, episode_length=env.episode_length or None)
+        except SealError as exc:
+            key = "episode_length" if "episode_length" in str(exc) else "tasks"
+            raise ConfigError(f"{where}.{key}: {exc}") from None
+        # Resolved: set names expanded and the adapter's default episode length filled in.
+        envs[name] = EnvConfig(adapter=adapter_name, tasks=tuple(adapter.tasks), episode_length=adapter.episode_length)
+    return envs
+
+
+def _check_kind(config: ProtocolConfig, file: str) -> None:
+    kind, envs = config.kind, list(config.envs)
+    if kind == "baseline" and len(envs) != 1:
+        raise ConfigError(f"{file}: envs has {len(envs)} environments ({', '.join(envs)}); kind = \"baseline\" trains on exactly one")
+    if kind == "joint" and len(envs) < 2:
+        raise ConfigError(f"{file}: envs has {len(envs)} environment(s); kind = \"joint\" needs at least two")
+    if kind == "finetune":
+        ft = config.finetune
+        if ft is None:
+            raise ConfigError(f"{file}: kind = \"finetune\" needs a [finetune] table with source and target")
+        for key in ("source", "target"):
+            if getattr(ft, key) not in config.envs:
+                raise ConfigError(f"{file}: finetune.{key} = {getattr(ft, key)!r} is not one of the [envs] tables; valid: {', '.join(envs)}")
+        if ft.source == ft.target:
+            raise ConfigError(f"{file}: finetune.target = {ft.target!r} must differ from finetune.source")
+        if len(envs) != 2:
+            raise ConfigError(f"{file}: kind = \"finetune\" uses exactly two [envs] tables (source and target), got {', '.join(envs)}")
+    elif config.finetune is not None:
+        raise ConfigError(f"{file}: finetune is only valid with kind = \"finetune\" (this protocol's kind is {kind!r})")
+
+
+def default_architecture(kind: str) -> str:
+    """The network each kind trains: SEAL for joint training, MTMHSAC otherwise (SEAL §3)."""
+    return "seal" if kind == "joint" else "mtmhsac"
+
+
+def _build_agent(raw: Any, kind: str, device: str, file: str) -> Any:
+    cls = _agent_config_class()
+    table = dict(raw or {})
+    if cls is None:  # learner layer not installed yet: keep the table for later validation
+        return table
+    names = {f.name for f in dataclasses.fields(cls)}
+    # [protocol].device is the one place a user sets the device; [agent].device may still override it.
+    defaults = {k: v for k, v in {"architecture": default_architecture(kind), "device": device}.items() if k in names}
+    return build_dataclass(cls, table, f"{file}: agent", defaults)
+
+
+def _validate_scheduler(table: dict[str, Any], envs: dict[str, EnvConfig], file: str) -> None:
+    if table:
+        scheduling.build(table, {n: e.tasks for n, e in envs.items()}, {n: e.adapter for n, e in envs.items()}, file)
+
+
+def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolConfig:
+    """Validate a parsed protocol (tables as dicts) into a ProtocolConfig; `path` names it in errors."""
+    file = str(path)
+    unknown = [t for t in raw if t not in ALL_TABLES]
+    if unknown:
+        raise ConfigError(f"{file}: [{unknown[0]}] is not a valid table; valid tables: {', '.join(ALL_TABLES)}")
+    for table in ALL_TABLES:
+        if table in raw and not isinstance(raw[table], dict):
+            raise ConfigError(f"{file}: {table} must be a table ([{table}]), got {raw[table]!r}")
+    proto_table = dict(raw.get("protocol", {}))
+    proto_table.setdefault("name", Path(file).stem if file != "<memory>" else "protocol")
+    protocol = build_dataclass(ProtocolTable, proto_table, f"{file}: protocol")
+    if not protocol.name or "/" in protocol.name or protocol.name.startswith("."):
+        raise ConfigError(f"{file}: protocol.name = {protocol.name!r} must be a non-empty folder name without '/'")
+    tables = {name: build_dataclass(cls, raw.get(name, {}), f"{file}: {name}") for name, cls in SIMPLE_TABLES.items() if name not in ("protocol", "finetune")}
+    finetune = build_dataclass(FinetuneConfig, raw["finetune"], f"{file}: finetune") if "finetune" in raw else None
+    envs = _build_envs(raw.get("envs"), file)
+    config = ProtocolConfig(
+        path=file,
+        protocol=protocol,
+        envs=envs,
+        agent=_build_agent(raw.get("agent"), protocol.kind, protocol.device, file),
+        finetune=finetune,
+        scheduler=scheduling.resolve_table(raw.get("scheduler", {}), file),
+        search=dict(raw.get("search", {})),
+        resources=dict(raw.get("resources", {})),
+        **tables,
+    )
+    _check_kind(config, file)
+    if config.kind == "finetune" and config.scheduler:
+        raise ConfigError(f"{file}: scheduler is not used by kind = \"finetune\" (each phase trains on one env with uniform batches); remove [scheduler]")
+    _validate_scheduler(config.scheduler, envs, file)
+    if finetune is not None:
+        config = config.replace(
+            finetune=dataclasses.replace(
+                finetune,
+                pretrain_epochs=finetune.pretrain_epochs or protocol.epochs,
+                finetune_epochs=finetune.finetune_epochs or protocol.epochs,
+            )
+        )
+    return config
+
+
+def load_protocol(path: str | Path, overrides: Iterable[str] = (), scale: float | None = None) -> ProtocolConfig:
+    """Read, override, validate and scale a protocol file; nothing is written."""
+    raw = apply_overrides(read_toml(path), overrides, str(path))
+    config = config_from_dict(raw, str(path))
+    return scale_config(config, scale) if scale is not None else config
+
+
+# ---------------------------------------------------------------- writing and explaining
+
+
+def config_to_dict(config: ProtocolConfig) -> dict[str, Any]:
+    """The resolved config as TOML-ready nested tables (it loads back to the same config)."""
+
+    def plain(obj: Any) -> Any:
+        if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+            return {f.name: plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+        if isinstance(obj, dict):
+            return {str(k): plain(v) for k, v in obj.items()}
+        if isinstance(obj, (list, tuple)):
+            return [plain(v) for v in obj]
+        return obj
+
+    out: dict[str, Any] = {"protocol": plain(config.protocol), "envs": plain(config.envs)}
+    out["agent"] = plain(config.agent) if config.agent is not None else {}
+    for name in ("replay", "training", "evaluation"):
+        out[name] = plain(getattr(config, name))
+    if config.scheduler:
+        out["scheduler"] = plain(config.scheduler)
+    if config.finetune is not None:
+        out["finetune"] = plain(config.finetune)
+    out["checkpoint"] = plain(config.checkpoint)
+    out["logging"] = plain(config.logging)
+    if config.search:
+        out["search"] = plain(config.search)
+    if config.resources:
+        out["resources"] = plain(config.resources)
+    return out
+
+
+def _toml_key(key: str) -> str:
+    return key if key and all(c.isalnum() or c in "-_" for c in key) else _toml_value(key)
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        if isinstance(value, float) and not math.isfinite(value):
+            return ("-inf" if value < 0 else "inf") if math.isinf(value) else "nan"
+        return repr(value)
+    if isinstance(value, str):
+        escaped = value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n").replace("\t", "\\t")
+        return f'"{escaped}"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items() if v is not None) + "}"
+    raise TypeError(f"cannot write {value!r} ({type(value).__name__}) as TOML")
+
+
+def dumps_toml(data: Mapping[str, Any]) -> str:
+    """Nested dicts as TOML text: scalars and arrays inline, dicts as [tables]; None values are omitted.
+
+    Hand-written so no extra dependency is needed; `tomllib.loads(dumps_toml(d)) == d` for the
+    value types a protocol uses (tested).
+    """
+    lines: list[str] = []
+
+    def table(prefix: str, node: Mapping[str, Any]) -> None:
+        scalars = {k: v for k, v in node.items() if not isinstance(v, dict) and v is not None}
+        subtables = {k: v for k, v in node.items() if isinstance(v, dict)}
+        if prefix and (scalars or not subtables):
+            lines.append(f"[{prefix}]")
+        for k, v in scalars.items():
+            lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
+        if prefix and (scalars or not subtables):
+            lines.append("")
+        for k, v in subtables.items():
+            # Dicts whose values are all scalars under a field (e.g. finetune.alignment) stay tables too.
+            table(f"{prefix}.{_toml_key(k)}" if prefix else _toml_key(k), v)
+
+    table("", data)
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def explain(config: ProtocolConfig) -> str:
+    """Every resolved value of `config` with its documentation, table by table."""
+    out: list[str] = [f"# {config.path}: protocol {config.name!r} (kind {config.kind})", ""]
+
+    def section(title: str, obj: Any, cls: type | None) -> None:
+        out.append(f"[{title}]")
+        docs = field_docs(cls) if cls is not None else {}
+        values = {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)} if dataclasses.is_dataclass(obj) else dict(obj)
+        for key, value in values.items():
+            shown = _toml_value(list(value) if isinstance(value, tuple) else value) if value is not None else "(none)"
+            doc = docs.get(key, "").splitlines()[0] if docs.get(key) else ""
+            out.append(f"{key} = {shown}" + (f"    # {doc}" if doc else ""))
+        out.append("")
+
+    section("protocol", config.protocol, type(config.protocol))
+    for name, env in config.envs.items():
+        section(f"envs.{name}", env, EnvConfig)
+    agent = config.agent
+    section("agent", agent, type(agent) if dataclasses.is_dataclass(agent) else None)
+    for name in ("replay", "training", "evaluation"):
+        obj = getattr(config, name)
+        section(name, obj, type(obj))
+    if config.scheduler:
+        section("scheduler", config.scheduler, None)
+    if config.finetune is not None:
+        section("finetune", config.finetune, FinetuneConfig)
+    section("checkpoint", config.checkpoint, type(config.checkpoint))
+    section("logging", config.logging, type(config.logging))
+    for name in ("search", "resources"):
+        if getattr(config, name):
+            section(name, getattr(config, name), None)
+    return "\n".join(out).rstrip() + "\n"

@@ -1,0 +1,270 @@
+"""The run directory: the one on-disk format that `seal report`, `seal.load_run` and sweeps read.
+
+    reports/<protocol>/<group-id>/seed-<n>/
+        config.toml        the resolved protocol (loads back with `seal run`)
+        provenance.json    git_sha, packages, command, device, seed, start/end time, protocol, kind,
+                           group, phase_names
+        metrics.csv        one row per evaluation and task (METRICS_COLUMNS)
+        train.csv          long format: seed,phase,epoch,grad_steps,env,key,value (TRAIN_COLUMNS)
+        scheduler.csv      the scheduler's timeline, when it has one
+        tb/                TensorBoard events
+        checkpoints/       ckpt-<epoch>.pt (last K, phase-prefixed for finetune) and best.pt
+
+Crash safety: CSV rows are appended and fsync'ed; JSON and TOML are written atomically (temp file,
+then rename). A checkpoint records the number of rows of every CSV at the moment it was taken,
+so resuming truncates each CSV back to that row count: no duplicate and no missing rows.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import hashlib
+import io
+import json
+import os
+import re
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from seal.errors import SealError
+
+METRICS_COLUMNS: tuple[str, ...] = (
+    "seed",
+    "phase",
+    "epoch",
+    "env",
+    "task",
+    "success",
+    "return",
+    "grad_steps",
+    "env_steps",
+    "updates",
+    "wall_s",
+)
+TRAIN_COLUMNS: tuple[str, ...] = ("seed", "phase", "epoch", "grad_steps", "env", "key", "value")
+CSV_FILES: tuple[str, ...] = ("metrics.csv", "train.csv", "scheduler.csv")
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write `text` to `path` atomically: a crash leaves the old file or the new one, never half."""
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    with open(tmp, "w") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def new_group_id(config_text: str, now: _dt.datetime | None = None) -> str:
+    """A group id: UTC timestamp plus the first 6 hex digits of the config's hash, e.g. 20261122-041503-a1b2c3."""
+    now = now or _dt.datetime.now(_dt.UTC)
+    return now.strftime("%Y%m%d-%H%M%S-") + hashlib.sha256(config_text.encode()).hexdigest()[:6]
+
+
+class CsvLog:
+    """An append-only CSV with a header, one fsync per batch of rows; can be cut back to N rows."""
+
+    def __init__(self, path: Path, columns: Sequence[str]) -> None:
+        self.path = path
+        self.columns = tuple(columns)
+        if not path.exists():
+            atomic_write_text(path, ",".join(self.columns) + "\n")
+
+    def append(self, rows: Iterable[Mapping[str, Any]]) -> None:
+        """Append rows (dicts keyed by column) and fsync, so a kill loses no row already returned."""
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=self.columns, lineterminator="\n")
+        for row in rows:
+            writer.writerow({k: _fmt(v) for k, v in row.items()})
+        if not buf.tell():
+            return
+        with open(self.path, "a") as fh:
+            fh.write(buf.getvalue())
+            fh.flush()
+            os.fsync(fh.fileno())
+
+    def num_rows(self) -> int:
+        """Data rows (header excluded); a partial last line from a crash is not counted."""
+        with open(self.path, "rb") as fh:
+            data = fh.read()
+        return max(0, data.count(b"\n") - 1)
+
+    def truncate(self, rows: int) -> None:
+        """Keep the header and the first `rows` data rows (drops anything written after a checkpoint)."""
+        with open(self.path, "rb") as fh:
+            lines = fh.read().split(b"\n")
+        complete = lines[:-1]  # the part after the last newline is empty or a torn row
+        kept = complete[: rows + 1]
+        atomic_write_text(self.path, b"\n".join(kept).decode() + "\n")
+
+
+def _fmt(value: Any) -> Any:
+    if isinstance(value, float):
+        return repr(value)  # round-trips exactly, so resumed rows compare equal to uninterrupted ones
+    return value
+
+
+class RunDir:
+    """Writer for one seed's run directory. Create with `RunDir.create(...)` or `RunDir.open(...)`."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.checkpoints = self.path / "checkpoints"
+        self.metrics = CsvLog(self.path / "metrics.csv", METRICS_COLUMNS)
+        self.train = CsvLog(self.path / "train.csv", TRAIN_COLUMNS)
+        self._scheduler: CsvLog | None = None
+        self._tb: Any = None
+
+    @classmethod
+    def create(cls, path: Path, config_toml: str, provenance: Mapping[str, Any]) -> RunDir:
+        """Make a fresh run directory with config.toml and provenance.json; refuses an existing one."""
+        path = Path(path)
+        if (path / "config.toml").exists():
+            raise SealError(f"run directory {path} already exists; use --resume {path} to continue it")
+        (path / "checkpoints").mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path / "config.toml", config_toml)
+        run = cls(path)
+        run.write_provenance(provenance)
+        return run
+
+    @classmethod
+    def open(cls, path: Path) -> RunDir:
+        """An existing run directory (for resume)."""
+        path = Path(path)
+        if not (path / "config.toml").is_file():
+            raise SealError(f"--resume {path}: not a run directory (no config.toml); run directories look like reports/<protocol>/<group>/seed-<n>")
+        return cls(path)
+
+    # ------------------------------------------------------------ metadata
+    def read_provenance(self) -> dict[str, Any]:
+        """provenance.json as a dict ({} if missing)."""
+        p = self.path / "provenance.json"
+        return json.loads(p.read_text()) if p.is_file() else {}
+
+    def write_provenance(self, provenance: Mapping[str, Any]) -> None:
+        """Replace provenance.json atomically."""
+        atomic_write_text(self.path / "provenance.json", json.dumps(dict(provenance), indent=2) + "\n")
+
+    def update_provenance(self, **fields: Any) -> None:
+        """Set some provenance fields (e.g. end_time) atomically."""
+        data = self.read_provenance()
+        data.update(fields)
+        self.write_provenance(data)
+
+    # ------------------------------------------------------------ logs
+    def log_eval(self, rows: Iterable[Mapping[str, Any]]) -> None:
+        """Append evaluation rows (METRICS_COLUMNS) and mirror success to TensorBoard."""
+        rows = list(rows)
+        self.metrics.append(rows)
+        tb = self.tensorboard
+        if tb is not None:
+            for r in rows:
+                tb.add_scalar(f"eval/{r['env']}/{r['task']}/success", r["success"], r["grad_steps"])
+                tb.add_scalar(f"eval/{r['env']}/{r['task']}/return", r["return"], r["grad_steps"])
+
+    def log_train(self, rows: Iterable[Mapping[str, Any]]) -> None:
+        """Append train.csv rows (TRAIN_COLUMNS) and mirror them to TensorBoard under losses/ or charts/."""
+        rows = list(rows)
+        self.train.append(rows)
+        tb = self.tensorboard
+        if tb is not None:
+            for r in rows:
+                group = "losses" if r["key"].endswith("loss") else "charts"
+                tb.add_scalar(f"{group}/{r['env']}/{r['key']}", r["value"], r["grad_steps"])
+
+    def log_scheduler(self, rows: Sequence[Mapping[str, Any]]) -> None:
+        """Append scheduler timeline rows; the columns are the first row's keys."""
+        if not rows:
+            return
+        if self._scheduler is None:
+            self._scheduler = CsvLog(self.path / "scheduler.csv", tuple(rows[0].keys()))
+        self._scheduler.append(rows)
+
+    def log_charts(self, values: Mapping[str, float], step: int) -> None:
+        """Scalars under charts/ in TensorBoard only (throughput, mean success)."""
+        tb = self.tensorboard
+        if tb is not None:
+            for k, v in values.items():
+                tb.add_scalar(f"charts/{k}", v, step)
+
+    @property
+    def tensorboard(self) -> Any:
+        """The TensorBoard SummaryWriter for tb/ (None when TensorBoard is not installed or disabled)."""
+        return self._tb
+
+    def open_tensorboard(self, purge_step: int | None = None) -> None:
+        """Start writing TensorBoard events; `purge_step` hides events past a resumed checkpoint."""
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+        except ImportError:  # tensorboard missing: CSVs remain the record
+            self._tb = None
+            return
+        self._tb = SummaryWriter(str(self.path / "tb"), purge_step=purge_step)
+
+    def flush(self) -> None:
+        """Flush TensorBoard events (CSV rows are already on disk)."""
+        if self._tb is not None:
+            self._tb.flush()
+
+    def close(self) -> None:
+        """Close TensorBoard."""
+        if self._tb is not None:
+            self._tb.close()
+            self._tb = None
+
+    # ------------------------------------------------------------ resume bookkeeping
+    def row_counts(self) -> dict[str, int]:
+        """Rows in every CSV now (stored in checkpoints, so resume can cut back to them)."""
+        counts = {"metrics.csv": self.metrics.num_rows(), "train.csv": self.train.num_rows()}
+        sched = self.path / "scheduler.csv"
+        counts["scheduler.csv"] = CsvLog(sched, ()).num_rows() if sched.exists() else 0
+        return counts
+
+    def truncate_to(self, counts: Mapping[str, int]) -> None:
+        """Cut every CSV back to the row counts a checkpoint recorded."""
+        for name in CSV_FILES:
+            p = self.path / name
+            if p.exists():
+                rows = int(counts.get(name, 0))
+                log = CsvLog(p, ())
+                if name == "scheduler.csv" and rows == 0:
+                    p.unlink()  # rewritten with its header on the next timeline row
+                    continue
+                log.truncate(rows)
+
+    def checkpoint_path(self, epoch: int, phase: str | None = None) -> Path:
+        """checkpoints/ckpt-<epoch>.pt, or ckpt-<phase>-<epoch>.pt when a run has several phases."""
+        stem = f"ckpt-{phase}-{epoch:07d}" if phase else f"ckpt-{epoch:07d}"
+        return self.checkpoints / f"{stem}.pt"
+
+    def best_path(self, phase: str | None = None) -> Path:
+        """checkpoints/best.pt (best-<phase>.pt for a run with several phases)."""
+        return self.checkpoints / (f"best-{phase}.pt" if phase else "best.pt")
+
+    def epoch_checkpoints(self) -> list[Path]:
+        """Epoch checkpoints, oldest first (by modification order of their names: phase, then epoch)."""
+        found = [p for p in self.checkpoints.glob("ckpt-*.pt")]
+        return sorted(found, key=lambda p: p.stat().st_mtime_ns)
+
+    def prune(self, keep_last: int) -> None:
+        """Delete all but the newest `keep_last` epoch checkpoints."""
+        for p in self.epoch_checkpoints()[:-keep_last]:
+            p.unlink(missing_ok=True)
+
+    def latest_checkpoint(self) -> Path | None:
+        """The newest epoch checkpoint, or None."""
+        found = self.epoch_checkpoints()
+        return found[-1] if found else None
+
+
+def seed_dir(group_dir: Path, seed: int) -> Path:
+    """<group>/seed-<n>."""
+    return Path(group_dir) / f"seed-{seed}"
+
+
+def parse_seed_dir(path: Path) -> int | None:
+    """The seed of a seed-<n> folder, else None."""
+    m = re.fullmatch(r"seed-(\d+)", Path(path).name)
+    return int(m.group(1)) if m else None

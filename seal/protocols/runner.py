@@ -1,0 +1,734 @@
+"""Protocol runners: the epoch loop, the three kinds, checkpoints and resume.
+
+One seed of a protocol is one `Run` writing one run directory (`seal.protocols.rundir`). A run
+has one or more phases: baseline and joint have the phase "train"; finetune has "pretrain" (on
+the source env) then "finetune" (on the target env, starting from the best pre-trained
+checkpoint with the policy's last layer re-initialised, SEAL Appendix D).
+
+The epoch (garage MTSAC convention, issue 4's table)::
+
+    plan = scheduler.plan(progress)               # which tasks collect, batch composition
+    collect one episode on every collecting task  # uniform random actions during warm-up
+    take grad_steps gradient steps                # after every env finished its warm-up
+    log losses (every logging.train_interval), evaluate (every evaluation.interval),
+    checkpoint (every checkpoint.interval)
+
+Exact resume: a checkpoint holds the agent, the replay, the scheduler, the counters and the RNG
+states, and the CSV row counts. Env instances continue their own RNG streams from episode to
+episode, which a checkpoint cannot capture, so the training and evaluation collectors are rebuilt
+with seeds derived from (seed, phase, epoch) right after every checkpoint, in uninterrupted and in
+resumed runs alike: a resumed run then replays exactly what the uninterrupted run did.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import random
+import sys
+import time
+import zlib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from seal import provenance
+from seal.envs import make_adapter
+from seal.envs.base import EnvAdapter
+from seal.errors import SealError, TrainingDivergedError
+from seal.evaluation import AgentPolicy, evaluate, mean_success
+from seal.protocols import scheduling
+from seal.protocols.config import ProtocolConfig
+from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
+from seal.protocols.rundir import RunDir, new_group_id, parse_seed_dir, seed_dir
+
+ALIGNED_ENV = "aligned"
+"""The agent's name for the single padded pseudo-environment of pad-and-fine-tune."""
+
+
+# ---------------------------------------------------------------- results and phases
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What one seed's run produced: its directory and the headline numbers (also `seal run --json`)."""
+
+    run_dir: Path
+    update_counts: dict[str, dict[str, float]]
+    """env -> task -> millions of that task's transitions consumed by updates when it first reached the threshold (0 = never)."""
+    final_success: dict[str, dict[str, float]]
+    """env -> task -> success rate at the last evaluation of the phase that trained on env."""
+
+
+@dataclass(frozen=True)
+class Phase:
+    """One training phase of a run: which envs it trains on, for how long, and how the agent sees them."""
+
+    name: str
+    index: int
+    envs: tuple[str, ...]
+    epochs: int
+    aligned: bool = False
+
+
+def plan_phases(config: ProtocolConfig) -> list[Phase]:
+    """The phases of a protocol, by kind."""
+    if config.kind == "finetune":
+        ft = config.finetune
+        assert ft is not None
+        return [
+            Phase("pretrain", 0, (ft.source,), ft.pretrain_epochs, aligned=True),
+            Phase("finetune", 1, (ft.target,), ft.finetune_epochs, aligned=True),
+        ]
+    return [Phase("train", 0, tuple(config.envs), config.protocol.epochs)]
+
+
+def derive_seed(*parts: int | str) -> int:
+    """A 32-bit seed from a run seed and labels, stable across processes (crc32, not hash())."""
+    ints = [p if isinstance(p, int) else zlib.crc32(p.encode()) for p in parts]
+    return int(np.random.SeedSequence(ints).generate_state(1, np.uint32)[0])
+
+
+def build_adapters(config: ProtocolConfig, envs: Sequence[str] | None = None) -> dict[str, EnvAdapter]:
+    """The adapters of the protocol's envs (all, or the named ones), with their resolved tasks."""
+    names = list(config.envs) if envs is None else list(envs)
+    return {
+        n: make_adapter(config.envs[n].adapter, tasks=list(config.envs[n].tasks), episode_length=config.envs[n].episode_length)
+        for n in names
+    }
+
+
+def build_alignment(config: ProtocolConfig, adapters: Mapping[str, EnvAdapter]) -> Any:
+    """The pad-and-fine-tune alignment over source then target adapters (Table 3 unless overridden)."""
+    from seal.envs.alignment import Alignment
+
+    ft = config.finetune
+    assert ft is not None
+    table = dict(ft.alignment) or None
+    try:
+        return Alignment.build([adapters[ft.source], adapters[ft.target]], table)
+    except SealError as exc:
+        raise SealError(f"{config.path}: finetune.alignment: {exc}") from None
+
+
+def agent_config(config: ProtocolConfig) -> Any:
+    """The AgentConfig of a protocol (built from the raw [agent] table if the loader could not)."""
+    from seal.learner import AgentConfig
+
+    agent = config.agent
+    if isinstance(agent, AgentConfig):
+        return agent
+    from seal.protocols.loader import build_dataclass, default_architecture
+
+    return build_dataclass(
+        AgentConfig,
+        dict(agent or {}),
+        f"{config.path}: agent",
+        {"architecture": default_architecture(config.kind), "device": config.protocol.device},
+    )
+
+
+def run_agent_config(config: ProtocolConfig, device: str) -> Any:
+    """The AgentConfig a run trains with on `device`."""
+    cfg = dataclasses.replace(agent_config(config), device=device)
+    if config.kind == "finetune":
+        # The aligned observation already carries the aligned one-hot id at a fixed index
+        # (Appendix D), so the agent must not append a second one.
+        cfg = dataclasses.replace(cfg, one_hot=False)
+    return cfg
+
+
+class PhaseModel:
+    """How the agent of one phase meets the envs: its specs, names, and the obs/id transforms."""
+
+    def __init__(self, config: ProtocolConfig, phase: Phase, adapters: Mapping[str, EnvAdapter], alignment: Any) -> None:
+        from seal.learner import EnvSpec
+
+        self.phase = phase
+        self.adapters = {e: adapters[e] for e in phase.envs}
+        self.alignment = alignment if phase.aligned else None
+        if self.alignment is None:
+            self.agent_env = {e: e for e in phase.envs}
+            self.specs = [EnvSpec(e, a.obs_dim, a.act_dim, len(a.tasks)) for e, a in self.adapters.items()]
+        else:
+            (env,) = phase.envs
+            a = self.adapters[env]
+            self.agent_env = {env: ALIGNED_ENV}
+            # The policy outputs the env's own action size (its last layer is per env and is
+            # re-initialised at transfer); the critic's action input is padded to the widest env.
+            self.specs = [EnvSpec(ALIGNED_ENV, alignment.obs_dim, a.act_dim, alignment.num_ids, act_pad_to=alignment.act_dim)]
+        # The replay keeps one buffer per task of the env even where tasks share an aligned id
+        # (the three kitchen doors), so the per-task update counts stay separate; sampled task
+        # ids are mapped to aligned ids before the update.
+        self.replay_specs = [dataclasses.replace(s, num_tasks=len(self.env_tasks_of(s.name))) for s in self.specs]
+        self.env_of_agent = {v: k for k, v in self.agent_env.items()}
+        self.env_tasks = {e: tuple(a.tasks) for e, a in self.adapters.items()}
+
+    def env_tasks_of(self, agent_env: str) -> tuple[str, ...]:
+        """The tasks of the env the agent calls `agent_env`."""
+        env = {v: k for k, v in self.agent_env.items()}[agent_env]
+        return tuple(self.adapters[env].tasks)
+
+    def aligned_names(self) -> dict[str, str]:
+        """protocol env -> alignment env name (the adapter's name)."""
+        return {e: a.name for e, a in self.adapters.items()}
+
+    def policy(self, agent: Any, deterministic: bool) -> AgentPolicy:
+        """The agent as a collector policy over this phase's raw envs."""
+        return AgentPolicy(agent, deterministic=deterministic, alignment=self.alignment, agent_env=self.agent_env, alignment_names=self.aligned_names())
+
+    def aligned_ids(self, env: str) -> np.ndarray:
+        """Local task index -> the id the agent's heads use."""
+        if self.alignment is None:
+            return np.arange(len(self.env_tasks[env]))
+        return self.alignment.task_ids(self.adapters[env].name)
+
+
+# ---------------------------------------------------------------- checkpoint files
+
+
+def save_checkpoint(path: Path, payload: Mapping[str, Any]) -> None:
+    """torch.save `payload` atomically (temp file, fsync, rename): a kill never leaves half a file."""
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    with open(tmp, "wb") as fh:
+        torch.save(dict(payload), fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    """A checkpoint written by `save_checkpoint` (SealError if it is not one)."""
+    p = Path(path)
+    if not p.is_file():
+        raise SealError(f"checkpoint {p}: no such file")
+    try:
+        data = torch.load(p, map_location="cpu", weights_only=False)
+    except Exception as exc:  # noqa: BLE001 - a torn or foreign file
+        raise SealError(f"checkpoint {p}: cannot be read ({type(exc).__name__}: {exc})") from None
+    if not isinstance(data, dict) or "seal_checkpoint" not in data:
+        raise SealError(f"checkpoint {p}: not a seal run checkpoint (made by `seal run`)")
+    return data
+
+
+# ---------------------------------------------------------------- one phase
+
+
+@dataclass
+class PhaseState:
+    """Counters of one phase (saved in every checkpoint)."""
+
+    epoch: int = 0
+    grad_steps: int = 0
+    env_steps: dict[str, list[int]] = field(default_factory=dict)
+    best_mean_success: float = -1.0
+    wall_s: float = 0.0
+    anchor_epoch: int = 0
+    """Epoch of the last checkpoint: the collectors' seeds derive from it (exact resume)."""
+    last_success: dict[str, dict[str, float]] = field(default_factory=dict)
+    reached: dict[str, dict[str, float]] = field(default_factory=dict)
+    """env -> task -> updates (millions) at the first evaluation at or above the threshold."""
+    timeline_rows: int = 0
+    """Scheduler timeline records already written to scheduler.csv."""
+
+
+class Run:
+    """One seed of one protocol: owns the run directory, phases, checkpoints and resume."""
+
+    def __init__(self, config: ProtocolConfig, seed: int, path: Path, *, quiet: bool = True, resume: bool = False, command: list[str] | None = None) -> None:
+        self.config = config
+        self.seed = int(seed)
+        self.quiet = quiet
+        self.phases = plan_phases(config)
+        if config.protocol.threads:
+            torch.set_num_threads(config.protocol.threads)
+        self.device = provenance.resolve_device(config.protocol.device)
+        self.adapters = build_adapters(config)
+        self.alignment = build_alignment(config, self.adapters) if config.kind == "finetune" else None
+        self.agent_cfg = run_agent_config(config, self.device)
+        if resume:
+            self.rundir = RunDir.open(path)
+        else:
+            prov = provenance.collect(command, self.device)
+            prov.update(
+                seed=self.seed,
+                start_time=provenance.utc_now(),
+                end_time=None,
+                protocol=config.name,
+                kind=config.kind,
+                group=Path(path).parent.name,
+                phase_names=[p.name for p in self.phases],
+            )
+            self.rundir = RunDir.create(path, dumps_toml(config_to_dict(config)), prov)
+        self.results: dict[str, PhaseState] = {}
+
+    # ------------------------------------------------------------ driver
+    def run(self) -> RunResult:
+        """Run (or resume) every phase; returns the run's headline numbers."""
+        start_phase, resume_payload = 0, None
+        latest = self.rundir.latest_checkpoint()
+        if latest is not None:
+            resume_payload = load_checkpoint(latest)
+            start_phase = int(resume_payload["runner"]["phase_index"])
+            self.rundir.truncate_to(resume_payload["runner"]["rows"])
+            for name, state in resume_payload["runner"].get("finished_phases", {}).items():
+                self.results[name] = PhaseState(**state)
+        elif (self.rundir.path / "metrics.csv").exists():
+            self.rundir.truncate_to({})  # killed before the first checkpoint: start over cleanly
+        purge = None
+        if resume_payload is not None and start_phase == 0:
+            # Hide TensorBoard events written after the checkpoint (they are written again). Steps
+            # restart in every phase, so purging in a later phase would hide earlier phases' events.
+            purge = int(resume_payload["runner"]["state"]["grad_steps"])
+        if self.config.logging.tensorboard:
+            self.rundir.open_tensorboard(purge_step=purge)
+        try:
+            for phase in self.phases[start_phase:]:
+                payload = resume_payload if resume_payload is not None and phase.index == start_phase else None
+                self.results[phase.name] = self._run_phase(phase, payload)
+        finally:
+            self.rundir.close()
+        self.rundir.update_provenance(end_time=provenance.utc_now())
+        counts: dict[str, dict[str, float]] = {}
+        final: dict[str, dict[str, float]] = {}
+        for phase in self.phases:
+            state = self.results[phase.name]
+            for env in phase.envs:
+                tasks = self.adapters[env].tasks
+                counts[env] = {t: float(state.reached.get(env, {}).get(t, 0.0)) for t in tasks}
+                final[env] = {t: float(state.last_success.get(env, {}).get(t, 0.0)) for t in tasks}
+        return RunResult(self.rundir.path, counts, final)
+
+    # ------------------------------------------------------------ building blocks
+    def _new_agent(self, model: PhaseModel) -> Any:
+        from seal.learner import Agent
+
+        return Agent(model.specs, self.agent_cfg, derive_seed(self.seed, "agent", model.phase.index))
+
+    def _new_replay(self, model: PhaseModel) -> Any:
+        from seal.learner import MultiTaskReplay
+
+        return MultiTaskReplay(model.replay_specs, self.config.replay.capacity_per_env, device=self.device)
+
+    def _collectors(self, model: PhaseModel, anchor: int) -> tuple[Any, Any]:
+        from seal.learner.collection import Collector
+
+        backend = self.config.training.collector
+        train = Collector(model.adapters, seed=derive_seed(self.seed, "train", model.phase.index, anchor), backend=backend)
+        ev = Collector(model.adapters, seed=derive_seed(self.seed, "eval", model.phase.index, anchor), backend=backend)
+        return train, ev
+
+    def _initial_agent(self, phase: Phase, model: PhaseModel) -> Any:
+        agent = self._new_agent(model)
+        if phase.name == "finetune":
+            ft = self.config.finetune
+            assert ft is not None
+            best = self.rundir.best_path("pretrain")
+            if not best.is_file():
+                raise SealError(f"{self.rundir.path}: fine-tuning needs the pre-training's best checkpoint {best}, which is missing")
+            source = load_checkpoint(best)
+            agent.transfer_from(source["agent"], reinit_critic=ft.reinit_critic)
+            agent.set_lr_factor(ft.lr_factor)
+        return agent
+
+    # ------------------------------------------------------------ the epoch loop
+    def _run_phase(self, phase: Phase, payload: Mapping[str, Any] | None) -> PhaseState:
+        cfg = self.config
+        model = PhaseModel(cfg, phase, self.adapters, self.alignment)
+        agent = self._initial_agent(phase, model)
+        replay = self._new_replay(model)
+        scheduler = scheduling.build(
+            cfg.scheduler,
+            model.env_tasks,
+            {e: cfg.envs[e].adapter for e in phase.envs},
+            cfg.path,
+            seed=derive_seed(self.seed, "scheduler", phase.index),
+            episode_lengths={e: self.adapters[e].episode_length for e in phase.envs},
+        )
+        state = PhaseState(env_steps={e: [0] * len(t) for e, t in model.env_tasks.items()})
+        np_rng = np.random.default_rng(derive_seed(self.seed, "runner", phase.index))
+        if payload is not None:
+            agent.load_state_dict(payload["agent"])
+            if payload.get("replay") is None:
+                raise SealError(f"{self.rundir.path}: the checkpoint holds no replay (checkpoint.save_replay = false), so the run cannot resume exactly")
+            replay.load_state_dict(payload["replay"])
+            scheduler.load_state_dict(payload["scheduler"])
+            state = PhaseState(**payload["runner"]["state"])
+            np_rng.bit_generator.state = payload["runner"]["np_rng"]
+            torch.set_rng_state(payload["runner"]["torch_rng"])
+            random.setstate(_tuple_state(payload["runner"]["py_rng"]))
+        train_collector, eval_collector = self._collectors(model, state.anchor_epoch)
+        id_maps = {model.agent_env[e]: torch.as_tensor(model.aligned_ids(e), dtype=torch.long) for e in phase.envs}
+        total_tasks = sum(len(t) for t in model.env_tasks.values())
+        train_policy = model.policy(agent, deterministic=False)
+        eval_policy = model.policy(agent, deterministic=True)
+        sums: dict[str, float] = {}
+        n_updates = 0
+        bar = None if self.quiet else _progress_bar(phase, state.epoch)
+        tick_time, tick_env, tick_grad = time.monotonic(), sum(map(sum, state.env_steps.values())), state.grad_steps
+        started = time.monotonic() - state.wall_s
+        try:
+            while state.epoch < phase.epochs:
+                from seal.schedulers import Progress
+
+                task_steps = {(e, t): state.env_steps[e][i] for e, ts in model.env_tasks.items() for i, t in enumerate(ts)}
+                plan = scheduler.plan(Progress(epoch=state.epoch, env_steps=sum(task_steps.values()), grad_steps=state.grad_steps, task_env_steps=task_steps))
+                if plan.reset_agent:
+                    agent.reset_parameters()
+                # ---- collect: warm-up envs act uniformly at random, the others with the policy
+                warm = {e: sum(state.env_steps[e]) < cfg.training.warmup_steps for e in phase.envs}
+                collected_lengths: dict[str, int] = {}
+                for random_actions in (True, False):
+                    active = {e: (np.asarray(plan.collect[e], dtype=bool) if warm[e] == random_actions else np.zeros(len(model.env_tasks[e]), dtype=bool)) for e in phase.envs}
+                    if not any(m.any() for m in active.values()):
+                        continue
+                    stats = train_collector.collect_episodes(
+                        None if random_actions else train_policy,
+                        active=active,
+                        random_actions=random_actions,
+                        sink=_ReplaySink(replay, model),
+                    )
+                    for e in phase.envs:
+                        mask = active[e]
+                        if not mask.any():
+                            continue
+                        idx = np.flatnonzero(mask)
+                        for i in idx:
+                            state.env_steps[e][i] += int(stats.lengths[e][i])
+                        collected_lengths[e] = int(stats.lengths[e][idx].max())
+                        scheduler.observe_episodes(
+                            e,
+                            [model.env_tasks[e][i] for i in idx],
+                            [float(stats.returns[e][i]) for i in idx],
+                            [float(stats.successes[e][i]) for i in idx],
+                            [int(stats.lengths[e][i]) for i in idx],
+                        )
+                # ---- update: only once every env has finished its warm-up
+                if all(sum(state.env_steps[e]) >= cfg.training.warmup_steps for e in phase.envs) and collected_lengths:
+                    steps = self._grad_steps(plan, collected_lengths)
+                    counts = plan.batch_counts(cfg.training.batch_per_task * total_tasks)
+                    sample_counts = {model.agent_env[e]: np.asarray(c, dtype=np.int64) for e, c in counts.items() if int(np.sum(c)) > 0}
+                    for _ in range(steps):
+                        batches = replay.sample(sample_counts, np_rng)
+                        batches = {k: b._replace(task_ids=id_maps[k].to(b.task_ids.device)[b.task_ids]) for k, b in batches.items()} if model.alignment is not None else batches
+                        try:
+                            losses = agent.update(batches)
+                        except TrainingDivergedError as exc:
+                            last = self.rundir.latest_checkpoint()
+                            raise SealError(f"{self.rundir.path}: training diverged in phase {phase.name!r} at gradient step {state.grad_steps + 1} ({exc}); last good checkpoint: {last or 'none yet'}") from None
+                        state.grad_steps += 1
+                        n_updates += 1
+                        for k, v in losses.items():
+                            sums[k] = sums.get(k, 0.0) + float(v)
+                state.epoch += 1
+                epoch = state.epoch
+                last_epoch = epoch >= phase.epochs or scheduler.done
+                # ---- training curves: the mean of every logged value over the interval's updates
+                if n_updates and (epoch % cfg.logging.train_interval == 0 or last_epoch):
+                    self.rundir.log_train(self._train_rows(phase, model, epoch, state.grad_steps, {k: v / n_updates for k, v in sums.items()}))
+                    sums, n_updates = {}, 0
+                # ---- evaluation (Appendix B)
+                if epoch % cfg.evaluation.interval == 0 or last_epoch:
+                    self._evaluate(phase, model, agent, replay, scheduler, eval_policy, eval_collector, state, started)
+                request = scheduler.wants_scores()
+                if request is not None:
+                    scheduler.observe_scores(self._scores(request, model, agent, epoch))
+                # ---- scheduler timeline and checkpoint
+                timeline = scheduler.timeline()
+                if len(timeline) > state.timeline_rows:
+                    self.rundir.log_scheduler([{"phase": phase.name, **r} for r in timeline[state.timeline_rows :]])
+                    state.timeline_rows = len(timeline)
+                if epoch % cfg.checkpoint.interval == 0 or last_epoch:
+                    state.wall_s = time.monotonic() - started
+                    state.anchor_epoch = epoch
+                    self._checkpoint(phase, agent, replay, scheduler, state, np_rng)
+                    # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
+                    train_collector.close()
+                    eval_collector.close()
+                    train_collector, eval_collector = self._collectors(model, epoch)
+                if bar is not None:
+                    now = time.monotonic()
+                    env_now = sum(map(sum, state.env_steps.values()))
+                    dt = max(now - tick_time, 1e-9)
+                    bar.set_postfix_str(_postfix(env_now - tick_env, state.grad_steps - tick_grad, dt, state.last_success), refresh=False)
+                    bar.update(1)
+                    tick_time, tick_env, tick_grad = now, env_now, state.grad_steps
+                if scheduler.done:
+                    break
+        finally:
+            train_collector.close()
+            eval_collector.close()
+            if bar is not None:
+                bar.close()
+        return state
+
+    def _grad_steps(self, plan: Any, collected_lengths: Mapping[str, int]) -> int:
+        from seal.schedulers import GRAD_STEPS_COLLECTED
+
+        if plan.grad_steps is not None:
+            if plan.grad_steps == GRAD_STEPS_COLLECTED:
+                return int(sum(collected_lengths.values()))
+            return int(plan.grad_steps)
+        n = self.config.training.grad_steps_per_epoch
+        # -1: the longest episode collected this epoch (see TrainingConfig.grad_steps_per_epoch).
+        return int(max(collected_lengths.values())) if n == -1 else int(n)
+
+    def _train_rows(self, phase: Phase, model: PhaseModel, epoch: int, grad_steps: int, values: Mapping[str, float]) -> list[dict[str, Any]]:
+        return [
+            {"seed": self.seed, "phase": phase.name, "epoch": epoch, "grad_steps": grad_steps, "env": env, "key": name, "value": float(v)}
+            for key, value in values.items()
+            for env, name, v in train_rows_for(key, value, model)
+        ]
+
+    def _evaluate(self, phase: Phase, model: PhaseModel, agent: Any, replay: Any, scheduler: Any, policy: Any, collector: Any, state: PhaseState, started: float) -> None:
+        cfg = self.config
+        results = evaluate(policy, model.adapters, episodes=cfg.evaluation.episodes, seed=0, collector=collector)
+        wall = time.monotonic() - started
+        rows = []
+        success_by_key: dict[tuple[str, str], float] = {}
+        for env in phase.envs:
+            consumed = np.asarray(replay.consumed[model.agent_env[env]], dtype=np.int64)
+            for i, task in enumerate(model.env_tasks[env]):
+                r = results[env][task]
+                updates = float(consumed[i]) / 1e6
+                rows.append(
+                    {
+                        "seed": self.seed,
+                        "phase": phase.name,
+                        "epoch": state.epoch,
+                        "env": env,
+                        "task": task,
+                        "success": r["success"],
+                        "return": r["return"],
+                        "grad_steps": state.grad_steps,
+                        "env_steps": state.env_steps[env][i],
+                        "updates": updates,
+                        "wall_s": round(wall, 3),
+                    }
+                )
+                success_by_key[(env, task)] = r["success"]
+                if r["success"] >= cfg.evaluation.threshold and task not in state.reached.get(env, {}):
+                    state.reached.setdefault(env, {})[task] = updates
+        self.rundir.log_eval(rows)
+        state.last_success = {e: {t: results[e][t]["success"] for t in model.env_tasks[e]} for e in phase.envs}
+        self.rundir.log_charts({f"{e}/mean_success": float(np.mean(list(v.values()))) for e, v in state.last_success.items()}, state.grad_steps)
+        scheduler.observe_eval(state.epoch, success_by_key)
+        mean = mean_success(results)
+        if mean > state.best_mean_success:
+            state.best_mean_success = mean
+            save_checkpoint(self.rundir.best_path(phase.name if len(self.phases) > 1 else None), self._payload(phase, agent, None, None, state, None, best=True))
+
+    def _scores(self, request: Any, model: PhaseModel, agent: Any, epoch: int) -> dict[tuple[str, str], float]:
+        """SMT Eq. 5 scores: mean over episodes of sum_t gamma^t r_t - log pi(a_t|s_t) (stochastic policy).
+
+        The entropy term needs `agent.log_prob(env, obs, actions, task_ids)`; an agent without it
+        is scored by discounted return alone (said in the scheduler's docs).
+        """
+        from seal.learner.collection import Collector
+
+        keys = list(request.tasks)
+        tasks = {e: [t for (e2, t) in keys if e2 == e] for e in model.env_tasks}
+        tasks = {e: ts for e, ts in tasks.items() if ts}
+        totals = {k: 0.0 for k in keys}
+        policy = model.policy(agent, deterministic=False)
+        log_prob = getattr(agent, "log_prob", None)
+        with Collector({e: model.adapters[e] for e in tasks}, seed=derive_seed(self.seed, "score", model.phase.index, epoch), tasks=tasks, backend="sync") as col:
+            for _ in range(request.episodes):
+                t_of: dict[str, np.ndarray] = {}
+
+                def sink(env: str, task_ids: np.ndarray, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray, *_: Any, _t: dict[str, np.ndarray] = t_of) -> None:
+                    names = model.adapters[env].tasks
+                    steps = _t.setdefault(env, np.zeros(len(names), dtype=np.int64))
+                    term = rewards * request.discount ** steps[task_ids]
+                    if log_prob is not None:
+                        name, agent_obs, ids = policy.agent_inputs(env, obs, task_ids)
+                        term = term - np.asarray(log_prob(name, agent_obs, actions, ids), dtype=np.float64)
+                    for j, tid in enumerate(task_ids):
+                        totals[(env, names[tid])] += float(term[j]) / request.episodes
+                    steps[task_ids] += 1
+
+                col.collect_episodes(policy, sink=sink)
+        return totals
+
+    def _payload(self, phase: Phase, agent: Any, replay: Any, scheduler: Any, state: PhaseState, np_rng: Any, best: bool = False) -> dict[str, Any]:
+        return {
+            "seal_checkpoint": 1,
+            "config_toml": dumps_toml(config_to_dict(self.config)),
+            "seed": self.seed,
+            "phase": phase.name,
+            "phase_envs": list(phase.envs),
+            "epoch": state.epoch,
+            "best": best,
+            "mean_success": state.best_mean_success,
+            "agent": agent.state_dict(),
+            "replay": replay.state_dict() if replay is not None and self.config.checkpoint.save_replay else None,
+            "scheduler": scheduler.state_dict() if scheduler is not None else None,
+            "runner": None
+            if best
+            else {
+                "phase_index": phase.index,
+                "state": dataclasses.asdict(state),
+                "rows": self.rundir.row_counts(),
+                "np_rng": np_rng.bit_generator.state,
+                "torch_rng": torch.get_rng_state(),
+                "py_rng": random.getstate(),
+                "finished_phases": {k: dataclasses.asdict(v) for k, v in self.results.items()},
+            },
+        }
+
+    def _checkpoint(self, phase: Phase, agent: Any, replay: Any, scheduler: Any, state: PhaseState, np_rng: Any) -> None:
+        self.rundir.flush()
+        path = self.rundir.checkpoint_path(state.epoch, phase.name if len(self.phases) > 1 else None)
+        save_checkpoint(path, self._payload(phase, agent, replay, scheduler, state, np_rng))
+        agent.last_checkpoint = str(path)  # named by TrainingDivergedError
+        self.rundir.prune(self.config.checkpoint.keep_last)
+
+
+def _tuple_state(state: Any) -> Any:
+    """random.getstate() after a round trip through torch.save (lists back to tuples)."""
+    if isinstance(state, list):
+        return tuple(_tuple_state(s) for s in state)
+    return state
+
+
+# The agent's log keys ("losses/<env>/critic", "charts/<env>/alpha/<id>") -> train.csv keys.
+_TRAIN_KEYS = {
+    "losses/critic": "critic_loss",
+    "losses/actor": "actor_loss",
+    "losses/qf1": "qf1_loss",
+    "losses/qf2": "qf2_loss",
+    "losses/alpha": "alpha_loss",
+    "charts/mean_q": "mean_q",
+    "charts/entropy": "entropy",
+}
+
+
+def train_rows_for(key: str, value: float, model: PhaseModel) -> list[tuple[str, str, float]]:
+    """(env, train.csv key, value) rows for one of the agent's log values.
+
+    "losses/<agent env>/critic" becomes (env, "critic_loss"); "charts/<agent env>/alpha/<id>"
+    becomes one "alpha/<task>" row for every task of env whose head id is <id> (under
+    pad-and-fine-tune several kitchen tasks share an aligned id, so they share a temperature).
+    """
+    parts = key.split("/")
+    if len(parts) < 3 or parts[1] not in model.env_of_agent:
+        return [("", key, value)]
+    env = model.env_of_agent[parts[1]]
+    if len(parts) == 4 and parts[2] == "alpha" and parts[3].isdigit():
+        ids = model.aligned_ids(env)
+        return [(env, f"alpha/{task}", value) for task, i in zip(model.env_tasks[env], ids, strict=True) if int(i) == int(parts[3])]
+    short = f"{parts[0]}/{'/'.join(parts[2:])}"
+    return [(env, _TRAIN_KEYS.get(short, "/".join(parts[2:])), value)]
+
+
+def _progress_bar(phase: Phase, initial: int) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(total=phase.epochs, initial=initial, desc=f"{phase.name}", unit="epoch", dynamic_ncols=True, file=sys.stderr)
+
+
+def _postfix(env_steps: int, grad_steps: int, dt: float, success: Mapping[str, Mapping[str, float]]) -> str:
+    parts = [f"env {env_steps / dt:,.0f}/s", f"upd {grad_steps / dt:,.0f}/s"]
+    for env, per_task in success.items():
+        if per_task:
+            parts.append(f"{env} {np.mean(list(per_task.values())):.2f}")
+    return " ".join(parts)
+
+
+class _ReplaySink:
+    """Feeds collector transitions to the replay, aligning observations for pad-and-fine-tune."""
+
+    def __init__(self, replay: Any, model: PhaseModel) -> None:
+        self.replay = replay
+        self.model = model
+
+    def __call__(self, env: str, task_ids: np.ndarray, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray, terminations: np.ndarray) -> None:
+        model = self.model
+        if model.alignment is not None:
+            name = model.adapters[env].name
+            obs = model.alignment.transform_obs(name, obs, task_ids)
+            next_obs = model.alignment.transform_obs(name, next_obs, task_ids)
+        self.replay.add(model.agent_env[env], task_ids, obs, actions, rewards, next_obs, terminations)
+
+
+# ---------------------------------------------------------------- public API
+
+
+def new_group_dir(config: ProtocolConfig, out: str | Path = "reports") -> Path:
+    """reports/<protocol>/<timestamp>-<config hash>; not created yet."""
+    return Path(out) / config.name / new_group_id(dumps_toml(config_to_dict(config)))
+
+
+def run_seed(config: ProtocolConfig, seed: int, group_dir: str | Path, *, quiet: bool = True, resume: bool = False, command: list[str] | None = None) -> RunResult:
+    """Run one seed of `config` into `group_dir/seed-<seed>` (or resume it from its last checkpoint)."""
+    path = seed_dir(Path(group_dir), seed)
+    if resume:
+        saved = _saved_config(path)
+        run = Run(saved, seed, path, quiet=quiet, resume=True, command=command)
+    else:
+        run = Run(config, seed, path, quiet=quiet, command=command)
+    return run.run()
+
+
+def resume_run(run_dir: str | Path, *, quiet: bool = True, protocol_name: str | None = None) -> RunResult:
+    """Continue a run directory from its last checkpoint, with the config it saved."""
+    path = Path(run_dir)
+    seed = parse_seed_dir(path)
+    if seed is None:
+        raise SealError(f"--resume {path}: expected a seed directory named seed-<n> (reports/<protocol>/<group>/seed-<n>)")
+    saved = _saved_config(path)
+    if protocol_name is not None and saved.name != protocol_name:
+        raise SealError(f"--resume {path}: this run is of protocol {saved.name!r}, not {protocol_name!r}")
+    return Run(saved, seed, path, quiet=quiet, resume=True).run()
+
+
+def load_policy(checkpoint: str | Path, device: str = "auto") -> tuple[ProtocolConfig, PhaseModel, Any, dict[str, Any]]:
+    """(config, phase model, agent with the saved weights, raw checkpoint) of a run checkpoint."""
+    import tomllib
+
+    data = load_checkpoint(checkpoint)
+    config = config_from_dict(tomllib.loads(data["config_toml"]), f"{checkpoint} (saved config)")
+    phases = {p.name: p for p in plan_phases(config)}
+    phase = phases[data["phase"]]
+    adapters = build_adapters(config)
+    alignment = build_alignment(config, adapters) if config.kind == "finetune" else None
+    model = PhaseModel(config, phase, adapters, alignment)
+    from seal.learner import Agent
+
+    agent = Agent(model.specs, run_agent_config(config, provenance.resolve_device(device)), 0)
+    agent.load_state_dict(data["agent"])
+    return config, model, agent, data
+
+
+def _saved_config(path: Path) -> ProtocolConfig:
+    import tomllib
+
+    RunDir.open(path)
+    return config_from_dict(tomllib.loads((path / "config.toml").read_text()), str(path / "config.toml"))
+
+
+def run_protocol(config: ProtocolConfig, *, out: str | Path = "reports", quiet: bool = True, command: list[str] | None = None) -> tuple[Path, list[RunResult]]:
+    """Run every seed of `config` one after another into one new group; returns (group dir, results)."""
+    group = new_group_dir(config, out)
+    results = [run_seed(config, s, group, quiet=quiet, command=command) for s in config.seeds]
+    return group, results
+
+
+def result_json(results: Sequence[RunResult]) -> str:
+    """The one-line JSON that `seal run --json` ends with."""
+    last = results[-1]
+    data: dict[str, Any] = {
+        "run_dir": str(last.run_dir),
+        "update_counts": last.update_counts,
+        "final_success": last.final_success,
+    }
+    if len(results) > 1:
+        data["run_dirs"] = [str(r.run_dir) for r in results]
+    return json.dumps(data, allow_nan=False, default=lambda o: None if isinstance(o, float) and not math.isfinite(o) else str(o))
+

@@ -1,0 +1,1012 @@
+"""Scale-out on Ray: every (protocol, seed) as its own Ray task, and random search with Ray Tune.
+
+`seal sweep FILE... [--seeds 0-4]` sends each (protocol, seed) pair to Ray as one task that calls
+`seal.protocols.run_seed`, so every trial writes exactly the run directory `seal run` writes, all
+seeds of a protocol under one group. `seal sweep FILE --search` draws configs from the protocol's
+`[search]` table and lets Ray Tune run them (optionally stopping weak ones early with ASHA), then
+ranks them and writes the best resolved config as a TOML file ready for `seal run`.
+
+Ray is optional (the `ray` extra): it is imported inside the functions that need it, never at
+module import, so `seal run` and the protocol layer never load it.
+
+On disk, a sweep is a directory holding `sweep.json` (what was asked, every trial and its status),
+`trials.{csv,md}` and `tables/` (the `seal report` tables of the finished runs)::
+
+    one protocol:      <out>/<protocol>/<group-id>/        sweep.json, seed-<n>/, tables/
+    several:           <out>/sweeps/<sweep-id>/            sweep.json, tables/ (groups as above)
+    search:            <out>/<protocol>/search-<id>/       sweep.json, sample-<k>/seed-<n>/,
+                                                           search.{csv,md}, best.toml
+
+Fault tolerance: a trial that raises (e.g. training diverged) is recorded with its error and the
+others go on. `--resume SWEEP_DIR` re-reads sweep.json: trials whose run directory is finished
+(provenance.json has an end_time) are kept as they are, started ones continue from their last
+checkpoint, and the rest start afresh.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import datetime as _dt
+import itertools
+import json
+import math
+import os
+import sys
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from seal.errors import ConfigError, SealError
+from seal.protocols.config import ProtocolConfig
+from seal.protocols.loader import apply_overrides, config_from_dict, config_to_dict, dumps_toml, load_protocol
+from seal.protocols.rundir import atomic_write_text, new_group_id, seed_dir
+
+MANIFEST = "sweep.json"
+"""The file in a sweep directory that records what was asked and every trial's status."""
+
+DISTRIBUTIONS: tuple[str, ...] = ("uniform", "loguniform", "choice", "int", "grid")
+"""Distributions a [search] entry may name (`dist = ...`)."""
+
+SEARCH_OPTIONS: tuple[str, ...] = ("num_samples", "seed", "scheduler", "grace_period", "reduction_factor", "max_concurrent")
+"""Keys of [search] that configure the search itself; every other key names a config value."""
+
+RESOURCE_KEYS: tuple[str, ...] = ("cpus", "gpus")
+"""Keys of [resources]: CPUs and GPUs (a fraction shares one GPU) reserved per trial."""
+
+Status = Literal["finished", "failed", "stopped", "pending"]
+POLL_S = 0.5  # how often a search trial reads its metrics.csv for new evaluations
+
+
+# ---------------------------------------------------------------- [resources]
+
+
+@dataclass(frozen=True)
+class Resources:
+    """What Ray reserves for one trial."""
+
+    cpus: float = 1.0
+    """CPUs per trial (also the trial's torch thread count, rounded down, at least 1)."""
+    gpus: float = 0.0
+    """GPUs per trial; a fraction (e.g. 0.25) lets several trials share one GPU."""
+
+    @property
+    def threads(self) -> int:
+        """Torch threads a trial uses: its whole CPUs, at least one (no oversubscription)."""
+        return max(1, int(self.cpus))
+
+
+def parse_resources(config: ProtocolConfig) -> Resources:
+    """The protocol's [resources] table, checked (default: 1 CPU, no GPU per trial)."""
+    table = dict(config.resources or {})
+    unknown = sorted(set(table) - set(RESOURCE_KEYS))
+    if unknown:
+        raise ConfigError(f"{config.path}: resources.{unknown[0]} is not a valid key; valid keys: {', '.join(RESOURCE_KEYS)}")
+    values: dict[str, float] = {}
+    for key, lowest, strict in (("cpus", 0.0, True), ("gpus", 0.0, False)):
+        if key not in table:
+            continue
+        value = table[key]
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < lowest or (strict and value == lowest):
+            span = "> 0" if strict else ">= 0"
+            raise ConfigError(f"{config.path}: resources.{key} = {value!r} is not valid; expected a number {span}")
+        values[key] = float(value)
+    return Resources(**values)
+
+
+# ---------------------------------------------------------------- [search]
+
+
+@dataclass(frozen=True)
+class Distribution:
+    """One searched config value: `dist` over [low, high] or over `values`."""
+
+    key: str
+    """The config key, "table.key" as for --set (e.g. "agent.actor_lr")."""
+    dist: str
+    """uniform, loguniform, choice, int (integers low..high inclusive) or grid (every value)."""
+    low: float | None = None
+    high: float | None = None
+    values: tuple[Any, ...] = ()
+
+    def tune_domain(self) -> Any:
+        """The Ray Tune search-space object of this distribution (grid: a plain list of values)."""
+        from ray import tune
+
+        if self.dist == "uniform":
+            return tune.uniform(self.low, self.high)
+        if self.dist == "loguniform":
+            return tune.loguniform(self.low, self.high)
+        if self.dist == "int":
+            return tune.randint(int(self.low), int(self.high) + 1)  # Tune's upper bound is exclusive
+        if self.dist == "choice":
+            return tune.choice(list(self.values))
+        return list(self.values)
+
+
+@dataclass(frozen=True)
+class SearchSpec:
+    """A parsed [search] table."""
+
+    params: tuple[Distribution, ...]
+    num_samples: int = 10
+    """Random draws; with `grid` entries, each draw is made for every grid point (Tune's semantics)."""
+    seed: int = 0
+    """Seed of the draws, so the same [search] table always tries the same configs."""
+    scheduler: Literal["none", "asha"] = "none"
+    """"asha": stop trials whose mean success lags at each rung (Li et al. 2020); "none": run all to the end."""
+    grace_period: int = 1
+    """ASHA: evaluations every trial gets before it can be stopped."""
+    reduction_factor: float = 2.0
+    """ASHA: keep the best 1/reduction_factor of trials at each rung."""
+    max_concurrent: int | None = None
+    """At most this many trials at once (default: as many as the cluster's resources allow)."""
+
+
+def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """{"agent": {"actor_lr": {dist...}}} and {"agent.actor_lr": {dist...}} both become {"agent.actor_lr": {dist...}}."""
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping) and "dist" not in value:
+            out.update(_flatten(value, f"{name}."))
+        else:
+            out[name] = value
+    return out
+
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ConfigError(f"{where} = {value!r} is not valid; expected a finite number")
+    return float(value)
+
+
+def parse_distribution(key: str, spec: Any, file: str) -> Distribution:
+    """One `"table.key" = {dist = ..., ...}` entry of [search], checked."""
+    where = f"{file}: search.{key}"
+    if "." not in key:
+        raise ConfigError(f"{where}: a searched key names a config value as table.key (e.g. \"agent.actor_lr\"); valid search options: {', '.join(SEARCH_OPTIONS)}")
+    if not isinstance(spec, Mapping) or "dist" not in spec:
+        raise ConfigError(f"{where} = {spec!r} must be an inline table with dist = one of {', '.join(DISTRIBUTIONS)}, e.g. {{dist = \"loguniform\", low = 1e-5, high = 1e-3}}")
+    dist = spec["dist"]
+    if dist not in DISTRIBUTIONS:
+        raise ConfigError(f"{where}.dist = {dist!r} is not valid; valid: {', '.join(DISTRIBUTIONS)}")
+    needed = {"uniform": ("low", "high"), "loguniform": ("low", "high"), "int": ("low", "high"), "choice": ("values",), "grid": ("values",)}[dist]
+    extra = sorted(set(spec) - {"dist", *needed})
+    if extra:
+        raise ConfigError(f"{where}.{extra[0]} is not valid for dist = {dist!r}; valid keys: dist, {', '.join(needed)}")
+    missing = [k for k in needed if k not in spec]
+    if missing:
+        raise ConfigError(f"{where}: dist = {dist!r} needs {' and '.join(needed)}; {missing[0]} is missing")
+    if dist in ("choice", "grid"):
+        values = spec["values"]
+        if not isinstance(values, list) or not values:
+            raise ConfigError(f"{where}.values = {values!r} is not valid; expected a non-empty array, e.g. values = [1e-4, 3e-4]")
+        return Distribution(key, dist, values=tuple(values))
+    low, high = _number(spec["low"], f"{where}.low"), _number(spec["high"], f"{where}.high")
+    if dist == "int" and (low != int(low) or high != int(high)):
+        raise ConfigError(f"{where}: dist = \"int\" needs integer low and high, got {spec['low']!r}, {spec['high']!r}")
+    if not low < high and not (dist == "int" and low == high):
+        raise ConfigError(f"{where}: low = {spec['low']!r} must be below high = {spec['high']!r}")
+    if dist == "loguniform" and low <= 0:
+        raise ConfigError(f"{where}.low = {spec['low']!r} is not valid for dist = \"loguniform\"; expected a number > 0")
+    return Distribution(key, dist, low=low, high=high)
+
+
+def parse_search(config: ProtocolConfig, num_samples: int | None = None) -> SearchSpec:
+    """The protocol's [search] table as a SearchSpec; `num_samples` (from --samples) wins over the file's."""
+    file = config.path
+    table = _flatten(config.search or {})
+    if not any(k not in SEARCH_OPTIONS for k in table):
+        raise ConfigError(
+            f"{file}: --search needs a [search] table naming at least one config value, e.g. "
+            f'[search] "agent.actor_lr" = {{dist = "loguniform", low = 1e-5, high = 1e-3}}'
+        )
+    options: dict[str, Any] = {}
+    for key in SEARCH_OPTIONS:
+        if key not in table:
+            continue
+        value, where = table[key], f"{file}: search.{key}"
+        if key == "scheduler":
+            if value not in ("none", "asha"):
+                raise ConfigError(f"{where} = {value!r} is not valid; valid: 'none', 'asha'")
+        elif key == "reduction_factor":
+            if _number(value, where) <= 1:
+                raise ConfigError(f"{where} = {value!r} is not valid; expected a number > 1")
+            value = float(value)
+        else:
+            lowest = 0 if key == "seed" else 1
+            if isinstance(value, bool) or not isinstance(value, int) or value < lowest:
+                raise ConfigError(f"{where} = {value!r} is not valid; expected an integer >= {lowest}")
+        options[key] = value
+    if num_samples is not None:
+        if num_samples < 1:
+            raise SealError(f"--samples {num_samples}: expected an integer >= 1")
+        options["num_samples"] = num_samples
+    params = tuple(parse_distribution(k, v, file) for k, v in table.items() if k not in SEARCH_OPTIONS)
+    return SearchSpec(params=params, **options)
+
+
+def draw_samples(spec: SearchSpec) -> list[dict[str, Any]]:
+    """The configs a search tries: `num_samples` random draws for every point of the grid entries.
+
+    Draws use Ray Tune's distributions with a generator seeded by `spec.seed`, so a search (and
+    its resume) always tries the same configs. Values are plain Python numbers, in [search] order.
+    """
+    import numpy as np
+
+    rng = np.random.default_rng(spec.seed)
+    grid = [p for p in spec.params if p.dist == "grid"]
+    points = list(itertools.product(*(p.values for p in grid))) or [()]
+    samples: list[dict[str, Any]] = []
+    for _ in range(spec.num_samples):
+        for point in points:
+            chosen = dict(zip((p.key for p in grid), point, strict=True))
+            sample = {}
+            for p in spec.params:
+                value = chosen[p.key] if p.dist == "grid" else p.tune_domain().sample(random_state=rng)
+                sample[p.key] = _plain(value)
+            samples.append(sample)
+    return samples
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars -> Python numbers (so they print and serialise as TOML/JSON)."""
+    item = getattr(value, "item", None)
+    return item() if callable(item) and not isinstance(value, list | tuple | dict | str) else value
+
+
+def toml_literal(value: Any) -> str:
+    """A value as TOML text for a `table.key=value` override."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        if not math.isfinite(value):
+            return "nan" if value != value else ("inf" if value > 0 else "-inf")
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)  # a JSON string is a valid TOML basic string
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(toml_literal(v) for v in value) + "]"
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{json.dumps(str(k))} = {toml_literal(v)}" for k, v in value.items()) + "}"
+    raise SealError(f"cannot write {value!r} ({type(value).__name__}) as a TOML value")
+
+
+def sample_overrides(sample: Mapping[str, Any]) -> list[str]:
+    """A sample as --set strings, e.g. {"agent.actor_lr": 1e-4} -> ["agent.actor_lr=0.0001"]."""
+    return [f"{key}={toml_literal(value)}" for key, value in sample.items()]
+
+
+def with_overrides(config: ProtocolConfig, overrides: Sequence[str], where: str | None = None) -> ProtocolConfig:
+    """`config` with --set style overrides applied and everything validated again.
+
+    The overrides are applied to the resolved config (after --scale), so a sampled
+    `protocol.epochs` is used as given.
+    """
+    raw = apply_overrides(config_to_dict(config), overrides, where or config.path)
+    return config_from_dict(raw, where or config.path)
+
+
+def describe_sample(sample: Mapping[str, Any]) -> str:
+    """A short one-line form of a sample, e.g. "agent.actor_lr=0.000123, agent.tau=0.01"."""
+    parts = []
+    for key, value in sample.items():
+        shown = f"{value:.3g}" if isinstance(value, float) else toml_literal(value)
+        parts.append(f"{key}={shown}")
+    return ", ".join(parts)
+
+
+# ---------------------------------------------------------------- run directories
+
+
+def is_finished(run_dir: str | Path) -> bool:
+    """True when a run directory completed: its provenance.json has an end_time."""
+    path = Path(run_dir) / "provenance.json"
+    try:
+        return bool(json.loads(path.read_text()).get("end_time"))
+    except (OSError, json.JSONDecodeError):
+        return False
+
+
+def is_started(run_dir: str | Path) -> bool:
+    """True when a run directory exists (it has a config.toml), so it can be continued."""
+    return (Path(run_dir) / "config.toml").is_file()
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """One evaluation of a run: its phase, epoch and means over every (env, task) evaluated."""
+
+    phase: str
+    epoch: int
+    grad_steps: int
+    mean_success: float
+    mean_return: float
+    rows: int
+
+
+def read_evaluations(run_dir: str | Path) -> list[Evaluation]:
+    """The evaluations in a run's metrics.csv, in order (a torn last line is ignored)."""
+    path = Path(run_dir) / "metrics.csv"
+    try:
+        text = path.read_text()
+    except OSError:
+        return []
+    complete = text[: text.rfind("\n") + 1] if "\n" in text else ""
+    groups: dict[tuple[str, int], list[dict[str, str]]] = {}
+    for row in csv.DictReader(complete.splitlines()):
+        try:
+            groups.setdefault((row["phase"], int(row["epoch"])), []).append(row)
+        except (KeyError, TypeError, ValueError):
+            continue
+    out = []
+    for (phase, epoch), rows in groups.items():
+        success = [float(r["success"]) for r in rows]
+        returns = [float(r["return"]) for r in rows]
+        out.append(
+            Evaluation(
+                phase=phase,
+                epoch=epoch,
+                grad_steps=int(float(rows[-1]["grad_steps"])),
+                mean_success=sum(success) / len(success),
+                mean_return=sum(returns) / len(returns),
+                rows=len(rows),
+            )
+        )
+    return out
+
+
+def evaluations_per_run(config: ProtocolConfig) -> int:
+    """How many evaluations a full run of `config` makes (every `interval` epochs and after the last)."""
+
+    def count(epochs: int) -> int:
+        interval = config.evaluation.interval
+        return epochs // interval + (1 if epochs % interval else 0)
+
+    if config.kind == "finetune" and config.finetune is not None:
+        return count(config.finetune.pretrain_epochs) + count(config.finetune.finetune_epochs)
+    return count(config.protocol.epochs)
+
+
+# ---------------------------------------------------------------- trials
+
+
+@dataclass
+class TrialRecord:
+    """One trial of a sweep or search: where it ran, how it ended, and its last evaluation."""
+
+    trial: str
+    """Name: "<protocol>/seed-<n>" in a sweep, "sample-<k>" in a search."""
+    protocol: str
+    seed: int
+    run_dir: str
+    status: Status = "pending"
+    """finished, failed, stopped (ASHA stopped it early) or pending (not run yet)."""
+    start: Literal["new", "continued", "kept"] = "new"
+    """new: a fresh run; continued: resumed from its last checkpoint; kept: already finished, not run again."""
+    error: str = ""
+    """The exception, one line (the full traceback is in <run_dir>/error.txt)."""
+    mean_success: float | None = None
+    """Mean success over every (env, task) at the last evaluation."""
+    mean_return: float | None = None
+    """Mean return over every (env, task) at the last evaluation."""
+    evaluations: int = 0
+    wall_s: float = 0.0
+    """Seconds this trial ran in this invocation (0 for kept trials)."""
+    sample: dict[str, Any] = field(default_factory=dict)
+    """A search trial's sampled config values (empty in a sweep)."""
+
+    def refresh(self) -> None:
+        """Re-read the last evaluation from the run directory."""
+        evals = read_evaluations(self.run_dir)
+        self.evaluations = len(evals)
+        if evals:
+            self.mean_success, self.mean_return = evals[-1].mean_success, evals[-1].mean_return
+
+
+def _write_error(run_dir: Path, exc: BaseException) -> str:
+    """Save the traceback next to the run (error.txt) and return the one-line error."""
+    line = f"{type(exc).__name__}: {exc}".splitlines()[0] if str(exc) else type(exc).__name__
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(run_dir / "error.txt", "".join(traceback.format_exception(exc)))
+    except OSError:
+        pass  # the one-line error still reaches the sweep's table
+    return line
+
+
+def _set_threads(threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def execute_trial(config: ProtocolConfig, record: TrialRecord, *, threads: int = 1, command: Sequence[str] | None = None) -> TrialRecord:
+    """Run one trial in this process (what a Ray task executes) and return its updated record.
+
+    Never raises for a failing run: the error is stored in the record and in error.txt.
+    """
+    from seal.protocols import run_seed
+
+    run_dir = Path(record.run_dir)
+    started = time.monotonic()
+    if is_finished(run_dir):
+        record.start, record.status = "kept", "finished"
+        record.refresh()
+        return record
+    record.start = "continued" if is_started(run_dir) else "new"
+    (run_dir / "error.txt").unlink(missing_ok=True)
+    try:
+        _set_threads(threads)
+        run_seed(config, record.seed, run_dir.parent, quiet=True, resume=record.start == "continued", command=list(command) if command else None)
+        record.status, record.error = "finished", ""
+    except Exception as exc:  # noqa: BLE001 - any failure is this trial's, recorded, never the sweep's
+        record.status, record.error = "failed", _write_error(run_dir, exc)
+    record.wall_s = round(time.monotonic() - started, 3)
+    record.refresh()
+    return record
+
+
+# ---------------------------------------------------------------- ray session
+
+
+class RaySession:
+    """`with RaySession(address):` a Ray connection; shut down on exit only if this opened it.
+
+    address None starts a private local Ray in this process's machine (address="local", never an
+    unrelated cluster found through RAY_ADDRESS); "auto" or "HOST:PORT" joins an existing cluster.
+    If Ray is already initialised (e.g. by a test fixture or a notebook), that session is used.
+    """
+
+    def __init__(self, address: str | None = None, num_cpus: int | None = None) -> None:
+        self.address = address
+        self.num_cpus = num_cpus
+        self.started = False
+
+    def __enter__(self) -> Any:
+        ray = import_ray()
+        if ray.is_initialized():
+            return ray
+        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "logging_level": "warning"}
+        if self.address is None:
+            kwargs.update(address="local", num_cpus=self.num_cpus or os.cpu_count() or 1)
+        else:
+            kwargs["address"] = self.address
+        try:
+            ray.init(**kwargs)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            where = "a local Ray" if self.address is None else f"the Ray cluster at --address {self.address}"
+            hint = "" if self.address is None else " (start it with `ray start --head` on the head node, or drop --address for a local Ray)"
+            raise SealError(f"cannot start or join {where}: {exc}{hint}") from None
+        self.started = True
+        return ray
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.started:
+            import_ray().shutdown()
+
+
+def import_ray() -> Any:
+    """The `ray` module, or SealError saying how to install it."""
+    try:
+        import ray
+    except ImportError:
+        raise SealError("seal sweep needs Ray: pip install 'seal[ray]' (or pip install 'ray[tune]')") from None
+    return ray
+
+
+# ---------------------------------------------------------------- sweep
+
+
+@dataclass
+class SweepResult:
+    """What a sweep or search wrote."""
+
+    sweep_dir: Path
+    """Holds sweep.json, trials.{csv,md} (search: search.{csv,md}, best.toml) and tables/."""
+    trials: list[TrialRecord]
+    table: Path | None
+    """The aggregated table in `seal report`'s format (tables/update_counts.md), else the trials table."""
+    trials_table: Path
+    """trials.md (a sweep) or search.md (a search, ranked)."""
+    best_config: Path | None = None
+    """A search's best resolved config (best.toml), ready for `seal run`."""
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def failed(self) -> list[TrialRecord]:
+        """Trials that raised."""
+        return [t for t in self.trials if t.status == "failed"]
+
+    def to_json(self) -> dict[str, Any]:
+        """The one-line JSON `seal sweep --json` ends with."""
+        data: dict[str, Any] = {
+            "run_dirs": [t.run_dir for t in self.trials if t.status == "finished"],
+            "table": str(self.table) if self.table else None,
+            "sweep_dir": str(self.sweep_dir),
+            "trials_table": str(self.trials_table),
+            "failed": [{"trial": t.trial, "run_dir": t.run_dir, "error": t.error} for t in self.failed],
+        }
+        if self.best_config is not None:
+            data["best_config"] = str(self.best_config)
+        return data
+
+
+def _command(command: Sequence[str] | None) -> list[str]:
+    return list(command) if command is not None else [Path(sys.argv[0]).name, *sys.argv[1:]]
+
+
+def _saved_config_path(sweep_dir: Path, name: str) -> Path:
+    return sweep_dir / "configs" / f"{name}.toml"
+
+
+def _save_configs(sweep_dir: Path, configs: Sequence[ProtocolConfig]) -> None:
+    """Each protocol's resolved config, so a resume runs exactly what was asked even if the file changed."""
+    (sweep_dir / "configs").mkdir(parents=True, exist_ok=True)
+    for config in configs:
+        atomic_write_text(_saved_config_path(sweep_dir, config.name), dumps_toml(config_to_dict(config)))
+
+
+def _write_manifest(sweep_dir: Path, kind: str, trials: Sequence[TrialRecord], extra: Mapping[str, Any]) -> None:
+    data = {"kind": kind, **extra, "trials": [dataclasses.asdict(t) for t in trials]}
+    atomic_write_text(sweep_dir / MANIFEST, json.dumps(data, indent=2) + "\n")
+
+
+def read_manifest(sweep_dir: str | Path) -> dict[str, Any]:
+    """A sweep directory's sweep.json, or SealError saying what a sweep directory is."""
+    path = Path(sweep_dir)
+    manifest = path / MANIFEST
+    if not manifest.is_file():
+        hint = ""
+        if path.is_dir() and (path.parent / MANIFEST).is_file():
+            hint = f"; did you mean its sweep directory {path.parent}?"
+        raise SealError(f"--resume {path}: not a sweep directory (no {MANIFEST}); pass the directory `seal sweep` printed as sweep_dir{hint}")
+    try:
+        data = json.loads(manifest.read_text())
+        data["trials"] = [TrialRecord(**t) for t in data["trials"]]
+    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise SealError(f"{manifest}: not a readable sweep manifest ({exc})") from None
+    return data
+
+
+def _load_configs(paths: Sequence[str | Path], overrides: Sequence[str], scale: float | None) -> list[ProtocolConfig]:
+    if not paths:
+        raise SealError("seal sweep: give at least one protocol FILE (or --resume SWEEP_DIR)")
+    configs = [load_protocol(p, overrides, scale) for p in paths]
+    names = [c.name for c in configs]
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise SealError(f"protocols {[str(p) for p in paths]}: several have the name {dupes[0]!r}; each protocol of a sweep needs its own [protocol].name")
+    for config in configs:
+        parse_resources(config)  # a bad [resources] table fails before Ray starts
+    return configs
+
+
+def sweep(
+    paths: Sequence[str | Path] = (),
+    *,
+    seeds: Sequence[int] | None = None,
+    overrides: Sequence[str] = (),
+    scale: float | None = None,
+    out: str | Path = "reports",
+    address: str | None = None,
+    num_cpus: int | None = None,
+    resume: str | Path | None = None,
+    command: Sequence[str] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> SweepResult:
+    """Run every (protocol, seed) pair as its own Ray task; each writes the run directory `seal run` writes.
+
+    `seeds` default to each protocol's own. All seeds of a protocol go into one new group
+    `<out>/<protocol>/<group-id>/`. `resume` continues an earlier sweep directory instead (paths,
+    seeds, overrides and scale are then taken from it). Failing trials are recorded, not raised.
+    """
+    command = _command(command)
+    if resume is not None:
+        sweep_dir = Path(resume)
+        manifest = read_manifest(sweep_dir)
+        if manifest.get("kind") != "sweep":
+            raise SealError(f"--resume {sweep_dir}: this is a {manifest.get('kind')!r} directory; resume it with --search")
+        trials = manifest["trials"]
+        configs = {name: load_protocol(_saved_config_path(sweep_dir, name)) for name in dict.fromkeys(t.protocol for t in trials)}
+        for t in trials:
+            t.wall_s = 0.0
+    else:
+        loaded = _load_configs(paths, overrides, scale)
+        configs = {c.name: c for c in loaded}
+        from seal.protocols.runner import new_group_dir
+
+        groups = {c.name: new_group_dir(c, out).resolve() for c in loaded}
+        if len(loaded) == 1:
+            sweep_dir = groups[loaded[0].name]
+        else:
+            stamp = new_group_id(json.dumps([dumps_toml(config_to_dict(c)) for c in loaded]))
+            sweep_dir = Path(out).resolve() / "sweeps" / stamp
+        trials = [
+            TrialRecord(trial=f"{c.name}/seed-{s}", protocol=c.name, seed=s, run_dir=str(seed_dir(groups[c.name], s)))
+            for c in loaded
+            for s in (list(seeds) if seeds is not None else c.seeds)
+        ]
+        sweep_dir.mkdir(parents=True, exist_ok=True)
+        for group in groups.values():
+            group.mkdir(parents=True, exist_ok=True)
+        _save_configs(sweep_dir, loaded)
+        manifest = {"created": _now(), "command": " ".join(command), "protocols": [str(p) for p in paths], "groups": {n: str(g) for n, g in groups.items()}}
+    extra = {k: v for k, v in manifest.items() if k not in ("kind", "trials")}
+    say = progress or (lambda _msg: None)
+    _write_manifest(sweep_dir, "sweep", trials, extra)
+    say(f"sweep directory: {sweep_dir}")
+
+    with RaySession(address, num_cpus) as ray:
+        remote = ray.remote(execute_trial)
+        pending: dict[Any, TrialRecord] = {}
+        for record in trials:
+            if is_finished(record.run_dir):  # resume: a finished run is not sent to Ray at all
+                record.start, record.status = "kept", "finished"
+                record.refresh()
+                continue
+            res = parse_resources(configs[record.protocol])
+            task = remote.options(num_cpus=res.cpus, num_gpus=res.gpus, max_retries=0, name=f"seal-sweep:{record.trial}")
+            pending[task.remote(configs[record.protocol], record, threads=res.threads, command=command)] = record
+        done_count, total = len(trials) - len(pending), len(trials)
+        try:
+            while pending:
+                ready, _ = ray.wait(list(pending), num_returns=1)
+                ref = ready[0]
+                record = pending.pop(ref)
+                try:
+                    result: TrialRecord = ray.get(ref)
+                    trials[trials.index(record)] = result
+                    record = result
+                except Exception as exc:  # noqa: BLE001 - a crashed worker is this trial's failure
+                    record.status, record.error = "failed", _write_error(Path(record.run_dir), exc)
+                    record.refresh()
+                done_count += 1
+                say(f"[{done_count}/{total}] {record.trial}: {_outcome(record)}")
+                _write_manifest(sweep_dir, "sweep", trials, extra)
+        except KeyboardInterrupt:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            _write_manifest(sweep_dir, "sweep", trials, extra)
+            raise
+
+    notes: list[str] = []
+    trials_table = _write_trials_table(sweep_dir / "trials", trials, ranked=False)
+    table = _aggregate(sweep_dir, trials, notes) or trials_table
+    _write_manifest(sweep_dir, "sweep", trials, extra)
+    return SweepResult(sweep_dir=sweep_dir, trials=trials, table=table, trials_table=trials_table, notes=notes)
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+
+
+def _outcome(record: TrialRecord) -> str:
+    if record.status == "failed":
+        return f"FAILED ({record.error})"
+    score = f"mean success {record.mean_success:.2f}" if record.mean_success is not None else "no evaluation"
+    how = {"kept": "already finished, kept", "continued": "continued", "new": ""}[record.start]
+    return f"{record.status} ({', '.join(p for p in (score, how, f'{record.wall_s:.0f} s' if record.wall_s else '') if p)})"
+
+
+def _aggregate(sweep_dir: Path, trials: Sequence[TrialRecord], notes: list[str]) -> Path | None:
+    """`seal report` tables of the finished runs under sweep_dir/tables; None (with a note) if impossible."""
+    finished = [t.run_dir for t in trials if t.status == "finished"]
+    if not finished:
+        notes.append("no trial finished, so there is no aggregated table")
+        return None
+    from seal.reports import report
+
+    try:
+        result = report(finished, out=sweep_dir)
+    except SealError as exc:
+        notes.append(f"aggregated table not made: {exc}")
+        return None
+    return result.tables.get("update_counts.md")
+
+
+_TABLE_COLUMNS = ("rank", "trial", "status", "mean_success", "mean_return", "evaluations", "seed", "start", "wall_s", "error", "run_dir")
+
+
+def _write_trials_table(stem: Path, trials: Sequence[TrialRecord], *, ranked: bool) -> Path:
+    """<stem>.csv and <stem>.md: one row per trial (search: ranked, sampled values as columns)."""
+    import pandas as pd
+
+    keys = list(dict.fromkeys(k for t in trials for k in t.sample))
+    rows = []
+    for i, t in enumerate(trials, start=1):
+        row = {c: getattr(t, c, None) for c in _TABLE_COLUMNS if c != "rank"}
+        row["rank"] = i if ranked else None
+        row.update({k: t.sample.get(k) for k in keys})
+        rows.append(row)
+    columns = [c for c in _TABLE_COLUMNS if ranked or c != "rank"]
+    columns = columns[:3] + keys + columns[3:]
+    frame = pd.DataFrame(rows, columns=columns)
+    frame.to_csv(stem.with_suffix(".csv"), index=False)
+    shown = frame.drop(columns=["run_dir"]).copy()
+    for column in ("mean_success", "mean_return"):
+        shown[column] = [("" if v is None or v != v else f"{v:.3f}") for v in shown[column]]
+    shown["error"] = [str(e)[:120] for e in shown["error"]]
+    title = "Search trials, best first" if ranked else "Sweep trials"
+    note = (
+        "Ranked by mean success at the last evaluation, then mean return; trials stopped early by ASHA "
+        "rank after finished ones, failed trials last."
+        if ranked
+        else "mean_success / mean_return: means over every (env, task) at the run's last evaluation."
+    )
+    atomic_write_text(stem.with_suffix(".md"), f"# {title}\n\n{shown.to_markdown(index=False, disable_numparse=True)}\n\n{note}\n")
+    return stem.with_suffix(".md")
+
+
+# ---------------------------------------------------------------- search
+
+
+def rank_trials(trials: Iterable[TrialRecord]) -> list[TrialRecord]:
+    """Best first: finished before stopped early before failed; within each, by mean success then mean return.
+
+    Short searches often leave every trial at 0 success, so mean return breaks ties; a trial that
+    ASHA stopped saw less training, so it never ranks above one that ran to the end.
+    """
+    order = {"finished": 0, "stopped": 1, "pending": 2, "failed": 3}
+
+    def key(t: TrialRecord) -> tuple[float, float, float]:
+        success = t.mean_success if t.mean_success is not None else -math.inf
+        ret = t.mean_return if t.mean_return is not None else -math.inf
+        return (order[t.status], -success, -ret)
+
+    return sorted(trials, key=key)
+
+
+@dataclass(frozen=True)
+class SearchPlan:
+    """What every search trial needs (shipped once to Ray's object store)."""
+
+    configs: tuple[ProtocolConfig, ...]
+    """The resolved config of each sample, by index."""
+    records: tuple[TrialRecord, ...]
+    threads: int
+    command: tuple[str, ...]
+
+
+def search_trainable(tune_config: Mapping[str, Any], plan: SearchPlan) -> None:
+    """The Ray Tune function trainable of one sample: run it and report mean success per evaluation.
+
+    The run goes on in a thread while this one reads metrics.csv and reports every new complete
+    evaluation to Tune (`training_iteration` counts evaluations, which ASHA's grace period uses).
+    A finished run directory (resume) is not run again: its evaluations are reported as they are.
+    """
+    from ray import tune
+
+    from seal.protocols import run_seed
+    from seal.protocols.runner import plan_phases
+
+    index = int(tune_config["sample"])
+    config, record = plan.configs[index], plan.records[index]
+    run_dir = Path(record.run_dir)
+    per_eval = {p.name: sum(len(config.envs[e].tasks) for e in p.envs) for p in plan_phases(config)}
+    reported = 0
+
+    def report_new(final: bool) -> None:
+        nonlocal reported
+        evals = read_evaluations(run_dir)
+        complete = [e for e in evals if final or e.rows >= per_eval.get(e.phase, 1)]
+        reported = min(reported, len(complete))  # a continued run cut its CSV back to its checkpoint
+        for e in complete[reported:]:
+            tune.report({"mean_success": e.mean_success, "mean_return": e.mean_return, "epoch": e.epoch, "grad_steps": e.grad_steps, "phase": e.phase})
+        reported = len(complete)
+
+    if is_finished(run_dir):
+        report_new(final=True)
+        return
+    resume = is_started(run_dir)
+    (run_dir / "error.txt").unlink(missing_ok=True)
+    failure: list[BaseException] = []
+
+    def work() -> None:
+        try:
+            _set_threads(plan.threads)
+            run_seed(config, record.seed, run_dir.parent, quiet=True, resume=resume, command=list(plan.command))
+        except BaseException as exc:  # noqa: BLE001 - handed to the reporting thread
+            _write_error(run_dir, exc)
+            failure.append(exc)
+
+    # daemon: when ASHA stops this trial, Ray ends the actor process and the run thread with it.
+    worker = threading.Thread(target=work, name=f"seal-search-{index}", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(POLL_S)
+        report_new(final=False)
+    report_new(final=True)
+    if failure:
+        raise failure[0]
+
+
+def search(
+    path: str | Path | None = None,
+    *,
+    seed: int | None = None,
+    num_samples: int | None = None,
+    overrides: Sequence[str] = (),
+    scale: float | None = None,
+    out: str | Path = "reports",
+    address: str | None = None,
+    num_cpus: int | None = None,
+    resume: str | Path | None = None,
+    command: Sequence[str] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> SweepResult:
+    """Random search over the protocol's [search] table with Ray Tune; returns the ranked trials.
+
+    Each sample is one run (one seed: `seed`, default the protocol's first) of the protocol with
+    the sampled values set, under `<out>/<protocol>/search-<id>/sample-<k>/seed-<n>/`. Writes
+    search.{csv,md} (ranked) and best.toml (the best sample's resolved config, for `seal run`).
+    """
+    command = _command(command)
+    say = progress or (lambda _msg: None)
+    if resume is not None:
+        search_dir = Path(resume)
+        manifest = read_manifest(search_dir)
+        if manifest.get("kind") != "search":
+            raise SealError(f"--resume {search_dir}: this is a {manifest.get('kind')!r} directory; resume it without --search")
+        records = manifest["trials"]
+        base = load_protocol(_saved_config_path(search_dir, manifest["protocol"]))
+        for t in records:
+            t.status, t.error, t.wall_s = "pending", "", 0.0
+    else:
+        if path is None:
+            raise SealError("seal sweep --search: give one protocol FILE (or --resume SEARCH_DIR)")
+        (base,) = _load_configs([path], overrides, scale)
+        run_seed_no = base.protocol.first_seed if seed is None else seed
+        spec = parse_search(base, num_samples)
+        samples = draw_samples(spec)
+        search_dir = Path(out).resolve() / base.name / f"search-{new_group_id(dumps_toml(config_to_dict(base)))}"
+        records = [
+            TrialRecord(trial=f"sample-{k:03d}", protocol=base.name, seed=run_seed_no, run_dir=str(seed_dir(search_dir / f"sample-{k:03d}", run_seed_no)), sample=s)
+            for k, s in enumerate(samples)
+        ]
+        search_dir.mkdir(parents=True, exist_ok=True)
+        _save_configs(search_dir, [base])
+        manifest = {"created": _now(), "command": " ".join(command), "protocol": base.name, "file": str(path), "search": dataclasses.asdict(spec)}
+    spec = parse_search(base, manifest["search"]["num_samples"])
+    configs = []
+    for record in records:
+        try:
+            configs.append(with_overrides(base, sample_overrides(record.sample), f"{base.path} [{record.trial}]"))
+        except SealError as exc:
+            # A sampled value the schema rejects (e.g. a learning rate of 0) fails that trial only.
+            configs.append(base)
+            record.status, record.error = "failed", f"ConfigError: {exc}"
+    extra = {k: v for k, v in manifest.items() if k not in ("kind", "trials")}
+    _write_manifest(search_dir, "search", records, extra)
+    say(f"search directory: {search_dir} ({len(records)} samples)")
+
+    runnable = [i for i, r in enumerate(records) if r.status != "failed"]
+    res = parse_resources(base)
+    if runnable:
+        with RaySession(address, num_cpus):
+            _run_tune(search_dir, spec, base, configs, records, runnable, res, command, say)
+    for record in records:
+        record.refresh()
+    ranked = rank_trials(records)
+    trials_table = _write_trials_table(search_dir / "search", ranked, ranked=True)
+    best = _write_best(search_dir, ranked, configs, records)
+    notes: list[str] = []
+    if best is None:
+        notes.append("no trial finished, so there is no best config")
+    _write_manifest(search_dir, "search", ranked, extra)
+    return SweepResult(sweep_dir=search_dir, trials=ranked, table=trials_table, trials_table=trials_table, best_config=best, notes=notes)
+
+
+def _run_tune(
+    search_dir: Path,
+    spec: SearchSpec,
+    base: ProtocolConfig,
+    configs: Sequence[ProtocolConfig],
+    records: Sequence[TrialRecord],
+    runnable: Sequence[int],
+    res: Resources,
+    command: Sequence[str],
+    say: Callable[[str], None],
+) -> None:
+    """Let Ray Tune run the runnable samples; set each record's status from its run directory."""
+    from ray import tune
+    from ray.tune.schedulers import ASHAScheduler
+
+    # Tune's per-trial JSON/CSV/TensorBoard loggers duplicate the run directories; keep them off.
+    os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
+    plan = SearchPlan(configs=tuple(configs), records=tuple(records), threads=res.threads, command=tuple(command))
+    trainable = tune.with_resources(tune.with_parameters(search_trainable, plan=plan), {"cpu": res.cpus, "gpu": res.gpus})
+    scheduler = None
+    if spec.scheduler == "asha":
+        max_t = max(evaluations_per_run(c) for c in configs)
+        scheduler = ASHAScheduler(time_attr="training_iteration", max_t=max(max_t, spec.grace_period), grace_period=spec.grace_period, reduction_factor=spec.reduction_factor)
+    tuner = tune.Tuner(
+        trainable,
+        param_space={"sample": tune.grid_search(list(runnable))},
+        tune_config=tune.TuneConfig(
+            metric="mean_success",
+            mode="max",
+            num_samples=1,  # the samples were drawn above; the grid over their indices runs each once
+            scheduler=scheduler,
+            max_concurrent_trials=spec.max_concurrent,
+            trial_dirname_creator=lambda trial: f"sample-{int(trial.config['sample']):03d}",
+        ),
+        run_config=tune.RunConfig(
+            name="tune",
+            storage_path=str(search_dir.resolve()),
+            verbose=0,
+            failure_config=tune.FailureConfig(max_failures=0, fail_fast=False),
+        ),
+    )
+    started = time.monotonic()
+    results = tuner.fit()
+    errors: dict[int, str] = {}
+    for result in results:
+        if result.error is not None and result.config:
+            errors[int(result.config["sample"])] = str(result.error).strip().splitlines()[-1] if str(result.error).strip() else type(result.error).__name__
+    wall = round(time.monotonic() - started, 3)
+    for i in runnable:
+        record = records[i]
+        record.refresh()
+        error_file = Path(record.run_dir) / "error.txt"
+        if is_finished(record.run_dir):
+            record.status = "finished"
+        elif error_file.is_file() or i in errors:
+            record.status = "failed"
+            record.error = _error_line(error_file) or errors.get(i, "failed")
+        else:
+            record.status = "stopped"  # Tune ended it before the run finished: ASHA's early stopping
+        record.wall_s = wall
+        say(f"{record.trial} [{describe_sample(record.sample)}]: {_outcome(record)}")
+
+
+def _error_line(error_file: Path) -> str:
+    """The last line of a saved traceback ("SealError: ..."), or ""."""
+    try:
+        lines = [ln for ln in error_file.read_text().splitlines() if ln.strip()]
+    except OSError:
+        return ""
+    return lines[-1] if lines else ""
+
+
+def _write_best(search_dir: Path, ranked: Sequence[TrialRecord], configs: Sequence[ProtocolConfig], records: Sequence[TrialRecord]) -> Path | None:
+    """best.toml: the best finished sample's resolved config without [search], ready for `seal run`."""
+    best = next((t for t in ranked if t.status == "finished"), None)
+    if best is None:
+        return None
+    config = configs[[r.trial for r in records].index(best.trial)]
+    data = config_to_dict(config)
+    data.pop("search", None)
+    score = f"mean success {best.mean_success:.3f}, mean return {best.mean_return:.3f}" if best.mean_success is not None else "no evaluation"
+    header = (
+        f"# Best config of the random search in {search_dir}\n"
+        f"# {best.trial} ({score} at its last evaluation): {describe_sample(best.sample)}\n"
+        f"# Run it with: seal run {search_dir / 'best.toml'}\n\n"
+    )
+    path = search_dir / "best.toml"
+    atomic_write_text(path, header + dumps_toml(data))
+    return path
+
+
+__all__ = [
+    "Distribution",
+    "Resources",
+    "SearchSpec",
+    "SweepResult",
+    "TrialRecord",
+    "draw_samples",
+    "execute_trial",
+    "is_finished",
+    "parse_resources",
+    "parse_search",
+    "rank_trials",
+    "read_evaluations",
+    "sample_overrides",
+    "search",
+    "sweep",
+]

@@ -1,0 +1,57 @@
+"""Deliberately broken kitchen adapters: `seal envs check` must fail each of them.
+
+Each subclass of the real `FrankaKitchenDenseAdapter` wraps the env it makes in one lie, and
+keeps everything else (spaces, seeding, the semantic check) intact, so the check that fails is
+the one about the lie. tests/envs/test_check.py loads this file by path and checks each class.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from franka_kitchen_dense.adapter import FrankaKitchenDenseAdapter
+from metaworld.utils.reward_utils import tolerance
+
+
+class _AlwaysSuccess(gym.Wrapper):
+    """Reports success on every reset and step, whatever the kitchen's state."""
+
+    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
+        obs, info = self.env.reset(**kwargs)
+        return obs, {**info, "success": 1.0}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward, terminated, truncated, {**info, "success": 1.0}
+
+
+class _ObjectBlindReward(gym.Wrapper):
+    """Rewards only keeping the gripper at the object's *initial* position, closed: the object's
+    state never enters the reward, so moving the object towards its goal earns nothing."""
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        obs, _, terminated, truncated, info = self.env.step(action)
+        raw = self.env.unwrapped
+        near = float(np.linalg.norm(raw.reading(action).tcp - raw.constants.obj_init))
+        reward = 10.0 * float(tolerance(near, bounds=(0.0, 0.05), margin=0.5, sigmoid="long_tail"))
+        return obs, reward, terminated, truncated, info
+
+
+class AlwaysSuccessKitchen(FrankaKitchenDenseAdapter):
+    """info["success"] is always 1: fails "success == 0 at reset"."""
+
+    name = "broken_always_success_kitchen"
+
+    def make(self, task: str, seed: int) -> gym.Env:
+        return _AlwaysSuccess(super().make(task, seed))
+
+
+class ObjectBlindKitchen(FrankaKitchenDenseAdapter):
+    """The reward ignores the object: fails "reward >= 9 at the goal" and "reward rises"."""
+
+    name = "broken_object_blind_kitchen"
+
+    def make(self, task: str, seed: int) -> gym.Env:
+        return _ObjectBlindReward(super().make(task, seed))

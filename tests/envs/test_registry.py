@@ -1,0 +1,53 @@
+"""The adapter registry: built-in names, import paths, and the errors a user sees."""
+
+from __future__ import annotations
+
+import pytest
+
+from seal.envs import BUILTIN_ADAPTERS, adapter_class, make_adapter
+from seal.envs.metaworld import MetaWorldAdapter
+from seal.envs.point import PointAdapter
+from seal.errors import SealError, UnknownNameError
+
+
+def test_builtin_names_resolve() -> None:
+    assert list(BUILTIN_ADAPTERS) == ["metaworld", "franka_kitchen_dense", "point"]
+    assert adapter_class("metaworld") is MetaWorldAdapter
+    assert adapter_class("point") is PointAdapter
+    assert adapter_class("seal.envs.point:PointAdapter") is PointAdapter  # the same, by import path
+
+
+def test_make_adapter_passes_tasks_and_options() -> None:
+    adapter = make_adapter("point", tasks=["south", "east"], episode_length=7)
+    assert adapter.tasks == ("south", "east") and adapter.episode_length == 7
+    assert make_adapter("metaworld", tasks="mt3").tasks == ("reach-v3", "push-v3", "pick-place-v3")
+
+
+def test_unknown_adapter_lists_the_valid_ones() -> None:
+    with pytest.raises(UnknownNameError) as info:
+        adapter_class("pointt")
+    assert (
+        str(info.value)
+        == "unknown adapter 'pointt'; valid: metaworld, franka_kitchen_dense, point, package.module:Class"
+    )
+
+
+def test_bad_import_paths() -> None:
+    with pytest.raises(
+        SealError,
+        match=r"cannot import module 'nowhere'.*valid: metaworld, franka_kitchen_dense, point",
+    ):
+        adapter_class("nowhere:Adapter")
+    with pytest.raises(
+        SealError, match=r"seal.envs.point.PointEnv is not a seal.envs.EnvAdapter subclass"
+    ):
+        adapter_class("seal.envs.point:PointEnv")  # a class, but not an adapter
+
+
+def test_bad_tasks_and_options() -> None:
+    with pytest.raises(SealError, match=r"task list \['east', 'east'\] repeats a task"):
+        make_adapter("point", tasks=["east", "east"])
+    with pytest.raises(SealError, match=r"adapter 'point' takes no option\(s\) \['frame_skip'\]"):
+        make_adapter("point", frame_skip=2)
+    with pytest.raises(SealError, match="episode_length must be >= 1, got 0"):
+        make_adapter("point", episode_length=0)

@@ -1,0 +1,224 @@
+"""Collector: episode bookkeeping, termination vs truncation, batched inference, backends agree."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from seal.envs.base import EnvAdapter, ObsLayout
+from seal.errors import SealError, UnknownNameError
+from seal.learner.collection import Collector, instance_seed
+
+# Per task: the step at which info["success"] is 1 (only that step), and the step that terminates.
+SUCCESS_AT = {"a": 2, "b": None, "c": 4, "stop": None}
+TERMINATE_AT = {"stop": 3}
+
+
+class ToyEnv(gym.Env):
+    """1-D point: x += action, reward = new x, obs = [x, t, seeded noise drawn every reset/step]."""
+
+    def __init__(self, task: str, episode_length: int, seed: int) -> None:
+        self.task, self.episode_length = task, episode_length
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (3,), np.float64)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+        self.x, self.t = 0.0, 0
+        super().reset(seed=seed)
+
+    def _obs(self) -> np.ndarray:
+        return np.array([self.x, self.t, self.np_random.normal()])
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        self.x, self.t = 0.0, 0
+        return self._obs(), {}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        self.t += 1
+        self.x += float(action[0])
+        terminated = TERMINATE_AT.get(self.task) == self.t
+        truncated = self.t >= self.episode_length
+        return self._obs(), self.x, terminated, truncated, {"success": float(SUCCESS_AT[self.task] == self.t)}
+
+
+class ToyAdapter(EnvAdapter):
+    """Stand-in adapter: three tasks, 4-step episodes."""
+
+    name = "toy"
+    all_tasks = ("a", "b", "c")
+    default_episode_length = 4
+
+    @property
+    def observation_space(self) -> gym.spaces.Box:
+        return gym.spaces.Box(-np.inf, np.inf, (3,), np.float64)
+
+    @property
+    def action_space(self) -> gym.spaces.Box:
+        return gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    @property
+    def obs_layout(self) -> ObsLayout:
+        return ObsLayout((0,), (), (1,))
+
+    def make(self, task: str, seed: int) -> gym.Env:
+        return ToyEnv(task, self.episode_length, seed)
+
+
+class Toy2Adapter(ToyAdapter):
+    """A second environment with 6-step episodes; task "stop" terminates at step 3."""
+
+    name = "toy2"
+    all_tasks = ("a", "stop")
+    default_episode_length = 6
+
+
+def half_policy(calls: list[tuple[str, int]]):
+    def policy(env: str, obs: np.ndarray, task_ids: np.ndarray) -> np.ndarray:
+        calls.append((env, len(task_ids)))
+        return np.full((len(obs), 1), 0.5, dtype=np.float32)
+
+    return policy
+
+
+def adapters() -> dict[str, EnvAdapter]:
+    return {"toy": ToyAdapter(), "toy2": Toy2Adapter()}
+
+
+def test_returns_success_lengths_and_step_counters_are_hand_computed() -> None:
+    calls: list[tuple[str, int]] = []
+    with Collector(adapters(), seed=0, backend="sync") as col:
+        stats = col.collect_episodes(half_policy(calls))
+        # x after each step is 0.5, 1.0, 1.5, 2.0 (toy, 4 steps): return 5.0 for every task.
+        np.testing.assert_allclose(stats.returns["toy"], [5.0, 5.0, 5.0])
+        # toy2 "a": 0.5+1+...+3.0 = 10.5 over 6 steps; "stop" terminates at 3: 0.5+1+1.5 = 3.0.
+        np.testing.assert_allclose(stats.returns["toy2"], [10.5, 3.0])
+        np.testing.assert_array_equal(stats.lengths["toy2"], [6, 3])
+        # Success only at step 2 ("a") or 4 ("c") still counts for the episode; "b" never succeeds.
+        np.testing.assert_array_equal(stats.successes["toy"], [True, False, True])
+        assert stats.env_steps == 4 * 3 + 6 + 3
+        assert stats.per_task()[("toy2", "stop")] == {"return": 3.0, "success": 0.0, "length": 3.0}
+        col.collect_episodes(half_policy(calls))
+        np.testing.assert_array_equal(col.env_steps["toy"], [8, 8, 8])
+        np.testing.assert_array_equal(col.env_steps["toy2"], [12, 6])
+        assert col.total_env_steps == 2 * 21
+    # One policy call per environment per step, batched over its running instances:
+    # toy 4 steps x 3 tasks; toy2 3 steps with both tasks, then 3 with "a" only.
+    first = calls[: len(calls) // 2]
+    assert sorted(n for e, n in first if e == "toy") == [3, 3, 3, 3]
+    assert [n for e, n in first if e == "toy2"] == [2, 2, 2, 1, 1, 1]
+
+
+def test_sink_stores_termination_not_truncation() -> None:
+    rows: list[tuple] = []
+
+    def sink(env, task_ids, obs, actions, rewards, next_obs, terminations) -> None:
+        rows.append((env, task_ids.copy(), obs.copy(), actions.copy(), rewards.copy(), next_obs.copy(), terminations.copy()))
+
+    with Collector({"toy2": Toy2Adapter()}, seed=3, backend="sync") as col:
+        col.collect_episodes(half_policy([]), sink=sink)
+    assert len(rows) == 6
+    # Step 3: "stop" (task id 1) terminated -> True; "a" keeps running -> False.
+    np.testing.assert_array_equal(rows[2][1], [0, 1])
+    np.testing.assert_array_equal(rows[2][6], [False, True])
+    # Step 6: "a" is truncated at the episode length -> stored as not terminated (bootstrap).
+    np.testing.assert_array_equal(rows[5][1], [0])
+    np.testing.assert_array_equal(rows[5][6], [False])
+    # next_obs of one step is the obs of the next; x after step 6 is 3.0 and t is 6.
+    np.testing.assert_array_equal(rows[3][5][0], rows[4][2][0])
+    np.testing.assert_allclose(rows[5][5][0][:2], [3.0, 6.0])
+
+
+def transitions(backend: str, seed: int, envs: dict[str, EnvAdapter], episodes: int = 2) -> list[np.ndarray]:
+    out: list[np.ndarray] = []
+
+    def sink(env, task_ids, obs, actions, rewards, next_obs, terminations) -> None:
+        out.extend([task_ids, obs, actions, rewards, next_obs, terminations])
+
+    with Collector(envs, seed=seed, backend=backend, num_workers=2) as col:
+        for _ in range(episodes):  # the second episode continues each env's RNG stream
+            col.collect_episodes(None, random_actions=True, sink=sink)
+    return out
+
+
+@pytest.mark.parametrize("backend", ["subproc-batched", "gym-async"])
+def test_backends_give_identical_transitions(backend: str) -> None:
+    envs: dict[str, EnvAdapter] = {"toy": ToyAdapter(), "toy2": Toy2Adapter(tasks=["a"])}
+    reference = transitions("sync", 7, envs)
+    other = transitions(backend, 7, envs)
+    assert len(reference) == len(other) == 6 * (4 + 6) * 2
+    for ref, got in zip(reference, other, strict=True):
+        np.testing.assert_array_equal(ref, got)
+    different = transitions("sync", 8, envs)
+    assert not np.array_equal(reference[1], different[1])  # another seed: other noise in obs
+
+
+def test_subproc_handles_early_termination_like_sync() -> None:
+    ref = transitions("sync", 1, {"toy2": Toy2Adapter()}, episodes=1)
+    got = transitions("subproc-batched", 1, {"toy2": Toy2Adapter()}, episodes=1)
+    for a, b in zip(ref, got, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_instance_seeds_differ_by_task_and_do_not_depend_on_the_subset() -> None:
+    assert instance_seed(0, "toy", "a") != instance_seed(0, "toy", "b")
+    assert instance_seed(0, "toy", "a") != instance_seed(0, "toy2", "a")
+    full = transitions("sync", 5, {"toy": ToyAdapter()}, episodes=1)
+    only_c = transitions("sync", 5, {"toy": ToyAdapter(tasks=["c"])}, episodes=1)
+    # full[1] is the first step's obs for tasks (a, b, c); the subset's is task c alone.
+    np.testing.assert_array_equal(full[1][2], only_c[1][0])
+
+
+def test_active_mask_steps_only_active_tasks() -> None:
+    with Collector(adapters(), seed=0, backend="sync") as col:
+        stats = col.collect_episodes(half_policy([]), active={"toy": [False, True, False], "toy2": [False, False]})
+        np.testing.assert_array_equal(col.env_steps["toy"], [0, 4, 0])
+        np.testing.assert_array_equal(col.env_steps["toy2"], [0, 0])
+        assert list(stats.per_task()) == [("toy", "b")]
+        with pytest.raises(SealError, match="expected \\(3,\\)"):
+            col.collect_episodes(half_policy([]), active={"toy": [True]})
+        with pytest.raises(UnknownNameError, match="nope"):
+            col.collect_episodes(half_policy([]), active={"nope": [True]})
+
+
+def test_evaluate_reports_success_rate_per_task() -> None:
+    with Collector({"toy": ToyAdapter()}, seed=100, backend="sync") as col:
+        result = col.evaluate(half_policy([]), episodes=3)
+    assert result["toy"]["a"]["success_rate"] == 1.0
+    assert result["toy"]["b"]["success_rate"] == 0.0
+    assert result["toy"]["c"]["mean_return"] == 5.0
+
+
+def test_user_errors_name_the_bad_value() -> None:
+    with pytest.raises(UnknownNameError, match="'threads'.*sync"):
+        Collector(adapters(), seed=0, backend="threads")
+    with pytest.raises(UnknownNameError, match="'z'"):
+        Collector(adapters(), seed=0, tasks={"toy": ["z"]})
+    with Collector(adapters(), seed=0, backend="sync") as col, pytest.raises(SealError, match="needs a policy"):
+        col.collect_episodes(None)
+
+
+class BrokenAdapter(ToyAdapter):
+    """An env whose step raises: the worker's traceback must reach the caller."""
+
+    name = "broken"
+
+    def make(self, task: str, seed: int) -> gym.Env:
+        env = ToyEnv(task, self.episode_length, seed)
+
+        def step(action: np.ndarray) -> tuple:
+            raise ValueError("physics exploded in " + task)
+
+        env.step = step  # type: ignore[method-assign]
+        return env
+
+
+def test_worker_errors_reach_the_caller() -> None:
+    with Collector({"broken": BrokenAdapter()}, seed=0, backend="subproc-batched", num_workers=2) as col, pytest.raises(RuntimeError, match="physics exploded in a"):
+        col.collect_episodes(None, random_actions=True)
+
+
+def test_gym_async_refuses_partial_masks() -> None:
+    with Collector({"toy": ToyAdapter()}, seed=0, backend="gym-async") as col, pytest.raises(SealError, match="all instances of environment 'toy'"):
+        col.collect_episodes(None, random_actions=True, active={"toy": [True, False, True]})

@@ -1,0 +1,135 @@
+"""Batched MLPs and heads compute what per-member / per-task loops would; default shapes; SEAL wiring."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from seal.learner import Agent, AgentConfig, EnvSpec
+from seal.learner.networks import LOG_STD_MIN, MultiHeadLinear, StackedMLP, tanh_gaussian
+
+SMALL = {"hidden": (32, 32), "translator_hidden": (32,), "latent_dim": 16, "trunk_hidden": (32, 32)}
+
+
+def test_stacked_mlp_equals_each_member_as_its_own_mlp() -> None:
+    g = torch.Generator().manual_seed(0)
+    mlp = StackedMLP(5, (7, 3), ensemble=2)
+    mlp.reset_parameters(g)
+    x = torch.randn(4, 5, generator=g)
+    out = mlp(x)
+    assert out.shape == (2, 4, 3)
+    for member in range(2):
+        h = x
+        for w, b in zip(mlp.weights, mlp.biases, strict=True):
+            h = F.relu(h @ w[member] + b[member, 0])
+        torch.testing.assert_close(out[member], h)
+
+
+def test_multi_head_linear_picks_each_samples_task_head() -> None:
+    g = torch.Generator().manual_seed(1)
+    head = MultiHeadLinear(6, 2, num_heads=5, ensemble=2)
+    head.reset_parameters(g)
+    x = torch.randn(2, 7, 6, generator=g)
+    task_ids = torch.tensor([0, 4, 2, 2, 1, 3, 0])
+    out = head(x, task_ids)
+    assert out.shape == (2, 7, 2)
+    for member in range(2):
+        for row, task in enumerate(task_ids.tolist()):
+            # head `task` owns columns [2 * task, 2 * task + 2) of the stacked weight
+            w = head.weight[member, :, 2 * task : 2 * task + 2]
+            b = head.bias[member, 0, 2 * task : 2 * task + 2]
+            torch.testing.assert_close(out[member, row], x[member, row] @ w + b)
+
+
+def test_single_head_ignores_task_ids() -> None:
+    head = MultiHeadLinear(3, 4, num_heads=1)
+    head.reset_parameters(torch.Generator().manual_seed(0))
+    x = torch.randn(5, 3)
+    torch.testing.assert_close(head(x, torch.zeros(5, dtype=torch.long)), head(x, torch.arange(5)))
+
+
+def test_tanh_gaussian_log_prob_by_hand() -> None:
+    # mean 0, log std 0, noise 0: action tanh(0) = 0 and per dimension
+    # log N(0; 0, 1) - log(1 - 0 + 1e-6) = -0.5 * log(2 pi) - 1e-6 = -0.9189395 (to 1e-7).
+    action, log_prob = tanh_gaussian(torch.zeros(1, 8), torch.zeros(1, 4))
+    assert action.abs().max() == 0
+    assert log_prob.item() == pytest.approx(4 * (-0.5 * math.log(2 * math.pi) - math.log(1 + 1e-6)), abs=1e-5)
+    # mean 0.5, log std -1, noise 2: u = 0.5 + 2 e^-1 = 1.2357589, a = tanh(u) = 0.8444...,
+    # log p = -0.5 * 4 + 1 - 0.9189385 - log(1 - a^2 + 1e-6)
+    u = 0.5 + 2 * math.exp(-1)
+    expected = -2.0 + 1.0 - 0.5 * math.log(2 * math.pi) - math.log(1 - math.tanh(u) ** 2 + 1e-6)
+    action, log_prob = tanh_gaussian(torch.tensor([[0.5, -1.0]]), torch.tensor([[2.0]]))
+    assert action.item() == pytest.approx(math.tanh(u), rel=1e-6)
+    assert log_prob.item() == pytest.approx(expected, rel=1e-5)
+
+
+def test_tanh_gaussian_matches_torch_distributions_and_clamps_log_std() -> None:
+    g = torch.Generator().manual_seed(3)
+    out = torch.randn(6, 6, generator=g)
+    noise = torch.randn(6, 3, generator=g)
+    action, log_prob = tanh_gaussian(out, noise)
+    mean, log_std = out[:, :3], out[:, 3:]
+    u = mean + log_std.exp() * noise
+    reference = torch.distributions.Normal(mean, log_std.exp()).log_prob(u) - torch.log(1 - torch.tanh(u) ** 2 + 1e-6)
+    torch.testing.assert_close(log_prob, reference.sum(-1), rtol=1e-5, atol=1e-5)
+    # a log std of -100 is clamped to LOG_STD_MIN = -20: the term -log std contributes +20
+    _, clamped = tanh_gaussian(torch.tensor([[0.0, -100.0]]), torch.tensor([[0.0]]))
+    assert clamped.item() == pytest.approx(-LOG_STD_MIN - 0.5 * math.log(2 * math.pi), abs=1e-5)
+
+
+def test_default_mtmhsac_shapes_match_metaworld_mt10() -> None:
+    # MT10: obs 39 + one-hot 10 = 49 inputs, 3 x 400 ReLU, 10 heads of 2 * 4 outputs
+    agent = Agent([EnvSpec("metaworld", 39, 4, 10)], AgentConfig(), seed=0)
+    actor = [tuple(w.shape) for w in agent.actor.trunk.weights]
+    assert actor == [(1, 49, 400), (1, 400, 400), (1, 400, 400)]
+    assert tuple(agent.actor.heads["metaworld"].weight.shape) == (1, 400, 10 * 8)
+    critic = [tuple(w.shape) for w in agent.critic.trunk.weights]
+    assert critic == [(2, 53, 400), (2, 400, 400), (2, 400, 400)]  # twin Q, obs + one-hot + action
+    assert tuple(agent.critic.heads["metaworld"].weight.shape) == (2, 400, 1)  # single-head critic by default
+    assert tuple(agent.log_alpha["metaworld"].shape) == (10,)
+    assert torch.allclose(agent.log_alpha["metaworld"], torch.zeros(10))  # init alpha 1
+
+
+def test_default_seal_shapes_translators_trunk_heads() -> None:
+    specs = [EnvSpec("metaworld", 39, 4, 10), EnvSpec("kitchen", 59, 9, 10)]
+    agent = Agent(specs, AgentConfig(architecture="seal"), seed=0)
+    # translator f_theta_i: (obs_i + one-hot) -> 400 -> latent 400 ("2 x 400")
+    assert [tuple(w.shape) for w in agent.actor.translators["kitchen"].weights] == [(1, 69, 400), (1, 400, 400)]
+    assert [tuple(w.shape) for w in agent.actor.trunk.weights] == [(1, 400, 400)] * 3
+    assert tuple(agent.actor.heads["kitchen"].weight.shape) == (1, 400, 10 * 18)
+    assert tuple(agent.actor.heads["metaworld"].weight.shape) == (1, 400, 10 * 8)
+    # critic translator reads (obs, one-hot, action); per-env per-task Q heads by default
+    assert tuple(agent.critic.translators["kitchen"].weights[0].shape) == (2, 78, 400)
+    assert tuple(agent.critic.heads["kitchen"].weight.shape) == (2, 400, 10)
+
+
+def test_seal_per_env_optimisers_own_translator_trunk_and_head() -> None:
+    specs = [EnvSpec("a", 3, 2, 2), EnvSpec("b", 5, 1, 3)]
+    agent = Agent(specs, AgentConfig(architecture="seal", **SMALL), seed=0)
+    assert len(agent.actor_optimizers) == 2 and len(agent.critic_optimizers) == 2
+    for i, env in enumerate(("a", "b")):
+        owned = {id(p) for group in agent.actor_optimizers[i].param_groups for p in group["params"]}
+        expected = {id(p) for m in (agent.actor.translators[env], agent.actor.trunk, agent.actor.heads[env]) for p in m.parameters()}
+        assert owned == expected
+        critic_owned = {id(p) for group in agent.critic_optimizers[i].param_groups for p in group["params"]}
+        assert critic_owned == {id(p) for p in agent.critic.env_parameters(env)}
+    shared = Agent(specs, AgentConfig(architecture="seal", optimizer="shared", **SMALL), seed=0)
+    assert len(shared.actor_optimizers) == 1
+    assert len(shared.actor_optimizers[0].param_groups[0]["params"]) == len(list(shared.actor.parameters()))
+
+
+def test_target_critics_share_no_storage_with_online_ones() -> None:
+    for config in (AgentConfig(**SMALL), AgentConfig(architecture="seal", **SMALL)):
+        specs = [EnvSpec("a", 3, 2, 2)] if config.architecture == "mtmhsac" else [EnvSpec("a", 3, 2, 2), EnvSpec("b", 4, 3, 2)]
+        agent = Agent(specs, config, seed=0)
+        online = {p.untyped_storage().data_ptr() for p in agent.critic.parameters()}
+        target = {p.untyped_storage().data_ptr() for p in agent.critic_target.parameters()}
+        assert not online & target
+        assert all(not p.requires_grad for p in agent.critic_target.parameters())
+        for p, q in zip(agent.critic.parameters(), agent.critic_target.parameters(), strict=True):
+            assert torch.equal(p, q)
+        agent.reset_parameters()  # the reset re-copies the targets, still without sharing
+        assert not {p.untyped_storage().data_ptr() for p in agent.critic_target.parameters()} & {p.untyped_storage().data_ptr() for p in agent.critic.parameters()}

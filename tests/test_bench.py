@@ -1,0 +1,74 @@
+"""Smoke tests of the `seal bench` functions (no timing asserts: only what they compute)."""
+
+from __future__ import annotations
+
+import pytest
+
+from seal.bench import (
+    UpdateShape,
+    bench_collection,
+    flop_formula_check,
+    format_table,
+    gemm_flops,
+    ideal_update_gemms,
+)
+from seal.cli.main import main
+
+
+def test_our_sac_losses_match_stable_baselines3() -> None:
+    pytest.importorskip("stable_baselines3")
+    from seal.bench import sac_loss_check
+
+    # Identical weights, batches and policy noise: critic (ours = 2 x SB3's 0.5-scaled loss),
+    # actor and temperature agree over 2 updates, i.e. the optimiser steps agree too.
+    check = sac_loss_check(updates=2, batch_size=32)
+    assert check["max_rel_diff"] <= 1e-4, check
+    assert check["updates"][1]["alpha_ours"] < 1.0  # the temperature did move
+
+
+def test_ideal_flop_formula_by_hand() -> None:
+    # obs 2, act 1, one task without one-hot, hidden (3,), batch 1:
+    # actor dims [2, 3, 2] -> one forward = 2 * (2*3 + 3*2) = 24; critic dims [3, 3, 1] -> 2 * (9 + 3) = 24.
+    # critic step: actor fwd 24 + 2 target fwd 48 + 2 x (fwd 24 + dW 24 + dX of the 3->1 layer 6) = 180
+    # actor step: actor fwd 24 + 2 x (fwd 24 + dX 3->1 layer 6 + dX to the 1 action column 2*3*1 = 6)
+    #             + actor dW 24 + actor dX of the 3->2 layer 2*2*3 = 12  -> 132.   Total 312.
+    shape = UpdateShape(obs_dim=2, act_dim=1, num_tasks=1, hidden=(3,), batch=1, one_hot=False)
+    assert gemm_flops(ideal_update_gemms(shape)) == 312
+
+
+def test_flop_formula_equals_flop_counter_on_our_update() -> None:
+    check = flop_formula_check()
+    assert check["equal"], check
+    # Computing all 3 policy heads and the full critic input gradient costs more than ideal.
+    assert check["formula_ideal"] < check["flop_counter"]
+
+
+def test_collection_bench_on_point_ends_on_identical_observations() -> None:
+    result = bench_collection("point", episodes=1, episode_length=10, backends=("sync", "subproc-batched"), num_workers=2)
+    assert result["env_steps"] == 4 * 10  # 4 point tasks x 10 steps
+    assert all(b["same_final_obs"] for b in result["backends"].values())
+    assert result["auto_backend"] == "subproc-batched"
+    assert result["speedup"] == result["backends"]["subproc-batched"]["speedup"] > 0
+
+
+def test_table_lists_each_key_with_its_goal() -> None:
+    result = {
+        "sac_vs_sb3": 1.5,
+        "details": {
+            "sac_vs_sb3": {"ours_updates_per_s": 30.0, "sb3_updates_per_s": 20.0},
+            "sac_loss_check": {"max_rel_diff": 1e-7},
+            "collect_fk_speedup": {"skipped": "no kitchen"},
+        },
+        "collect_fk_speedup": None,
+        "load_before": {"loadavg_1m": 1.0, "cpus": 2, "torch_threads": 2},
+        "load_after": {"loadavg_1m": 1.5},
+    }
+    table = format_table(result)
+    assert "sac_vs_sb3" in table and "1.50" in table and ">=1.3" in table
+    assert "collect_fk_speedup" in table and "skipped: no kitchen" in table
+
+
+def test_unknown_benchmark_key_is_a_one_line_user_error(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "--only", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown benchmark 'nope'" in err and "sac_vs_sb3" in err

@@ -1,0 +1,248 @@
+"""The update-count metric (Appendix B) against hand-worked cases."""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from seal.errors import SealError
+from seal.metrics import (
+    add_percent_change,
+    aggregate_seeds,
+    env_totals,
+    first_reach,
+    format_count,
+    format_number,
+    format_percent,
+    percent_change,
+    update_counts_by_env,
+)
+
+
+def _csv(text: str) -> pd.DataFrame:
+    return pd.read_csv(io.StringIO(text), dtype={"phase": str, "env": str, "task": str})
+
+
+# Constant batch: 10 tasks, 128 transitions per task per gradient step, 500 gradient steps per
+# epoch (one 500-step episode per task, evaluated every epoch). Per epoch each task consumes
+# 500 * 128 = 64,000 transitions = 0.064 M, so `updates` = epoch * 0.064.
+# drawer-close first reaches 0.9 at epoch 3: 3 * 500 * 128 = 192,000 transitions = 0.192 M,
+# with 3 * 500 = 1500 gradient steps and 3 * 500 = 1500 env steps (one episode per epoch).
+# The dip to 0.88 at epoch 4 does not matter: it is the first evaluation that counts.
+# Only 2 of the 10 tasks are written out; the other 8 change nothing about these rows.
+CONSTANT_BATCH = """seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s
+0,train,1,mw,drawer-close-v3,0.20,10,500,500,0.064,1
+0,train,1,mw,reach-v3,0.00,5,500,500,0.064,1
+0,train,2,mw,drawer-close-v3,0.50,20,1000,1000,0.128,2
+0,train,2,mw,reach-v3,0.10,6,1000,1000,0.128,2
+0,train,3,mw,drawer-close-v3,0.92,30,1500,1500,0.192,3
+0,train,3,mw,reach-v3,0.30,7,1500,1500,0.192,3
+0,train,4,mw,drawer-close-v3,0.88,30,2000,2000,0.256,4
+0,train,4,mw,reach-v3,0.50,8,2000,2000,0.256,4
+0,train,5,mw,drawer-close-v3,0.95,31,2500,2500,0.320,5
+0,train,5,mw,reach-v3,0.60,9,2500,2500,0.320,5
+"""
+
+
+def test_constant_batch_equals_c_gs_bs() -> None:
+    reach = first_reach(_csv(CONSTANT_BATCH), threshold=0.9)
+    dc = reach[reach["task"] == "drawer-close-v3"].iloc[0]
+    assert bool(dc["reached"]) is True
+    assert dc["epoch"] == 3
+    # C x GS x BS = 3 * 500 * 128 = 192,000 transitions.
+    assert dc["updates"] == pytest.approx(3 * 500 * 128 / 1e6) == pytest.approx(0.192)
+    assert dc["grad_steps"] == 1500
+    assert dc["env_steps"] == 1500
+
+
+def test_never_reached_is_zero_and_rendered_as_dash() -> None:
+    # reach-v3 peaks at 0.60 < 0.9: not learned, all numbers 0 (Tables 4-7 write 0).
+    reach = first_reach(_csv(CONSTANT_BATCH), threshold=0.9)
+    r = reach[reach["task"] == "reach-v3"].iloc[0]
+    assert bool(r["reached"]) is False
+    assert (r["updates"], r["grad_steps"], r["env_steps"], r["epoch"]) == (0.0, 0, 0, 0)
+    agg = aggregate_seeds(reach)
+    row = agg[agg["task"] == "reach-v3"].iloc[0]
+    assert row["updates_mean"] == 0.0 and row["reached"] == 0 and row["seeds"] == 1
+    assert format_count(row["updates_mean"], row["updates_std"], 0, 1) == "— [0/1]"
+    assert format_count(0.0, math.nan, 0, 2, style="latex") == "--- [0/2]"
+
+
+def test_lower_threshold_reads_an_earlier_evaluation() -> None:
+    # At 0.5, reach-v3 first gets there at epoch 4 (0.256 M), drawer-close at epoch 2 (0.128 M).
+    reach = first_reach(_csv(CONSTANT_BATCH), threshold=0.5).set_index("task")
+    assert reach.loc["reach-v3", "updates"] == pytest.approx(0.256)
+    assert reach.loc["drawer-close-v3", "updates"] == pytest.approx(0.128)
+
+
+def test_success_equal_to_threshold_counts_despite_rounding() -> None:
+    # 45 successes of 50 episodes is exactly 90%; a float sum in another order may land at
+    # 0.8999999999999999, which must still count.
+    outcomes = np.array([1.0] * 45 + [0.0] * 5)
+    rounded_down = 0.8999999999999999
+    assert rounded_down < 0.9
+    text = (
+        "seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s\n"
+        f"0,train,1,mw,a,{float(outcomes.mean())!r},0,10,10,0.001,0\n"
+        f"0,train,1,mw,b,{rounded_down!r},0,10,10,0.001,0\n"
+        "0,train,1,mw,c,0.88,0,10,10,0.001,0\n"
+    )
+    reached = first_reach(_csv(text)).set_index("task")["reached"]
+    assert reached.to_dict() == {"a": True, "b": True, "c": False}
+
+
+# A changing ratio: a stepped data-ratio schedule gives drawer-close a shrinking share of each
+# batch, so its `updates` grows unevenly: +0.100, +0.080, +0.050, +0.020 M per epoch (500 steps).
+# It reaches 0.9 at epoch 3, where the column reads 0.100 + 0.080 + 0.050 = 0.230 M. A formula
+# C x GS x BS with the first epoch's 200 per task per step would say 3 * 500 * 200 = 0.300 M.
+CHANGING_RATIO = """seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s
+0,train,1,mw,drawer-close-v3,0.10,1,500,500,0.100,1
+0,train,2,mw,drawer-close-v3,0.40,1,1000,1000,0.180,2
+0,train,3,mw,drawer-close-v3,0.90,1,1500,1500,0.230,3
+0,train,4,mw,drawer-close-v3,1.00,1,2000,2000,0.250,4
+"""
+
+
+def test_changing_ratio_reads_the_updates_column() -> None:
+    dc = first_reach(_csv(CHANGING_RATIO)).iloc[0]
+    assert dc["updates"] == pytest.approx(0.230)
+    assert dc["updates"] != pytest.approx(3 * 500 * 200 / 1e6)
+    assert dc["grad_steps"] == 1500
+
+
+def test_rows_out_of_order_still_find_the_first_evaluation() -> None:
+    # Same data, rows reversed (e.g. a resumed run appended out of order): still epoch 3.
+    shuffled = _csv(CHANGING_RATIO).iloc[::-1].reset_index(drop=True)
+    assert first_reach(shuffled).iloc[0]["updates"] == pytest.approx(0.230)
+
+
+# Several seeds of one task (constant batch, 0.064 M per epoch):
+#   seed 0 reaches at epoch 3 -> 0.192; seed 1 at epoch 4 -> 0.256; seed 2 never.
+# Over the 2 seeds that reached it: mean (0.192 + 0.256) / 2 = 0.224,
+# sample std sqrt(((0.192-0.224)^2 + (0.256-0.224)^2) / (2-1)) = 0.032 * sqrt(2) = 0.045254834;
+# "2/3 seeds reached". Mean gradient steps (1500 + 2000) / 2 = 1750.
+SEEDS = """seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s
+0,train,3,mw,drawer-close-v3,0.91,1,1500,1500,0.192,1
+0,train,4,mw,drawer-close-v3,0.95,1,2000,2000,0.256,1
+1,train,3,mw,drawer-close-v3,0.70,1,1500,1500,0.192,1
+1,train,4,mw,drawer-close-v3,0.93,1,2000,2000,0.256,1
+2,train,3,mw,drawer-close-v3,0.10,1,1500,1500,0.192,1
+2,train,4,mw,drawer-close-v3,0.20,1,2000,2000,0.256,1
+"""
+
+
+def test_several_seeds_mean_std_over_reaching_seeds() -> None:
+    per_seed = first_reach(_csv(SEEDS))
+    assert per_seed["reached"].tolist() == [True, True, False]
+    agg = aggregate_seeds(per_seed).iloc[0]
+    assert agg["updates_mean"] == pytest.approx(0.224)
+    assert agg["updates_std"] == pytest.approx(0.032 * math.sqrt(2))
+    assert agg["grad_steps_mean"] == pytest.approx(1750)
+    assert (agg["reached"], agg["seeds"]) == (2, 3)
+    cell = format_count(
+        agg["updates_mean"], agg["updates_std"], int(agg["reached"]), int(agg["seeds"])
+    )
+    assert cell == "0.224 ± 0.04525 [2/3]"
+
+
+def test_one_reaching_seed_has_no_std() -> None:
+    # Only seed 0 reaches at 0.94 -> its number alone, std undefined (not a misleading "± 0").
+    per_seed = first_reach(_csv(SEEDS), threshold=0.94)
+    agg = aggregate_seeds(per_seed).iloc[0]
+    assert agg["updates_mean"] == pytest.approx(0.256) and math.isnan(agg["updates_std"])
+    assert format_count(agg["updates_mean"], agg["updates_std"], 1, 3) == "0.256 [1/3]"
+
+
+# Pad-and-fine-tune: update counts restart at the fine-tune phase. The same task name in both
+# phases (point env pre-trained and fine-tuned on itself) must give two separate numbers:
+# pretrain reaches at epoch 2 (0.2 M), finetune at its own epoch 1 (0.05 M, not 0.25 M).
+PHASES = """seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s
+0,pretrain,1,point,reach,0.50,1,100,100,0.10,1
+0,pretrain,2,point,reach,0.95,1,200,200,0.20,2
+0,finetune,1,point,reach,0.90,1,100,100,0.05,3
+0,finetune,2,point,reach,1.00,1,200,200,0.10,4
+"""
+
+
+def test_update_counts_restart_per_phase() -> None:
+    per_seed = first_reach(_csv(PHASES)).set_index("phase")
+    assert per_seed.loc["pretrain", "updates"] == pytest.approx(0.20)
+    assert per_seed.loc["finetune", "updates"] == pytest.approx(0.05)
+    assert per_seed.loc["finetune", "grad_steps"] == 100
+    # update_counts_by_env keeps the last phase's count for an env seen in both phases.
+    assert update_counts_by_env(_csv(PHASES)) == {"point": {"reach": pytest.approx(0.05)}}
+
+
+def test_env_totals_count_never_reached_as_zero() -> None:
+    # drawer-close 0.192 + reach-v3 0 (never) = 0.192 total; 1 of 2 tasks reached.
+    totals = env_totals(aggregate_seeds(first_reach(_csv(CONSTANT_BATCH))))
+    row = totals.iloc[0]
+    assert (row["phase"], row["env"]) == ("train", "mw")
+    assert row["updates_total"] == pytest.approx(0.192)
+    assert (row["tasks_reached"], row["tasks"]) == (1, 2)
+
+
+def test_percent_change_literal_values() -> None:
+    # Table 1, Drawer Close: single env 6.4, High FK 2.4 -> (2.4 - 6.4) / 6.4 = -62.5%.
+    assert percent_change(2.4, 6.4) == pytest.approx(-62.5)
+    # Reach: 17.1 -> 12.7: -4.4 / 17.1 = -25.7309...%.
+    assert percent_change(12.7, 17.1) == pytest.approx(-25.730994, abs=1e-6)
+    # Drawer Open, 50/50: 42.7 -> 211.2: 168.5 / 42.7 = +394.6135...%.
+    assert percent_change(211.2, 42.7) == pytest.approx(394.613583, abs=1e-6)
+    assert format_percent(percent_change(211.2, 42.7)) == "+394.6%"
+    assert format_percent(percent_change(12.7, 17.1)) == "-25.7%"
+    # Baseline never reached (0 updates, not reached) -> n/a; variant never reached -> n/a too.
+    assert percent_change(2.4, 0.0, baseline_reached=False) is None
+    assert percent_change(0.0, 6.4, value_reached=False) is None
+    assert format_percent(None) == "n/a"
+
+
+def test_percent_change_cells_bold_when_fewer_updates() -> None:
+    assert format_count(2.4, 0.1, 2, 2, -62.5, True, "markdown") == "**2.4 ± 0.1 (-62.5%)** [2/2]"
+    assert (
+        format_count(2.4, 0.1, 2, 2, -62.5, True, "latex")
+        == r"\textbf{2.4 $\pm$ 0.1 (-62.5\%)} [2/2]"
+    )
+    assert (
+        format_count(211.2, math.nan, 1, 2, 394.6135, True, "markdown") == "211.2 (+394.6%) [1/2]"
+    )
+    assert format_count(2.4, math.nan, 1, 2, None, True, "markdown") == "2.4 (n/a) [1/2]"
+    # The baseline column shows no percent.
+    assert format_count(6.4, math.nan, 2, 2, None, False, "markdown") == "6.4 [2/2]"
+
+
+def test_add_percent_change_matches_env_and_task() -> None:
+    agg = pd.DataFrame(
+        {
+            "column": ["Single Env", "Single Env", "High FK", "High FK", "High FK"],
+            "env": ["mw", "fk", "mw", "fk", "fk"],
+            "task": ["drawer-close", "kettle", "drawer-close", "kettle", "microwave"],
+            "updates_mean": [6.4, 0.0, 2.4, 3.0, 4.0],
+            "reached": [2, 0, 2, 1, 1],
+        }
+    )
+    out = add_percent_change(agg, "Single Env").set_index(["column", "env", "task"])["pct_change"]
+    assert out[("High FK", "mw", "drawer-close")] == pytest.approx(-62.5)
+    assert math.isnan(out[("High FK", "fk", "kettle")])  # baseline never reached -> n/a
+    assert math.isnan(out[("High FK", "fk", "microwave")])  # no baseline row at all
+    assert math.isnan(out[("Single Env", "mw", "drawer-close")])  # the baseline itself
+
+
+def test_format_number_four_significant_digits() -> None:
+    assert [format_number(v) for v in (0.192, 6.4, 42.7, 211.2, 0.0192, 1536.0)] == [
+        "0.192",
+        "6.4",
+        "42.7",
+        "211.2",
+        "0.0192",
+        "1536",
+    ]
+
+
+def test_missing_column_is_a_seal_error() -> None:
+    with pytest.raises(SealError, match=r"lacks column\(s\) \['updates'\]"):
+        first_reach(_csv(CONSTANT_BATCH).drop(columns=["updates"]))

@@ -1,0 +1,477 @@
+"""`seal.load_run`, `seal.reports.report` and `seal report` on run directories written by hand."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import matplotlib.image
+import pandas as pd
+import pytest
+
+import seal
+from seal.cli.main import main
+from seal.errors import SealError
+from seal.reports import RunData, column_label, load_run, report
+
+HEADER = "seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s\n"
+TRAIN_HEADER = "seed,phase,epoch,grad_steps,env,key,value\n"
+
+# ---- baseline_mw/g1: MTMHSAC on Meta-World, 2 seeds. Constant batch: 128 per task per step,
+# 500 steps per epoch -> 0.064 M of each task's transitions per epoch.
+#   drawer-close: seed 0 reaches 0.9 at epoch 2 (0.128), seed 1 at epoch 3 (0.192)
+#                 -> mean 0.16, sample std 0.032 * sqrt(2) = 0.04525, [2/2]
+#   reach:        seed 0 at epoch 3 (0.192), seed 1 never -> 0.192 [1/2]
+#   Total (MW) = 0.16 + 0.192 = 0.352, 2/2 tasks.
+BASELINE_MW = {
+    0: """0,train,1,mw,drawer-close-v3,0.50,10,500,500,0.064,1
+0,train,1,mw,reach-v3,0.10,5,500,500,0.064,1
+0,train,2,mw,drawer-close-v3,0.92,20,1000,1000,0.128,2
+0,train,2,mw,reach-v3,0.40,6,1000,1000,0.128,2
+0,train,3,mw,drawer-close-v3,1.00,30,1500,1500,0.192,3
+0,train,3,mw,reach-v3,0.90,7,1500,1500,0.192,3
+""",
+    1: """1,train,1,mw,drawer-close-v3,0.30,10,500,500,0.064,1
+1,train,1,mw,reach-v3,0.10,5,500,500,0.064,1
+1,train,2,mw,drawer-close-v3,0.60,20,1000,1000,0.128,2
+1,train,2,mw,reach-v3,0.20,6,1000,1000,0.128,2
+1,train,3,mw,drawer-close-v3,0.94,30,1500,1500,0.192,3
+1,train,3,mw,reach-v3,0.50,7,1500,1500,0.192,3
+""",
+}
+
+# ---- baseline_fk/g1: one seed. slide-cabinet reaches at epoch 3 (0.192); microwave never.
+BASELINE_FK = {
+    0: """0,train,1,fk,slide-cabinet,0.20,1,500,280,0.064,1
+0,train,1,fk,microwave,0.00,1,500,280,0.064,1
+0,train,2,fk,slide-cabinet,0.50,1,1000,560,0.128,2
+0,train,2,fk,microwave,0.10,1,1000,560,0.128,2
+0,train,3,fk,slide-cabinet,0.95,1,1500,840,0.192,3
+0,train,3,fk,microwave,0.20,1,1500,840,0.192,3
+""",
+}
+
+# ---- high_fk/g1: joint, 2 seeds, stepped ratio -> uneven `updates`:
+# MW tasks 0.02, 0.05, 0.09 M; FK tasks 0.10, 0.18, 0.24 M after epochs 1, 2, 3.
+#   drawer-close: seed 0 epoch 1 (0.02), seed 1 epoch 2 (0.05) -> mean 0.035, std 0.015*sqrt2
+#                 = 0.02121; vs 0.16: (0.035 - 0.16) / 0.16 = -78.125% -> bold "-78.1%"
+#   reach:        never -> "— [0/2]"
+#   slide-cabinet: seed 0 epoch 2 (0.18), seed 1 epoch 1 (0.10) -> mean 0.14, std 0.04*sqrt2
+#                 = 0.05657; vs 0.192: (0.14 - 0.192) / 0.192 = -27.083% -> "-27.1%"
+#   microwave:    seed 0 epoch 3 (0.24), seed 1 never -> 0.24 [1/2]; baseline never -> "n/a"
+#   Total (MW) = 0.035 (1/2 tasks), Total (FK) = 0.14 + 0.24 = 0.38 (2/2 tasks).
+HIGH_FK = {
+    0: """0,train,1,mw,drawer-close-v3,0.95,1,500,500,0.02,1
+0,train,1,mw,reach-v3,0.10,1,500,500,0.02,1
+0,train,1,fk,slide-cabinet,0.20,1,500,280,0.10,1
+0,train,1,fk,microwave,0.10,1,500,280,0.10,1
+0,train,2,mw,drawer-close-v3,1.00,1,1000,1000,0.05,2
+0,train,2,mw,reach-v3,0.30,1,1000,1000,0.05,2
+0,train,2,fk,slide-cabinet,0.91,1,1000,560,0.18,2
+0,train,2,fk,microwave,0.50,1,1000,560,0.18,2
+0,train,3,mw,drawer-close-v3,1.00,1,1500,1500,0.09,3
+0,train,3,mw,reach-v3,0.50,1,1500,1500,0.09,3
+0,train,3,fk,slide-cabinet,1.00,1,1500,840,0.24,3
+0,train,3,fk,microwave,0.90,1,1500,840,0.24,3
+""",
+    1: """1,train,1,mw,drawer-close-v3,0.50,1,500,500,0.02,1
+1,train,1,mw,reach-v3,0.10,1,500,500,0.02,1
+1,train,1,fk,slide-cabinet,0.90,1,500,280,0.10,1
+1,train,1,fk,microwave,0.00,1,500,280,0.10,1
+1,train,2,mw,drawer-close-v3,0.90,1,1000,1000,0.05,2
+1,train,2,mw,reach-v3,0.20,1,1000,1000,0.05,2
+1,train,2,fk,slide-cabinet,1.00,1,1000,560,0.18,2
+1,train,2,fk,microwave,0.10,1,1000,560,0.18,2
+1,train,3,mw,drawer-close-v3,1.00,1,1500,1500,0.09,3
+1,train,3,mw,reach-v3,0.40,1,1500,1500,0.09,3
+1,train,3,fk,slide-cabinet,1.00,1,1500,840,0.24,3
+1,train,3,fk,microwave,0.30,1,1500,840,0.24,3
+""",
+}
+
+# ---- finetune_fk_to_mw/g1: one seed. Pre-train on FK, then fine-tune on MW; counts and
+# gradient steps restart at the fine-tune phase.
+#   Pre-train on FK: slide-cabinet at epoch 2 (0.128); vs 0.192 -> -33.3%. microwave never.
+#   Fine-tune on MW: drawer-close at fine-tune epoch 1 (0.064, 500 grad steps); vs 0.16 -> -60.0%.
+FINETUNE = {
+    0: """0,pretrain,1,fk,slide-cabinet,0.40,1,500,280,0.064,1
+0,pretrain,1,fk,microwave,0.00,1,500,280,0.064,1
+0,pretrain,2,fk,slide-cabinet,0.95,1,1000,560,0.128,2
+0,pretrain,2,fk,microwave,0.00,1,1000,560,0.128,2
+0,finetune,1,mw,drawer-close-v3,0.91,1,500,500,0.064,3
+0,finetune,1,mw,reach-v3,0.00,1,500,500,0.064,3
+0,finetune,2,mw,drawer-close-v3,1.00,1,1000,1000,0.128,4
+0,finetune,2,mw,reach-v3,0.20,1,1000,1000,0.128,4
+""",
+}
+
+ENVS = '[envs.mw]\nadapter = "metaworld"\ntasks = ["drawer-close-v3", "reach-v3"]\n\n[envs.fk]\nadapter = "franka_kitchen_dense"\n'
+CONFIGS = {
+    "baseline_mw": '[protocol]\nname = "baseline_mw"\nkind = "baseline"\n\n[envs.mw]\nadapter = "metaworld"\n',
+    "baseline_fk": '[protocol]\nname = "baseline_fk"\nkind = "baseline"\n\n[envs.fk]\nadapter = "franka_kitchen_dense"\n',
+    "high_fk": f'[protocol]\nname = "high_fk"\nkind = "joint"\n\n{ENVS}\n[scheduler]\nkind = "stepped"\npreset = "high_fk"\n',
+    "finetune_fk_to_mw": f'[protocol]\nname = "finetune_fk_to_mw"\nkind = "finetune"\n\n{ENVS}\n[finetune]\nsource = "fk"\ntarget = "mw"\n',
+}
+
+# Critic losses logged every epoch, per environment (Fig. 7).
+TRAIN = {
+    "baseline_mw": "{s},train,1,500,mw,critic_loss,{a}\n{s},train,2,1000,mw,critic_loss,{b}\n{s},train,2,1000,mw,actor_loss,-3.0\n",
+    "high_fk": "{s},train,1,500,mw,critic_loss,{a}\n{s},train,1,500,fk,critic_loss,{b}\n{s},train,2,1000,mw,critic_loss,{b}\n{s},train,2,1000,fk,critic_loss,{a}\n",
+}
+
+
+def _write_group(root: Path, protocol: str, runs: dict[int, str], group: str = "g1") -> Path:
+    group_dir = root / protocol / group
+    for seed, rows in runs.items():
+        run = group_dir / f"seed-{seed}"
+        run.mkdir(parents=True)
+        (run / "config.toml").write_text(CONFIGS[protocol])
+        (run / "metrics.csv").write_text(HEADER + rows)
+        provenance = {
+            "git_sha": "abc",
+            "seed": seed,
+            "protocol": protocol,
+            "group": group,
+            "kind": "x",
+        }
+        (run / "provenance.json").write_text(json.dumps(provenance))
+        if protocol in TRAIN:
+            (run / "train.csv").write_text(
+                TRAIN_HEADER + TRAIN[protocol].format(s=seed, a=2.0 + seed, b=1.0 + seed)
+            )
+    return group_dir
+
+
+@pytest.fixture()
+def groups(tmp_path: Path) -> dict[str, Path]:
+    root = tmp_path / "reports"
+    return {
+        "baseline_mw": _write_group(root, "baseline_mw", BASELINE_MW),
+        "baseline_fk": _write_group(root, "baseline_fk", BASELINE_FK),
+        "high_fk": _write_group(root, "high_fk", HIGH_FK),
+        "finetune": _write_group(root, "finetune_fk_to_mw", FINETUNE),
+    }
+
+
+def _assert_png(path: Path) -> None:
+    assert path.is_file() and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    image = matplotlib.image.imread(path)
+    assert image.shape[0] > 200 and image.shape[1] > 300
+    assert image.std() > 0.01  # something was drawn, not a blank canvas
+
+
+def test_load_run_reads_all_files(groups: dict[str, Path]) -> None:
+    run = seal.load_run(groups["high_fk"] / "seed-1")
+    assert isinstance(run, RunData)
+    assert run.metrics.shape == (12, 11)
+    assert run.metrics["success"].dtype.kind == "f"
+    assert run.train["key"].tolist() == ["critic_loss"] * 4
+    assert run.config["scheduler"]["preset"] == "high_fk"
+    assert (run.protocol, run.kind, run.group, run.seed) == ("high_fk", "joint", "g1", 1)
+    assert run.provenance["git_sha"] == "abc"
+    assert run.env_label("mw") == "MW" and run.env_label("fk") == "FK"
+
+
+def test_load_run_without_optional_files(groups: dict[str, Path]) -> None:
+    run_dir = groups["baseline_fk"] / "seed-0"
+    (run_dir / "provenance.json").unlink()
+    run = load_run(run_dir)
+    assert run.train.empty and list(run.train.columns) == [
+        "seed",
+        "phase",
+        "epoch",
+        "grad_steps",
+        "env",
+        "key",
+        "value",
+    ]
+    assert run.provenance == {}
+    assert (run.group, run.seed) == ("g1", 0)  # from the directory names and metrics.csv
+
+
+def test_bad_paths_name_the_path(tmp_path: Path, groups: dict[str, Path]) -> None:
+    with pytest.raises(SealError, match=r"nowhere does not exist; expected a run directory"):
+        load_run(tmp_path / "nowhere")
+    with pytest.raises(SealError, match=r"neither a run nor a group directory.*pass those"):
+        report([groups["baseline_mw"].parent])  # the protocol directory, one level too high
+    run = groups["baseline_mw"] / "seed-0"
+    (run / "metrics.csv").write_text("seed,phase,epoch\n0,train,1\n")
+    with pytest.raises(SealError, match=r"seed-0/metrics.csv: missing column\(s\) \['env', 'task'"):
+        load_run(run)
+    (run / "metrics.csv").write_text(HEADER + "0,train,1,mw,reach-v3,high,1,1,1,0.1,1\n")
+    with pytest.raises(SealError, match=r"column 'success' has non-numeric values"):
+        load_run(run)
+    (run / "metrics.csv").write_text(HEADER + BASELINE_MW[0])
+    (run / "config.toml").write_text("[protocol\n")
+    with pytest.raises(SealError, match=r"config.toml: not valid TOML"):
+        load_run(run)
+
+
+def _cell(display: pd.DataFrame, task: str, column: str) -> str:
+    return display.set_index("Task").loc[task, column]
+
+
+def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path]) -> None:
+    out = tmp_path / "out"
+    result = report(list(groups.values()), out=out)
+    assert result.out_dir == out and result.threshold == 0.9
+
+    counts = result.update_counts.set_index(["column", "env", "task"])
+    assert counts.loc[("Single Env", "mw", "drawer-close-v3"), "updates_mean"] == pytest.approx(
+        0.16
+    )
+    assert counts.loc[("High FK", "mw", "drawer-close-v3"), "pct_change"] == pytest.approx(-78.125)
+    assert counts.loc[("High FK", "fk", "slide-cabinet"), "pct_change"] == pytest.approx(
+        -27.0833333
+    )
+    assert math.isnan(
+        counts.loc[("High FK", "fk", "microwave"), "pct_change"]
+    )  # baseline never reached
+    assert counts.loc[
+        ("Fine-tune on MW", "mw", "drawer-close-v3"), "updates_mean"
+    ] == pytest.approx(0.064)
+    assert counts.loc[("Fine-tune on MW", "mw", "drawer-close-v3"), "grad_steps_mean"] == 500
+    assert counts.loc[("Pre-train on FK", "fk", "slide-cabinet"), "pct_change"] == pytest.approx(
+        -100 / 3
+    )
+
+    md = (out / "tables" / "update_counts.md").read_text()
+    table_lines = [line for line in md.splitlines() if line.startswith("|")]
+    header = [c.strip() for c in table_lines[0].strip("|").split("|")]
+    assert header == ["Task", "Single Env", "High FK", "Fine-tune on MW", "Pre-train on FK"]
+    rows = {
+        cells[0]: cells[1:]
+        for cells in ([c.strip() for c in line.strip("|").split("|")] for line in table_lines[2:])
+    }
+    # Meta-World rows first, then the kitchen, then one total per environment.
+    assert list(rows) == [
+        "drawer-close-v3 (MW)",
+        "reach-v3 (MW)",
+        "slide-cabinet (FK)",
+        "microwave (FK)",
+        "Total (MW)",
+        "Total (FK)",
+    ]
+    assert rows["drawer-close-v3 (MW)"] == [
+        "0.16 ± 0.04525 [2/2]",
+        "**0.035 ± 0.02121 (-78.1%)** [2/2]",
+        "**0.064 (-60.0%)** [1/1]",
+        "",
+    ]
+    assert rows["reach-v3 (MW)"] == ["0.192 [1/2]", "— [0/2]", "— [0/1]", ""]
+    assert rows["slide-cabinet (FK)"] == [
+        "0.192 [1/1]",
+        "**0.14 ± 0.05657 (-27.1%)** [2/2]",
+        "",
+        "**0.128 (-33.3%)** [1/1]",
+    ]
+    assert rows["microwave (FK)"] == ["— [0/1]", "0.24 (n/a) [1/2]", "", "— [0/1]"]
+    assert rows["Total (MW)"] == ["0.352 (2/2 tasks)", "0.035 (1/2 tasks)", "0.064 (1/2 tasks)", ""]
+    assert rows["Total (FK)"] == ["0.192 (1/2 tasks)", "0.38 (2/2 tasks)", "", "0.128 (1/2 tasks)"]
+    assert "— = never reached 90% in any seed" in md
+
+    tex = (out / "tables" / "update_counts.tex").read_text()
+    assert r"\textbf{0.035 $\pm$ 0.02121 (-78.1\%)} [2/2]" in tex and r"\begin{tabular}" in tex
+    assert "drawer-close-v3 (MW)" in tex and "--- [0/2]" in tex
+
+    csv = pd.read_csv(out / "tables" / "update_counts.csv")
+    assert set(csv.columns) >= {
+        "column",
+        "env",
+        "task",
+        "updates_mean",
+        "updates_std",
+        "reached",
+        "seeds",
+        "pct_change",
+    }
+    assert len(csv) == 12  # 4 Single Env + 4 High FK + 2 Pre-train + 2 Fine-tune
+    per_seed = pd.read_csv(out / "tables" / "update_counts_per_seed.csv")
+    assert len(per_seed) == 4 + 2 + 8 + 4  # (column, seed, env, task) rows
+
+    # Final success: High FK slide-cabinet ends at 1.0 in both seeds; microwave (0.9 + 0.3) / 2 = 0.6.
+    success = pd.read_csv(out / "tables" / "success.csv").set_index(["column", "env", "task"])
+    assert success.loc[("High FK", "fk", "slide-cabinet"), "success_mean"] == pytest.approx(1.0)
+    assert success.loc[("High FK", "fk", "microwave"), "success_mean"] == pytest.approx(0.6)
+    assert (out / "tables" / "success.md").is_file() and (out / "tables" / "success.tex").is_file()
+
+    assert sorted(p.name for p in result.plots) == [
+        "critic_loss.png",
+        "success_fk.png",
+        "success_mw.png",
+    ]
+    for plot in result.plots:
+        _assert_png(plot)
+
+
+def test_single_group_writes_into_the_group(groups: dict[str, Path]) -> None:
+    result = report([groups["high_fk"]], x="epoch")
+    assert result.out_dir == groups["high_fk"]
+    assert (groups["high_fk"] / "tables" / "update_counts.md").is_file()
+    _assert_png(groups["high_fk"] / "plots" / "success_mw.png")
+    # Without a baseline there is no percent change: cells carry no "(...%)".
+    md = (groups["high_fk"] / "tables" / "update_counts.md").read_text()
+    assert "0.035 ± 0.02121 [2/2]" in md and "%)" not in md
+
+
+def test_single_run_writes_into_the_run(groups: dict[str, Path]) -> None:
+    run = groups["baseline_fk"] / "seed-0"
+    result = report([run])
+    assert result.out_dir == run and (run / "tables" / "update_counts.csv").is_file()
+    assert result.skipped == ["critic_loss.png: no critic_loss rows in the runs' train.csv"]
+
+
+def test_several_groups_default_to_a_comparison_directory(groups: dict[str, Path]) -> None:
+    result = report([groups["baseline_mw"], groups["high_fk"]])
+    assert (
+        result.out_dir == groups["baseline_mw"].parent.parent / "comparison" / "baseline_mw+high_fk"
+    )
+
+
+def test_two_baselines_for_one_env_is_an_error(tmp_path: Path, groups: dict[str, Path]) -> None:
+    other = _write_group(tmp_path / "reports", "baseline_mw", {0: BASELINE_MW[0]}, group="g2")
+    with pytest.raises(SealError, match=r"several baseline groups for environment 'mw'"):
+        report([groups["baseline_mw"], other], out=tmp_path / "o")
+
+
+def test_two_groups_of_one_variant_get_group_labels(
+    tmp_path: Path, groups: dict[str, Path]
+) -> None:
+    other = _write_group(tmp_path / "reports", "high_fk", {0: HIGH_FK[0]}, group="g2")
+    result = report([groups["high_fk"], other], out=tmp_path / "o")
+    assert set(result.update_counts["column"]) == {"High FK [high_fk/g1]", "High FK [high_fk/g2]"}
+
+
+def test_threshold_changes_the_counts(tmp_path: Path, groups: dict[str, Path]) -> None:
+    # At 0.5: baseline_mw reach-v3 seed 1 reaches at epoch 3 (0.50) too -> [2/2], mean 0.192.
+    result = report([groups["baseline_mw"]], out=tmp_path / "o", threshold=0.5)
+    row = result.update_counts.set_index("task").loc["reach-v3"]
+    assert (row["reached"], row["updates_mean"]) == (2, pytest.approx(0.192))
+    with pytest.raises(SealError, match="threshold 1.5 is not a success rate"):
+        report([groups["baseline_mw"]], out=tmp_path / "o", threshold=1.5)
+
+
+def _run(
+    run_cfg: str,
+    kind_metrics: str = "0,train,1,mw,a,0.5,0,1,1,0.1,0\n0,train,1,fk,b,0.5,0,1,1,0.1,0\n0,train,1,fk,c,0.5,0,1,1,0.1,0\n0,train,1,fk,d,0.5,0,1,1,0.1,0\n",
+) -> RunData:
+    import io
+    import tomllib
+
+    metrics = pd.read_csv(io.StringIO(HEADER + kind_metrics))
+    return RunData(
+        path=Path("/r/p/g/seed-0"),
+        metrics=metrics,
+        train=pd.DataFrame(),
+        config=tomllib.loads(run_cfg),
+    )
+
+
+@pytest.mark.parametrize(
+    ("config", "phase", "env", "label"),
+    [
+        ('[protocol]\nname="b"\nkind="baseline"', "train", "mw", "Single Env"),
+        (
+            '[protocol]\nname="mt10_smt"\nkind="baseline"\n[scheduler]\nkind="smt"',
+            "train",
+            "mw",
+            "mt10_smt",
+        ),
+        (
+            '[protocol]\nname="j"\nkind="joint"\n[envs.mw]\n[envs.fk]\n[scheduler]\nkind="constant"\nratio={mw=0.5, fk=0.5}',
+            "train",
+            "mw",
+            "50/50",
+        ),
+        (
+            '[protocol]\nname="j"\nkind="joint"\n[envs.mw]\n[envs.fk]\n[scheduler]\nkind="constant"\nratio=0.7',
+            "train",
+            "fk",
+            "70/30",
+        ),
+        (
+            '[protocol]\nname="j"\nkind="joint"\n[envs.mw]\n[envs.fk]\n[scheduler]\nkind="constant"',
+            "train",
+            "fk",
+            "50/50",
+        ),
+        (
+            '[protocol]\nname="j"\nkind="joint"\n[envs.mw]\n[envs.fk]\n[scheduler]\nkind="constant"\nratios={mw=0.25, fk=0.75}',
+            "train",
+            "fk",
+            "25/75",
+        ),
+        # Uniform over tasks: 1 mw task and 3 fk tasks in metrics.csv -> 25/75.
+        ('[protocol]\nname="j"\nkind="joint"\n[envs.mw]\n[envs.fk]', "train", "fk", "25/75"),
+        (
+            '[protocol]\nname="j"\nkind="joint"\n[envs.mw]\n[envs.fk]\nadapter="franka_kitchen_dense"\n[scheduler]\nkind="stepped"\nstart={mw=0.2, fk=0.8}',
+            "train",
+            "fk",
+            "High FK",
+        ),
+        (
+            '[protocol]\nname="j"\nkind="joint"\n[scheduler]\nkind="high_fk"',
+            "train",
+            "mw",
+            "High FK",
+        ),
+        (
+            '[protocol]\nname="j"\nkind="joint"\n[scheduler]\nkind="stepped"\npreset="high_mw"',
+            "train",
+            "mw",
+            "High MW",
+        ),
+        ('[protocol]\nname="jsmt"\nkind="joint"\n[scheduler]\nkind="smt"', "train", "mw", "jsmt"),
+        (
+            '[protocol]\nname="f"\nkind="finetune"\n[envs.mw]\nadapter="metaworld"',
+            "pretrain",
+            "mw",
+            "Pre-train on MW",
+        ),
+        (
+            '[protocol]\nname="f"\nkind="finetune"\n[envs.k]\nadapter="franka_kitchen_dense"',
+            "finetune",
+            "k",
+            "Fine-tune on FK",
+        ),
+        ('[protocol]\nname="f"\nkind="finetune"', "finetune", "point", "Fine-tune on point"),
+    ],
+)
+def test_column_labels(config: str, phase: str, env: str, label: str) -> None:
+    assert column_label(_run(config), phase, env) == label
+
+
+def test_cli_report_json(
+    tmp_path: Path, groups: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "cli"
+    code = main(
+        [
+            "report",
+            str(groups["baseline_mw"]),
+            str(groups["high_fk"] / "seed-0"),
+            str(groups["high_fk"] / "seed-1"),
+            "--json",
+            "--out",
+            str(out),
+        ]
+    )
+    assert code == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1
+    payload = json.loads(lines[0])
+    assert payload["out_dir"] == str(out)
+    dc = payload["update_counts"]["High FK"]["mw"]["drawer-close-v3"]
+    assert dc["mean"] == pytest.approx(0.035) and dc["reached"] == 2 and dc["seeds"] == 2
+    assert dc["pct_change"] == pytest.approx(-78.125)
+    assert payload["update_counts"]["High FK"]["mw"]["reach-v3"]["std"] is None
+    assert payload["update_count_totals"]["Single Env"]["mw"] == pytest.approx(0.352)
+    assert Path(payload["tables"]["update_counts.md"]).is_file()
+    assert all(Path(p).is_file() for p in payload["plots"])
+
+
+def test_cli_report_bad_path_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["report", str(tmp_path / "missing")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("seal report: error: ") and "missing does not exist" in err
