@@ -510,6 +510,8 @@ def train_multitask(
     eval_episodes: int = 10,
     eval_every_rounds: int = 0,
     stop_at_success: float | None = None,
+    backend: str = "auto",
+    log: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """A plain MTMHSAC/SAC run on one adapter: random warm-up, then per round one episode of every
     task followed by `updates_per_round` (default: the episode length, i.e. one update per
@@ -517,7 +519,8 @@ def train_multitask(
 
     `warmup_steps` counts env steps over all tasks. Returns env steps, updates, wall time and the
     deterministic success rate per task (`eval_episodes` episodes each, separately seeded envs).
-    `stop_at_success` ends early once every task's evaluated success reaches it.
+    `stop_at_success` ends early once every task's evaluated success reaches it. `backend` is
+    the training Collector's (evaluation always steps in-process: it is short).
     """
     from seal.learner import Agent, EnvSpec, MultiTaskReplay
     from seal.learner.collection import Collector
@@ -532,7 +535,7 @@ def train_multitask(
     counts = {name: np.full(n, batch_per_task)}
     start = time.perf_counter()
     updates, evaluated = 0, None
-    with Collector({name: adapter}, seed=seed) as train, Collector({name: adapter}, seed=seed + 1_000_003) as evaluation:
+    with Collector({name: adapter}, seed=seed, backend=backend) as train, Collector({name: adapter}, seed=seed + 1_000_003, backend="sync") as evaluation:
 
         def act(env: str, obs: np.ndarray, ids: np.ndarray) -> np.ndarray:
             return agent.act(env, obs, ids, deterministic=False)
@@ -551,6 +554,9 @@ def train_multitask(
                     updates += 1
             if eval_every_rounds and round_no % eval_every_rounds == 0 and not warm:
                 evaluated = evaluation.evaluate(act_det, eval_episodes)[name]
+                if log is not None:
+                    rates = {t: v["success_rate"] for t, v in evaluated.items()}
+                    log(f"{name}: {train.total_env_steps} env steps, {updates} updates, {time.perf_counter() - start:.0f} s: success {rates}")
                 if stop_at_success is not None and min(v["success_rate"] for v in evaluated.values()) >= stop_at_success:
                     break
         if evaluated is None or not eval_every_rounds or round_no % eval_every_rounds:
@@ -584,7 +590,8 @@ def learn_point(one_hot: bool = True, seed: int = 0, **overrides: Any) -> dict[s
 
     settings = {**POINT_LEARN, **overrides}
     config = AgentConfig(hidden=settings.pop("hidden"), one_hot=one_hot, device="cpu")
-    return train_multitask(PointAdapter(), config, seed=seed, eval_every_rounds=10, stop_at_success=1.0 if one_hot else None, **settings)
+    # Point steps cost microseconds: worker processes would only add pipe latency.
+    return train_multitask(PointAdapter(), config, seed=seed, eval_every_rounds=10, stop_at_success=1.0 if one_hot else None, backend="sync", **settings)
 
 
 def learn_reach(seed: int = 0, env_steps: int = 200_000) -> dict[str, Any]:

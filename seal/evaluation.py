@@ -182,9 +182,12 @@ def record_videos(
                 obs, _ = env.reset(seed=seed + episode)
                 frames = []
                 for _ in range(adapter.episode_length):
-                    frame = env.render()
+                    try:
+                        frame = env.render()
+                    except NotImplementedError:
+                        frame = None
                     if frame is None:
-                        raise SealError(f"--video: adapter {adapter.name!r} task {task!r} cannot render rgb frames")
+                        raise SealError(f"--video: adapter {adapter.name!r} (task {task!r}) does not render rgb_array frames")
                     frames.append(np.asarray(frame))
                     action = policy(env_name, np.asarray(obs)[None], task_id)[0]
                     obs, _, terminated, truncated, _ = env.step(action)

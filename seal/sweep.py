@@ -917,8 +917,9 @@ def _run_tune(
     from ray import tune
     from ray.tune.schedulers import ASHAScheduler
 
-    # Tune's per-trial JSON/CSV/TensorBoard loggers duplicate the run directories; keep them off.
-    os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
+    # The legacy reporter honours verbose=0; the new one still draws a banner on stdout, which
+    # would sit among `seal sweep`'s own output (the --json line must stay the last one).
+    os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
     plan = SearchPlan(configs=tuple(configs), records=tuple(records), threads=res.threads, command=tuple(command))
     trainable = tune.with_resources(tune.with_parameters(search_trainable, plan=plan), {"cpu": res.cpus, "gpu": res.gpus})
     scheduler = None
@@ -935,6 +936,9 @@ def _run_tune(
             scheduler=scheduler,
             max_concurrent_trials=spec.max_concurrent,
             trial_dirname_creator=lambda trial: f"sample-{int(trial.config['sample']):03d}",
+            # Reusing actors saves a Python + torch start per trial; only safe when no trial is
+            # stopped early, since a stopped trial's run thread would live on in the reused actor.
+            reuse_actors=scheduler is None,
         ),
         run_config=tune.RunConfig(
             name="tune",
@@ -946,9 +950,15 @@ def _run_tune(
     started = time.monotonic()
     results = tuner.fit()
     errors: dict[int, str] = {}
+    seconds: dict[int, float] = {}
     for result in results:
-        if result.error is not None and result.config:
-            errors[int(result.config["sample"])] = str(result.error).strip().splitlines()[-1] if str(result.error).strip() else type(result.error).__name__
+        if not result.config:
+            continue
+        index = int(result.config["sample"])
+        seconds[index] = float((result.metrics or {}).get("time_total_s") or 0.0)
+        if result.error is not None:
+            text = str(result.error).strip()
+            errors[index] = text.splitlines()[-1] if text else type(result.error).__name__
     wall = round(time.monotonic() - started, 3)
     for i in runnable:
         record = records[i]
@@ -961,7 +971,7 @@ def _run_tune(
             record.error = _error_line(error_file) or errors.get(i, "failed")
         else:
             record.status = "stopped"  # Tune ended it before the run finished: ASHA's early stopping
-        record.wall_s = wall
+        record.wall_s = round(seconds.get(i) or wall, 3)
         say(f"{record.trial} [{describe_sample(record.sample)}]: {_outcome(record)}")
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -12,6 +13,15 @@ from seal.errors import ConfigError, SealError, UnknownNameError
 from seal.learner import Agent, AgentConfig, Batch, EnvSpec
 
 SMALL = {"hidden": (32, 32), "translator_hidden": (32,), "latent_dim": 16, "trunk_hidden": (32, 32)}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread() -> Iterator[None]:
+    """Tiny networks: one thread is faster, and two OpenMP threads crawl on a busy 2-core machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
 def _random_batch(spec: EnvSpec, n: int, seed: int = 0) -> Batch:
@@ -132,7 +142,7 @@ def test_learns_a_different_action_per_task_in_a_one_step_bandit() -> None:
     agent = Agent([spec], AgentConfig(**SMALL, actor_lr=1e-3, critic_lr=1e-3), seed=0)
     rng = np.random.default_rng(0)
     targets = torch.tensor([0.6, -0.6])
-    for _ in range(400):  # bounded by updates, ~2 s
+    for _ in range(300):  # bounded by updates; seeds 0-2 reach |a| > 0.37 by update 250
         ids = torch.from_numpy(rng.integers(0, 2, 64))
         actions = torch.from_numpy(rng.uniform(-1, 1, (64, 1)).astype(np.float32))
         obs = torch.zeros(64, 2)

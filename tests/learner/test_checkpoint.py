@@ -1,0 +1,139 @@
+"""Checkpoints: round trip, resume equals no round trip (bitwise), atomic writes, NaN safety, export."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from seal.errors import SealError, TrainingDivergedError
+from seal.learner import Agent, AgentConfig, EnvSpec, MultiTaskReplay, counts_from_ratio
+from seal.learner import checkpoint as checkpoint_module
+from seal.learner.checkpoint import load_checkpoint, save_checkpoint
+
+SMALL = {"hidden": (32, 32), "translator_hidden": (32,), "latent_dim": 16, "trunk_hidden": (32, 32)}
+SPECS = [EnvSpec("mw", 5, 2, 3), EnvSpec("fk", 7, 3, 2)]
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread() -> Iterator[None]:
+    """Tiny networks: one thread is faster, and two OpenMP threads crawl on a busy 2-core machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def _filled(seed: int = 0) -> tuple[Agent, MultiTaskReplay]:
+    agent = Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=seed)
+    replay = MultiTaskReplay(SPECS, capacity=60)
+    rng = np.random.default_rng(seed)
+    for spec in SPECS:
+        ids = np.arange(spec.num_tasks)
+        for _ in range(10):
+            obs = rng.normal(size=(spec.num_tasks, spec.obs_dim)).astype(np.float32)
+            replay.add(spec.name, ids, obs, agent.act(spec.name, obs, ids), rng.normal(size=spec.num_tasks), obs + 1, np.zeros(spec.num_tasks))
+    return agent, replay
+
+
+def _params(agent: Agent) -> list[torch.Tensor]:
+    return [p.detach().clone() for p in (*agent.actor.parameters(), *agent.critic.parameters(), *agent.critic_target.parameters(), *agent.log_alpha.values())]
+
+
+def test_resume_then_update_is_bitwise_identical_to_updating_without_the_round_trip(tmp_path: Path) -> None:
+    agent, replay = _filled()
+    rng = np.random.default_rng(1)
+    counts = counts_from_ratio({"mw": 0.5, "fk": 0.5}, {"mw": 3, "fk": 2}, batch_per_task=4)
+    for _ in range(3):
+        agent.update(replay.sample(counts, rng))
+    path = save_checkpoint(tmp_path / "ckpt.pt", agent, replay, extra={"rng": rng.bit_generator.state, "env_steps": 123})
+    assert agent.last_checkpoint == str(path)
+    expected = agent.update(replay.sample(counts, rng))
+    expected_params = _params(agent)
+
+    resumed, resumed_replay = Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=99), MultiTaskReplay(SPECS, capacity=60)
+    extra = load_checkpoint(path, resumed, resumed_replay)
+    assert extra["env_steps"] == 123 and resumed.num_updates == 3
+    resumed_rng = np.random.default_rng()
+    resumed_rng.bit_generator.state = extra["rng"]
+    got = resumed.update(resumed_replay.sample(counts, resumed_rng))
+    assert got == expected  # exact float equality of every loss and temperature
+    for a, b in zip(expected_params, _params(resumed), strict=True):
+        assert torch.equal(a, b)
+    for env in ("mw", "fk"):
+        np.testing.assert_array_equal(resumed_replay.consumed[env], replay.consumed[env])
+    # the act stream is restored too
+    obs = np.ones((2, 5), np.float32)
+    np.testing.assert_array_equal(agent.act("mw", obs, np.array([0, 2])), resumed.act("mw", obs, np.array([0, 2])))
+
+
+def test_writes_are_atomic_and_leave_no_temp_files(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    agent, replay = _filled()
+    path = save_checkpoint(tmp_path / "ckpt.pt", agent, replay)
+    good = path.read_bytes()
+
+    def crash(obj: object, f: object) -> None:
+        f.write(b"half a checkpoint")  # type: ignore[attr-defined]
+        raise OSError("disk full")
+
+    monkeypatch.setattr(checkpoint_module.torch, "save", crash)
+    with pytest.raises(OSError, match="disk full"):
+        save_checkpoint(path, agent, replay)
+    assert path.read_bytes() == good
+    assert os.listdir(tmp_path) == ["ckpt.pt"]
+
+
+def test_nan_parameters_never_overwrite_a_good_checkpoint(tmp_path: Path) -> None:
+    agent, replay = _filled()
+    path = save_checkpoint(tmp_path / "ckpt.pt", agent, replay)
+    good = path.read_bytes()
+    with torch.no_grad():
+        agent.actor.trunk.weights[0][0, 0, 0] = float("nan")
+    with pytest.raises(TrainingDivergedError, match=f"refusing to write checkpoint .*last good checkpoint: {path}"):
+        save_checkpoint(path, agent, replay)
+    assert path.read_bytes() == good
+
+
+def test_nan_loss_stops_training_naming_the_update_and_last_checkpoint(tmp_path: Path) -> None:
+    agent, replay = _filled()
+    rng = np.random.default_rng(0)
+    counts = {"mw": np.array([2, 2, 2])}
+    agent.update(replay.sample(counts, rng))
+    with pytest.raises(TrainingDivergedError, match="none saved yet"):
+        batch = replay.sample(counts, rng)["mw"]
+        agent.update({"mw": batch._replace(rewards=torch.full_like(batch.rewards, float("inf")))})
+    agent, replay = _filled()
+    path = save_checkpoint(tmp_path / "good.pt", agent, replay)
+    batch = replay.sample(counts, rng)["mw"]
+    with pytest.raises(TrainingDivergedError, match=rf"diverged at update 1: losses/mw/qf1 = nan.*last good checkpoint: {path}"):
+        agent.update({"mw": batch._replace(rewards=torch.full_like(batch.rewards, float("nan")))})
+
+
+def test_export_without_replay(tmp_path: Path) -> None:
+    agent, replay = _filled()
+    full = save_checkpoint(tmp_path / "full.pt", agent, replay)
+    export = save_checkpoint(tmp_path / "export.pt", agent, replay, include_replay=False)
+    assert export.stat().st_size < full.stat().st_size
+    other = Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=5)
+    load_checkpoint(export, other)  # the agent alone loads
+    for a, b in zip(_params(agent), _params(other), strict=True):
+        assert torch.equal(a, b)
+    with pytest.raises(SealError, match="saved without its replay"):
+        load_checkpoint(export, other, MultiTaskReplay(SPECS, capacity=60))
+
+
+def test_unreadable_or_mismatched_checkpoints_raise_seal_errors(tmp_path: Path) -> None:
+    with pytest.raises(SealError, match="does not exist"):
+        load_checkpoint(tmp_path / "missing.pt", _filled()[0])
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(SealError, match="cannot be read"):
+        load_checkpoint(tmp_path / "junk.pt", _filled()[0])
+    agent, replay = _filled()
+    path = save_checkpoint(tmp_path / "seal.pt", agent, replay)
+    other = Agent([EnvSpec("mw", 5, 2, 3)], AgentConfig(**SMALL), seed=0)
+    with pytest.raises(SealError, match="is for environments"):
+        load_checkpoint(path, other)

@@ -1,0 +1,309 @@
+"""`seal sweep`: search-space parsing, ranking and resume bookkeeping, then sweeps and a search on a local Ray.
+
+The Ray tests share one local Ray session (module fixture) and train the `point` env for a few
+seconds per trial: one task ("east"), 15-step episodes, 32-unit networks, 20 epochs. With
+init_alpha = 0.01 and gamma = 0.9 this config reaches success 1.0 by epoch 15 for seeds 0 and 1
+(measured with `seal run`), while lr_factor = 1e-9 (a learning rate of ~0; 0 itself is not a
+valid Adam rate) stays at success 0 and return ~ -16 (the point barely moves).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from seal.errors import ConfigError, SealError
+from seal.protocols import load_protocol
+from seal.sweep import (
+    TrialRecord,
+    draw_samples,
+    is_finished,
+    parse_resources,
+    parse_search,
+    rank_trials,
+    read_evaluations,
+    sample_overrides,
+    with_overrides,
+)
+
+TINY = """
+[protocol]
+name = "{name}"
+kind = "baseline"
+seeds = 2
+epochs = 20
+device = "cpu"
+
+[envs.point]
+adapter = "point"
+tasks = ["east"]
+episode_length = 15
+
+[agent]
+hidden = [32, 32]
+actor_lr = 3e-3
+critic_lr = 3e-3
+init_alpha = {init_alpha}
+gamma = 0.9
+
+[replay]
+capacity_per_env = 2000
+
+[training]
+warmup_steps = 60
+batch_per_task = 64
+grad_steps_per_epoch = 15
+collector = "sync"
+
+[evaluation]
+interval = 10
+episodes = 2
+
+[checkpoint]
+interval = 20
+save_replay = false
+
+[logging]
+tensorboard = false
+"""
+
+
+def write_protocol(tmp_path: Path, name: str = "tiny", init_alpha: float = 0.01, extra: str = "") -> Path:
+    """A tiny point protocol (a few seconds per seed) written to tmp_path/<name>.toml."""
+    path = tmp_path / f"{name}.toml"
+    path.write_text(TINY.format(name=name, init_alpha=init_alpha) + textwrap.dedent(extra))
+    return path
+
+
+# ---------------------------------------------------------------- no Ray needed
+
+
+def test_search_table_parses_every_distribution(tmp_path: Path) -> None:
+    extra = """
+    [search]
+    num_samples = 3
+    seed = 7
+    scheduler = "asha"
+    grace_period = 2
+    "agent.actor_lr" = {dist = "loguniform", low = 1e-5, high = 1e-3}
+    "agent.tau" = {dist = "uniform", low = 0.001, high = 0.02}
+    "training.batch_per_task" = {dist = "int", low = 16, high = 17}
+    "agent.hidden" = {dist = "choice", values = [[32], [64, 64]]}
+    "agent.gamma" = {dist = "grid", values = [0.9, 0.95]}
+    """
+    spec = parse_search(load_protocol(write_protocol(tmp_path, extra=extra)))
+    assert [p.key for p in spec.params] == ["agent.actor_lr", "agent.tau", "training.batch_per_task", "agent.hidden", "agent.gamma"]
+    assert (spec.num_samples, spec.seed, spec.scheduler, spec.grace_period) == (3, 7, "asha", 2)
+    samples = draw_samples(spec)
+    # 3 draws for each of the 2 grid points.
+    assert len(samples) == 6
+    assert [s["agent.gamma"] for s in samples] == [0.9, 0.95] * 3
+    for s in samples:
+        assert 1e-5 <= s["agent.actor_lr"] <= 1e-3
+        assert 0.001 <= s["agent.tau"] <= 0.02
+        assert s["training.batch_per_task"] in (16, 17)  # int: both ends included
+        assert s["agent.hidden"] in ([32], [64, 64])
+    assert draw_samples(spec) == samples  # same seed, same configs (what resume relies on)
+    # --samples wins over the file's num_samples.
+    assert len(draw_samples(parse_search(load_protocol(write_protocol(tmp_path, extra=extra)), num_samples=1))) == 2
+
+
+def test_sample_becomes_overrides_of_the_resolved_config(tmp_path: Path) -> None:
+    config = load_protocol(write_protocol(tmp_path))
+    overrides = sample_overrides({"agent.actor_lr": 1e-4, "agent.hidden": [64, 64], "protocol.device": "cpu"})
+    assert overrides == ["agent.actor_lr=0.0001", "agent.hidden=[64, 64]", 'protocol.device="cpu"']
+    changed = with_overrides(config, overrides)
+    assert (changed.agent.actor_lr, changed.agent.hidden) == (1e-4, (64, 64))
+    assert changed.agent.critic_lr == 3e-3  # untouched values stay
+
+
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ('"agent.actor_lr" = {dist = "normal", low = 0, high = 1}', "dist = 'normal' is not valid"),
+        ('"agent.actor_lr" = {dist = "loguniform", low = 0.0, high = 1e-3}', "expected a number > 0"),
+        ('"agent.actor_lr" = {dist = "uniform", low = 1e-3}', "high is missing"),
+        ('"agent.actor_lr" = {dist = "choice", values = []}', "non-empty array"),
+        ('"agent.actor_lr" = {dist = "uniform", low = 1, high = 1}', "must be below high"),
+        ("samples = 4", "table.key"),
+        ('scheduler = "hyperband"\n"agent.tau" = {dist = "uniform", low = 0.001, high = 0.01}', "valid: 'none', 'asha'"),
+    ],
+)
+def test_bad_search_entries_name_the_key_and_what_is_valid(tmp_path: Path, entry: str, message: str) -> None:
+    config = load_protocol(write_protocol(tmp_path, extra=f"[search]\n{entry}\n"))
+    with pytest.raises(ConfigError, match="search") as info:
+        parse_search(config)
+    assert message in str(info.value)
+    assert str(tmp_path / "tiny.toml") in str(info.value)
+
+
+def test_search_without_a_search_table_says_how_to_write_one(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"needs a \[search\] table"):
+        parse_search(load_protocol(write_protocol(tmp_path)))
+
+
+def test_resources_table(tmp_path: Path) -> None:
+    res = parse_resources(load_protocol(write_protocol(tmp_path, extra="[resources]\ncpus = 2.5\ngpus = 0.25\n")))
+    assert (res.cpus, res.gpus, res.threads) == (2.5, 0.25, 2)
+    assert parse_resources(load_protocol(write_protocol(tmp_path))).cpus == 1.0
+    with pytest.raises(ConfigError, match=r"resources\.cpus = 0 is not valid"):
+        parse_resources(load_protocol(write_protocol(tmp_path, extra="[resources]\ncpus = 0\n")))
+    with pytest.raises(ConfigError, match=r"resources\.memory is not a valid key; valid keys: cpus, gpus"):
+        parse_resources(load_protocol(write_protocol(tmp_path, extra="[resources]\nmemory = 4\n")))
+
+
+def test_ranking_puts_finished_then_stopped_then_failed(tmp_path: Path) -> None:
+    def rec(name: str, status: str, success: float | None, ret: float | None) -> TrialRecord:
+        return TrialRecord(trial=name, protocol="p", seed=0, run_dir=str(tmp_path / name), status=status, mean_success=success, mean_return=ret)
+
+    trials = [
+        rec("failed", "failed", None, None),
+        rec("tie-low-return", "finished", 0.0, -16.0),
+        rec("stopped-high", "stopped", 0.9, -5.0),
+        rec("best", "finished", 0.5, -10.0),
+        rec("tie-high-return", "finished", 0.0, -6.0),
+    ]
+    # Finished by success (0.5 first), equal success by return (-6 before -16); ASHA-stopped after
+    # every finished trial even with higher success; failed last.
+    assert [t.trial for t in rank_trials(trials)] == ["best", "tie-high-return", "tie-low-return", "stopped-high", "failed"]
+
+
+def test_read_evaluations_and_completion_marker(tmp_path: Path) -> None:
+    run = tmp_path / "seed-0"
+    run.mkdir()
+    (run / "metrics.csv").write_text(
+        "seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s\n"
+        "0,train,10,point,east,0.0,-10.0,100,150,0.001,1.0\n"
+        "0,train,10,point,west,1.0,-4.0,100,150,0.001,1.0\n"
+        "0,train,20,point,east,0.5,-8.0,200,300,0.002,2.0\n"
+        "0,train,20,point,west,1.0,-2.0,200,300,0.002,2.0\n"
+        "0,train,30,point,ea"  # a torn row from a kill: ignored
+    )
+    evals = read_evaluations(run)
+    # Epoch 10: success (0 + 1) / 2 = 0.5, return (-10 - 4) / 2 = -7; epoch 20: 0.75 and -5.
+    assert [(e.epoch, e.mean_success, e.mean_return, e.rows) for e in evals] == [(10, 0.5, -7.0, 2), (20, 0.75, -5.0, 2)]
+    assert not is_finished(run)
+    (run / "provenance.json").write_text(json.dumps({"start_time": "x", "end_time": None}))
+    assert not is_finished(run)
+    (run / "provenance.json").write_text(json.dumps({"start_time": "x", "end_time": "2026-11-22T04:00:00+00:00"}))
+    assert is_finished(run)
+
+
+def test_seal_run_and_protocols_never_import_ray() -> None:
+    code = "import sys, seal.cli.run_cmd, seal.protocols, seal.cli.sweep_cmd, seal.cli.main; seal.cli.main.build_parser(); print('ray' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_search_sample_the_schema_rejects_fails_alone_without_ray(tmp_path: Path) -> None:
+    from seal.sweep import search
+
+    # A learning rate of exactly 0 is not a valid Adam rate: that sample is recorded as failed
+    # before any Ray work, and with no valid sample left Ray is never started.
+    extra = '[search]\nnum_samples = 1\n"agent.actor_lr" = {dist = "choice", values = [0.0]}\n'
+    result = search(write_protocol(tmp_path, extra=extra), out=tmp_path / "reports")
+    (trial,) = result.trials
+    assert trial.status == "failed"
+    assert "agent.actor_lr" in trial.error and "expected a finite number > 0" in trial.error
+    assert result.best_config is None
+    assert "sample-000" in result.trials_table.read_text()
+
+
+# ---------------------------------------------------------------- on a local Ray
+
+
+@pytest.fixture(scope="module")
+def ray_session():  # noqa: ANN201 - yields the ray module
+    """One local Ray for every test below (startup costs seconds); sweeps reuse an initialised Ray."""
+    import ray  # the dev extra installs it; a missing Ray fails these tests rather than skipping them
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="warning")
+    yield ray
+    ray.shutdown()
+
+
+def test_two_seeds_give_two_run_dirs_and_one_table(ray_session, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # noqa: ANN001
+    from seal.cli.main import main
+
+    protocol = write_protocol(tmp_path)
+    code = main(["sweep", str(protocol), "--seeds", "0-1", "--out", str(tmp_path / "reports"), "--json"])
+    assert code == 0
+    data = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    runs = [Path(p) for p in data["run_dirs"]]
+    assert [r.name for r in runs] == ["seed-0", "seed-1"]
+    assert runs[0].parent == runs[1].parent == Path(data["sweep_dir"])  # one group
+    assert runs[0].parent.parent == (tmp_path / "reports" / "tiny").resolve()
+    for run in runs:
+        # The run directory `seal run` writes, finished.
+        assert {"config.toml", "provenance.json", "metrics.csv", "train.csv", "checkpoints"} <= {p.name for p in run.iterdir()}
+        assert is_finished(run)
+        assert len(read_evaluations(run)) == 2  # epochs 10 and 20
+    table = Path(data["table"])
+    assert table.name == "update_counts.md" and table.is_file()
+    text = table.read_text()
+    assert "Single Env" in text and "east (point)" in text
+    assert data["failed"] == []
+
+
+def test_search_ranks_the_config_that_cannot_learn_last(ray_session, tmp_path: Path) -> None:  # noqa: ANN001
+    from seal.sweep import search
+
+    extra = """
+    [search]
+    num_samples = 2
+    seed = 0
+    "agent.lr_factor" = {dist = "grid", values = [1.0, 1e-9]}
+    "agent.tau" = {dist = "uniform", low = 0.004, high = 0.01}
+    """
+    result = search(write_protocol(tmp_path, extra=extra), out=tmp_path / "reports")
+    assert len(result.trials) == 4
+    assert all(t.status == "finished" for t in result.trials)
+    # Ranked: the two learning configs (success 1.0 by epoch 15, see the module docstring) first,
+    # the two with a learning rate of ~0 (success 0) last.
+    assert [t.sample["agent.lr_factor"] for t in result.trials] == [1.0, 1.0, 1e-9, 1e-9]
+    assert result.trials[1].mean_success > 0.0
+    assert [t.mean_success for t in result.trials[2:]] == [0.0, 0.0]
+    csv_rows = (result.sweep_dir / "search.csv").read_text().splitlines()
+    assert csv_rows[0].startswith("rank,trial,status,agent.lr_factor,agent.tau,mean_success")
+    best = load_protocol(result.best_config)
+    assert best.agent.lr_factor == 1.0 and best.search == {}
+    assert best.agent.tau == result.trials[0].sample["agent.tau"]
+
+
+def test_failing_trial_is_reported_others_complete_and_resume_keeps_finished(ray_session, tmp_path: Path) -> None:  # noqa: ANN001
+    from seal.sweep import sweep
+
+    good = write_protocol(tmp_path, "good")
+    # init_alpha = 1e300 makes the entropy term infinite: the first update's losses are inf/NaN
+    # and the runner raises "training diverged" inside the trial.
+    bad = write_protocol(tmp_path, "diverges", init_alpha=1e300)
+    result = sweep([good, bad], seeds=[0], out=tmp_path / "reports")
+    by_name = {t.protocol: t for t in result.trials}
+    assert by_name["good"].status == "finished" and is_finished(by_name["good"].run_dir)
+    failed = by_name["diverges"]
+    assert failed.status == "failed" and "training diverged" in failed.error
+    assert (Path(failed.run_dir) / "error.txt").is_file()
+    assert result.to_json()["failed"] == [{"trial": "diverges/seed-0", "run_dir": failed.run_dir, "error": failed.error}]
+    assert result.to_json()["run_dirs"] == [by_name["good"].run_dir]
+    assert result.table is not None and result.table.name == "update_counts.md"
+    assert "diverges/seed-0" in (result.sweep_dir / "trials.md").read_text()
+
+    metrics = Path(by_name["good"].run_dir) / "metrics.csv"
+    before = (metrics.stat().st_mtime_ns, metrics.read_text())
+    again = sweep(resume=result.sweep_dir)
+    by_name = {t.protocol: t for t in again.trials}
+    assert by_name["good"].start == "kept" and by_name["good"].status == "finished"
+    assert (metrics.stat().st_mtime_ns, metrics.read_text()) == before  # not run again
+    assert by_name["diverges"].start == "continued" and by_name["diverges"].status == "failed"
+
+
+def test_resume_of_a_missing_sweep_dir_is_a_user_error(tmp_path: Path) -> None:
+    from seal.sweep import sweep
+
+    with pytest.raises(SealError, match="not a sweep directory"):
+        sweep(resume=tmp_path)
+
