@@ -28,6 +28,8 @@ def resolve_device(name: str | torch.device = "auto") -> torch.device:
         count = torch.cuda.device_count() if torch.cuda.is_available() else 0
         index = 0 if device.index is None else device.index
         if index >= count:
-            raise SealError(f"device {name!r} requested but this machine has {count} CUDA device(s); use device = \"auto\" or \"cpu\"")
+            raise SealError(
+                f'device {name!r} requested but this machine has {count} CUDA device(s); use device = "auto" or "cpu"'
+            )
         return device
     raise SealError(f"unsupported device {name!r}; valid: auto, cpu, cuda, cuda:<index>")

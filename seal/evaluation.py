@@ -45,12 +45,20 @@ class AgentPolicy:
         self.deterministic = deterministic
         self.alignment = alignment
         self.agent_env = dict(agent_env or {})
-        self.alignment_names = dict(alignment_names or {})  # env name -> the alignment's (adapter) name
+        self.alignment_names = dict(
+            alignment_names or {}
+        )  # env name -> the alignment's (adapter) name
 
-    def agent_inputs(self, env: str, obs: np.ndarray, task_ids: np.ndarray) -> tuple[str, np.ndarray, np.ndarray]:
+    def agent_inputs(
+        self, env: str, obs: np.ndarray, task_ids: np.ndarray
+    ) -> tuple[str, np.ndarray, np.ndarray]:
         """(agent env name, agent observations, agent task ids) for raw `obs` of `env`."""
         if self.alignment is None:
-            return self.agent_env.get(env, env), np.asarray(obs, dtype=np.float32), np.asarray(task_ids)
+            return (
+                self.agent_env.get(env, env),
+                np.asarray(obs, dtype=np.float32),
+                np.asarray(task_ids),
+            )
         name = self.alignment_names.get(env, env)
         aligned = self.alignment.transform_obs(name, obs, task_ids)
         ids = self.alignment.task_ids(name)[np.asarray(task_ids, dtype=np.intp)]
@@ -92,7 +100,10 @@ def evaluate(
         if own:
             collector.close()
     return {
-        env: {task: {"success": float(v["success_rate"]), "return": float(v["mean_return"])} for task, v in per_task.items()}
+        env: {
+            task: {"success": float(v["success_rate"]), "return": float(v["mean_return"])}
+            for task, v in per_task.items()
+        }
         for env, per_task in raw.items()
     }
 
@@ -125,7 +136,9 @@ def rendering_problem() -> str | None:
     import subprocess
 
     try:
-        probe = subprocess.run([sys.executable, "-c", _RENDER_PROBE], capture_output=True, text=True, timeout=120)
+        probe = subprocess.run(
+            [sys.executable, "-c", _RENDER_PROBE], capture_output=True, text=True, timeout=120
+        )
     except (OSError, subprocess.SubprocessError) as exc:
         return f"the rendering probe could not run ({exc})"
     if probe.returncode == 0 and "ok" in probe.stdout:
@@ -152,7 +165,9 @@ def _mp4_writer() -> Any:
         import imageio.v2 as imageio
         import imageio_ffmpeg  # noqa: F401 - imageio's MP4 backend
     except ImportError:
-        raise SealError("--video: writing MP4 needs imageio and imageio-ffmpeg (pip install imageio imageio-ffmpeg)") from None
+        raise SealError(
+            "--video: writing MP4 needs imageio and imageio-ffmpeg (pip install imageio imageio-ffmpeg)"
+        ) from None
     return imageio
 
 
@@ -187,7 +202,9 @@ def record_videos(
                     except NotImplementedError:
                         frame = None
                     if frame is None:
-                        raise SealError(f"--video: adapter {adapter.name!r} (task {task!r}) does not render rgb_array frames")
+                        raise SealError(
+                            f"--video: adapter {adapter.name!r} (task {task!r}) does not render rgb_array frames"
+                        )
                     frames.append(np.asarray(frame))
                     action = policy(env_name, np.asarray(obs)[None], task_id)[0]
                     obs, _, terminated, truncated, _ = env.step(action)

@@ -35,7 +35,10 @@ def git_sha(path: str | Path | None = None) -> str | None:
     where = Path(path) if path is not None else Path(__file__).resolve().parent
     try:
         sha = subprocess.run(
-            ["git", "-C", str(where), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10
+            ["git", "-C", str(where), "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=10,
         )
         if sha.returncode != 0:
             return None

@@ -43,7 +43,13 @@ from typing import Any, Literal
 
 from seal.errors import ConfigError, SealError
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.loader import apply_overrides, config_from_dict, config_to_dict, dumps_toml, load_protocol
+from seal.protocols.loader import (
+    apply_overrides,
+    config_from_dict,
+    config_to_dict,
+    dumps_toml,
+    load_protocol,
+)
 from seal.protocols.rundir import atomic_write_text, new_group_id, seed_dir
 
 MANIFEST = "sweep.json"
@@ -52,7 +58,14 @@ MANIFEST = "sweep.json"
 DISTRIBUTIONS: tuple[str, ...] = ("uniform", "loguniform", "choice", "int", "grid")
 """Distributions a [search] entry may name (`dist = ...`)."""
 
-SEARCH_OPTIONS: tuple[str, ...] = ("num_samples", "seed", "scheduler", "grace_period", "reduction_factor", "max_concurrent")
+SEARCH_OPTIONS: tuple[str, ...] = (
+    "num_samples",
+    "seed",
+    "scheduler",
+    "grace_period",
+    "reduction_factor",
+    "max_concurrent",
+)
 """Keys of [search] that configure the search itself; every other key names a config value."""
 
 RESOURCE_KEYS: tuple[str, ...] = ("cpus", "gpus")
@@ -85,15 +98,25 @@ def parse_resources(config: ProtocolConfig) -> Resources:
     table = dict(config.resources or {})
     unknown = sorted(set(table) - set(RESOURCE_KEYS))
     if unknown:
-        raise ConfigError(f"{config.path}: resources.{unknown[0]} is not a valid key; valid keys: {', '.join(RESOURCE_KEYS)}")
+        raise ConfigError(
+            f"{config.path}: resources.{unknown[0]} is not a valid key; valid keys: {', '.join(RESOURCE_KEYS)}"
+        )
     values: dict[str, float] = {}
     for key, lowest, strict in (("cpus", 0.0, True), ("gpus", 0.0, False)):
         if key not in table:
             continue
         value = table[key]
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < lowest or (strict and value == lowest):
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not math.isfinite(value)
+            or value < lowest
+            or (strict and value == lowest)
+        ):
             span = "> 0" if strict else ">= 0"
-            raise ConfigError(f"{config.path}: resources.{key} = {value!r} is not valid; expected a number {span}")
+            raise ConfigError(
+                f"{config.path}: resources.{key} = {value!r} is not valid; expected a number {span}"
+            )
         values[key] = float(value)
     return Resources(**values)
 
@@ -122,7 +145,9 @@ class Distribution:
         if self.dist == "loguniform":
             return tune.loguniform(self.low, self.high)
         if self.dist == "int":
-            return tune.randint(int(self.low), int(self.high) + 1)  # Tune's upper bound is exclusive
+            return tune.randint(
+                int(self.low), int(self.high) + 1
+            )  # Tune's upper bound is exclusive
         if self.dist == "choice":
             return tune.choice(list(self.values))
         return list(self.values)
@@ -169,31 +194,53 @@ def parse_distribution(key: str, spec: Any, file: str) -> Distribution:
     """One `"table.key" = {dist = ..., ...}` entry of [search], checked."""
     where = f"{file}: search.{key}"
     if "." not in key:
-        raise ConfigError(f"{where}: a searched key names a config value as table.key (e.g. \"agent.actor_lr\"); valid search options: {', '.join(SEARCH_OPTIONS)}")
+        raise ConfigError(
+            f'{where}: a searched key names a config value as table.key (e.g. "agent.actor_lr"); valid search options: {", ".join(SEARCH_OPTIONS)}'
+        )
     if not isinstance(spec, Mapping) or "dist" not in spec:
-        raise ConfigError(f"{where} = {spec!r} must be an inline table with dist = one of {', '.join(DISTRIBUTIONS)}, e.g. {{dist = \"loguniform\", low = 1e-5, high = 1e-3}}")
+        raise ConfigError(
+            f'{where} = {spec!r} must be an inline table with dist = one of {", ".join(DISTRIBUTIONS)}, e.g. {{dist = "loguniform", low = 1e-5, high = 1e-3}}'
+        )
     dist = spec["dist"]
     if dist not in DISTRIBUTIONS:
-        raise ConfigError(f"{where}.dist = {dist!r} is not valid; valid: {', '.join(DISTRIBUTIONS)}")
-    needed = {"uniform": ("low", "high"), "loguniform": ("low", "high"), "int": ("low", "high"), "choice": ("values",), "grid": ("values",)}[dist]
+        raise ConfigError(
+            f"{where}.dist = {dist!r} is not valid; valid: {', '.join(DISTRIBUTIONS)}"
+        )
+    needed = {
+        "uniform": ("low", "high"),
+        "loguniform": ("low", "high"),
+        "int": ("low", "high"),
+        "choice": ("values",),
+        "grid": ("values",),
+    }[dist]
     extra = sorted(set(spec) - {"dist", *needed})
     if extra:
-        raise ConfigError(f"{where}.{extra[0]} is not valid for dist = {dist!r}; valid keys: dist, {', '.join(needed)}")
+        raise ConfigError(
+            f"{where}.{extra[0]} is not valid for dist = {dist!r}; valid keys: dist, {', '.join(needed)}"
+        )
     missing = [k for k in needed if k not in spec]
     if missing:
-        raise ConfigError(f"{where}: dist = {dist!r} needs {' and '.join(needed)}; {missing[0]} is missing")
+        raise ConfigError(
+            f"{where}: dist = {dist!r} needs {' and '.join(needed)}; {missing[0]} is missing"
+        )
     if dist in ("choice", "grid"):
         values = spec["values"]
         if not isinstance(values, list) or not values:
-            raise ConfigError(f"{where}.values = {values!r} is not valid; expected a non-empty array, e.g. values = [1e-4, 3e-4]")
+            raise ConfigError(
+                f"{where}.values = {values!r} is not valid; expected a non-empty array, e.g. values = [1e-4, 3e-4]"
+            )
         return Distribution(key, dist, values=tuple(values))
     low, high = _number(spec["low"], f"{where}.low"), _number(spec["high"], f"{where}.high")
     if dist == "int" and (low != int(low) or high != int(high)):
-        raise ConfigError(f"{where}: dist = \"int\" needs integer low and high, got {spec['low']!r}, {spec['high']!r}")
+        raise ConfigError(
+            f'{where}: dist = "int" needs integer low and high, got {spec["low"]!r}, {spec["high"]!r}'
+        )
     if not low < high and not (dist == "int" and low == high):
         raise ConfigError(f"{where}: low = {spec['low']!r} must be below high = {spec['high']!r}")
     if dist == "loguniform" and low <= 0:
-        raise ConfigError(f"{where}.low = {spec['low']!r} is not valid for dist = \"loguniform\"; expected a number > 0")
+        raise ConfigError(
+            f'{where}.low = {spec["low"]!r} is not valid for dist = "loguniform"; expected a number > 0'
+        )
     return Distribution(key, dist, low=low, high=high)
 
 
@@ -221,13 +268,17 @@ def parse_search(config: ProtocolConfig, num_samples: int | None = None) -> Sear
         else:
             lowest = 0 if key == "seed" else 1
             if isinstance(value, bool) or not isinstance(value, int) or value < lowest:
-                raise ConfigError(f"{where} = {value!r} is not valid; expected an integer >= {lowest}")
+                raise ConfigError(
+                    f"{where} = {value!r} is not valid; expected an integer >= {lowest}"
+                )
         options[key] = value
     if num_samples is not None:
         if num_samples < 1:
             raise SealError(f"--samples {num_samples}: expected an integer >= 1")
         options["num_samples"] = num_samples
-    params = tuple(parse_distribution(k, v, file) for k, v in table.items() if k not in SEARCH_OPTIONS)
+    params = tuple(
+        parse_distribution(k, v, file) for k, v in table.items() if k not in SEARCH_OPTIONS
+    )
     return SearchSpec(params=params, **options)
 
 
@@ -248,7 +299,9 @@ def draw_samples(spec: SearchSpec) -> list[dict[str, Any]]:
             chosen = dict(zip((p.key for p in grid), point, strict=True))
             sample = {}
             for p in spec.params:
-                value = chosen[p.key] if p.dist == "grid" else p.tune_domain().sample(random_state=rng)
+                value = (
+                    chosen[p.key] if p.dist == "grid" else p.tune_domain().sample(random_state=rng)
+                )
                 sample[p.key] = _plain(value)
             samples.append(sample)
     return samples
@@ -273,7 +326,11 @@ def toml_literal(value: Any) -> str:
     if isinstance(value, list | tuple):
         return "[" + ", ".join(toml_literal(v) for v in value) + "]"
     if isinstance(value, Mapping):
-        return "{" + ", ".join(f"{json.dumps(str(k))} = {toml_literal(v)}" for k, v in value.items()) + "}"
+        return (
+            "{"
+            + ", ".join(f"{json.dumps(str(k))} = {toml_literal(v)}" for k, v in value.items())
+            + "}"
+        )
     raise SealError(f"cannot write {value!r} ({type(value).__name__}) as a TOML value")
 
 
@@ -282,7 +339,9 @@ def sample_overrides(sample: Mapping[str, Any]) -> list[str]:
     return [f"{key}={toml_literal(value)}" for key, value in sample.items()]
 
 
-def with_overrides(config: ProtocolConfig, overrides: Sequence[str], where: str | None = None) -> ProtocolConfig:
+def with_overrides(
+    config: ProtocolConfig, overrides: Sequence[str], where: str | None = None
+) -> ProtocolConfig:
     """`config` with --set style overrides applied and everything validated again.
 
     The overrides are applied to the resolved config (after --scale), so a sampled
@@ -426,7 +485,13 @@ def _set_threads(threads: int) -> None:
     torch.set_num_threads(threads)
 
 
-def execute_trial(config: ProtocolConfig, record: TrialRecord, *, threads: int = 1, command: Sequence[str] | None = None) -> TrialRecord:
+def execute_trial(
+    config: ProtocolConfig,
+    record: TrialRecord,
+    *,
+    threads: int = 1,
+    command: Sequence[str] | None = None,
+) -> TrialRecord:
     """Run one trial in this process (what a Ray task executes) and return its updated record.
 
     Never raises for a failing run: the error is stored in the record and in error.txt.
@@ -443,7 +508,14 @@ def execute_trial(config: ProtocolConfig, record: TrialRecord, *, threads: int =
     (run_dir / "error.txt").unlink(missing_ok=True)
     try:
         _set_threads(threads)
-        run_seed(config, record.seed, run_dir.parent, quiet=True, resume=record.start == "continued", command=list(command) if command else None)
+        run_seed(
+            config,
+            record.seed,
+            run_dir.parent,
+            quiet=True,
+            resume=record.start == "continued",
+            command=list(command) if command else None,
+        )
         record.status, record.error = "finished", ""
     except Exception as exc:  # noqa: BLE001 - any failure is this trial's, recorded, never the sweep's
         record.status, record.error = "failed", _write_error(run_dir, exc)
@@ -472,7 +544,11 @@ class RaySession:
         ray = import_ray()
         if ray.is_initialized():
             return ray
-        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "logging_level": "warning"}
+        kwargs: dict[str, Any] = {
+            "include_dashboard": False,
+            "log_to_driver": False,
+            "logging_level": "warning",
+        }
         if self.address is None:
             kwargs.update(address="local", num_cpus=self.num_cpus or os.cpu_count() or 1)
         else:
@@ -480,8 +556,18 @@ class RaySession:
         try:
             ray.init(**kwargs)
         except (ConnectionError, RuntimeError, ValueError) as exc:
-            where = "a local Ray" if self.address is None else f"the Ray cluster at --address {self.address}"
-            hint = "" if self.address is None else " (start it with `ray start --head` on the head node, or drop --address for a local Ray)"
+            where = (
+                "a local Ray"
+                if self.address is None
+                else f"the Ray cluster at --address {self.address}"
+            )
+            hint = (
+                ""
+                if self.address is None
+                else " (start it with `ray start --head` on the head node, or drop --address for a local Ray; "
+                "if the cluster uses token authentication, set RAY_AUTH_MODE=token and RAY_AUTH_TOKEN to the "
+                "token `ray get-auth-token` prints on the head node)"
+            )
             raise SealError(f"cannot start or join {where}: {exc}{hint}") from None
         self.started = True
         return ray
@@ -491,12 +577,50 @@ class RaySession:
             import_ray().shutdown()
 
 
+def check_feasible(ray: Any, config: ProtocolConfig, res: Resources) -> None:
+    """SealError when no node could ever hold one trial (Ray would otherwise wait forever)."""
+    total = ray.cluster_resources()
+    for key, name, asked in (("CPU", "cpus", res.cpus), ("GPU", "gpus", res.gpus)):
+        have = float(total.get(key, 0.0))
+        if asked > have:
+            raise SealError(
+                f"{config.path}: resources.{name} = {asked:g} per trial, but the Ray cluster has {have:g} {key}s in all; "
+                f"lower resources.{name}, start the local Ray with more (--num-cpus), or join a bigger cluster (--address)"
+            )
+
+
+def check_address(address: str | None, timeout_s: float = 5.0) -> None:
+    """SealError unless something listens at a HOST:PORT --address (Ray itself would retry for minutes).
+
+    None (local Ray), "auto", "local" and "ray://" client addresses are left to Ray.
+    """
+    if address is None or address in ("auto", "local") or "://" in address:
+        return
+    host, sep, port = address.rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise SealError(
+            f"--address {address!r}: expected auto or HOST:PORT, e.g. 10.0.0.1:6379 (the address `ray start --head` printed)"
+        )
+    import socket
+
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout_s):
+            pass
+    except OSError as exc:
+        raise SealError(
+            f"--address {address}: no Ray cluster answers there ({exc.strerror or exc}); start one with "
+            f"`ray start --head --port={port}` on that node, or drop --address to use a local Ray"
+        ) from None
+
+
 def import_ray() -> Any:
     """The `ray` module, or SealError saying how to install it."""
     try:
         import ray
     except ImportError:
-        raise SealError("seal sweep needs Ray: pip install 'seal[ray]' (or pip install 'ray[tune]')") from None
+        raise SealError(
+            "seal sweep needs Ray: pip install 'seal[ray]' (or pip install 'ray[tune]')"
+        ) from None
     return ray
 
 
@@ -530,7 +654,9 @@ class SweepResult:
             "table": str(self.table) if self.table else None,
             "sweep_dir": str(self.sweep_dir),
             "trials_table": str(self.trials_table),
-            "failed": [{"trial": t.trial, "run_dir": t.run_dir, "error": t.error} for t in self.failed],
+            "failed": [
+                {"trial": t.trial, "run_dir": t.run_dir, "error": t.error} for t in self.failed
+            ],
         }
         if self.best_config is not None:
             data["best_config"] = str(self.best_config)
@@ -549,10 +675,14 @@ def _save_configs(sweep_dir: Path, configs: Sequence[ProtocolConfig]) -> None:
     """Each protocol's resolved config, so a resume runs exactly what was asked even if the file changed."""
     (sweep_dir / "configs").mkdir(parents=True, exist_ok=True)
     for config in configs:
-        atomic_write_text(_saved_config_path(sweep_dir, config.name), dumps_toml(config_to_dict(config)))
+        atomic_write_text(
+            _saved_config_path(sweep_dir, config.name), dumps_toml(config_to_dict(config))
+        )
 
 
-def _write_manifest(sweep_dir: Path, kind: str, trials: Sequence[TrialRecord], extra: Mapping[str, Any]) -> None:
+def _write_manifest(
+    sweep_dir: Path, kind: str, trials: Sequence[TrialRecord], extra: Mapping[str, Any]
+) -> None:
     data = {"kind": kind, **extra, "trials": [dataclasses.asdict(t) for t in trials]}
     atomic_write_text(sweep_dir / MANIFEST, json.dumps(data, indent=2) + "\n")
 
@@ -565,7 +695,9 @@ def read_manifest(sweep_dir: str | Path) -> dict[str, Any]:
         hint = ""
         if path.is_dir() and (path.parent / MANIFEST).is_file():
             hint = f"; did you mean its sweep directory {path.parent}?"
-        raise SealError(f"--resume {path}: not a sweep directory (no {MANIFEST}); pass the directory `seal sweep` printed as sweep_dir{hint}")
+        raise SealError(
+            f"--resume {path}: not a sweep directory (no {MANIFEST}); pass the directory `seal sweep` printed as sweep_dir{hint}"
+        )
     try:
         data = json.loads(manifest.read_text())
         data["trials"] = [TrialRecord(**t) for t in data["trials"]]
@@ -574,14 +706,18 @@ def read_manifest(sweep_dir: str | Path) -> dict[str, Any]:
     return data
 
 
-def _load_configs(paths: Sequence[str | Path], overrides: Sequence[str], scale: float | None) -> list[ProtocolConfig]:
+def _load_configs(
+    paths: Sequence[str | Path], overrides: Sequence[str], scale: float | None
+) -> list[ProtocolConfig]:
     if not paths:
         raise SealError("seal sweep: give at least one protocol FILE (or --resume SWEEP_DIR)")
     configs = [load_protocol(p, overrides, scale) for p in paths]
     names = [c.name for c in configs]
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
-        raise SealError(f"protocols {[str(p) for p in paths]}: several have the name {dupes[0]!r}; each protocol of a sweep needs its own [protocol].name")
+        raise SealError(
+            f"protocols {[str(p) for p in paths]}: several have the name {dupes[0]!r}; each protocol of a sweep needs its own [protocol].name"
+        )
     for config in configs:
         parse_resources(config)  # a bad [resources] table fails before Ray starts
     return configs
@@ -607,13 +743,19 @@ def sweep(
     seeds, overrides and scale are then taken from it). Failing trials are recorded, not raised.
     """
     command = _command(command)
+    check_address(address)
     if resume is not None:
         sweep_dir = Path(resume)
         manifest = read_manifest(sweep_dir)
         if manifest.get("kind") != "sweep":
-            raise SealError(f"--resume {sweep_dir}: this is a {manifest.get('kind')!r} directory; resume it with --search")
+            raise SealError(
+                f"--resume {sweep_dir}: this is a {manifest.get('kind')!r} directory; resume it with --search"
+            )
         trials = manifest["trials"]
-        configs = {name: load_protocol(_saved_config_path(sweep_dir, name)) for name in dict.fromkeys(t.protocol for t in trials)}
+        configs = {
+            name: load_protocol(_saved_config_path(sweep_dir, name))
+            for name in dict.fromkeys(t.protocol for t in trials)
+        }
         for t in trials:
             t.wall_s = 0.0
     else:
@@ -628,7 +770,12 @@ def sweep(
             stamp = new_group_id(json.dumps([dumps_toml(config_to_dict(c)) for c in loaded]))
             sweep_dir = Path(out).resolve() / "sweeps" / stamp
         trials = [
-            TrialRecord(trial=f"{c.name}/seed-{s}", protocol=c.name, seed=s, run_dir=str(seed_dir(groups[c.name], s)))
+            TrialRecord(
+                trial=f"{c.name}/seed-{s}",
+                protocol=c.name,
+                seed=s,
+                run_dir=str(seed_dir(groups[c.name], s)),
+            )
             for c in loaded
             for s in (list(seeds) if seeds is not None else c.seeds)
         ]
@@ -636,13 +783,20 @@ def sweep(
         for group in groups.values():
             group.mkdir(parents=True, exist_ok=True)
         _save_configs(sweep_dir, loaded)
-        manifest = {"created": _now(), "command": " ".join(command), "protocols": [str(p) for p in paths], "groups": {n: str(g) for n, g in groups.items()}}
+        manifest = {
+            "created": _now(),
+            "command": " ".join(command),
+            "protocols": [str(p) for p in paths],
+            "groups": {n: str(g) for n, g in groups.items()},
+        }
     extra = {k: v for k, v in manifest.items() if k not in ("kind", "trials")}
     say = progress or (lambda _msg: None)
     _write_manifest(sweep_dir, "sweep", trials, extra)
     say(f"sweep directory: {sweep_dir}")
 
     with RaySession(address, num_cpus) as ray:
+        for config in configs.values():
+            check_feasible(ray, config, parse_resources(config))
         remote = ray.remote(execute_trial)
         pending: dict[Any, TrialRecord] = {}
         for record in trials:
@@ -651,8 +805,15 @@ def sweep(
                 record.refresh()
                 continue
             res = parse_resources(configs[record.protocol])
-            task = remote.options(num_cpus=res.cpus, num_gpus=res.gpus, max_retries=0, name=f"seal-sweep:{record.trial}")
-            pending[task.remote(configs[record.protocol], record, threads=res.threads, command=command)] = record
+            task = remote.options(
+                num_cpus=res.cpus,
+                num_gpus=res.gpus,
+                max_retries=0,
+                name=f"seal-sweep:{record.trial}",
+            )
+            pending[
+                task.remote(configs[record.protocol], record, threads=res.threads, command=command)
+            ] = record
         done_count, total = len(trials) - len(pending), len(trials)
         try:
             while pending:
@@ -679,7 +840,9 @@ def sweep(
     trials_table = _write_trials_table(sweep_dir / "trials", trials, ranked=False)
     table = _aggregate(sweep_dir, trials, notes) or trials_table
     _write_manifest(sweep_dir, "sweep", trials, extra)
-    return SweepResult(sweep_dir=sweep_dir, trials=trials, table=table, trials_table=trials_table, notes=notes)
+    return SweepResult(
+        sweep_dir=sweep_dir, trials=trials, table=table, trials_table=trials_table, notes=notes
+    )
 
 
 def _now() -> str:
@@ -689,7 +852,11 @@ def _now() -> str:
 def _outcome(record: TrialRecord) -> str:
     if record.status == "failed":
         return f"FAILED ({record.error})"
-    score = f"mean success {record.mean_success:.2f}" if record.mean_success is not None else "no evaluation"
+    score = (
+        f"mean success {record.mean_success:.2f}"
+        if record.mean_success is not None
+        else "no evaluation"
+    )
     how = {"kept": "already finished, kept", "continued": "continued", "new": ""}[record.start]
     return f"{record.status} ({', '.join(p for p in (score, how, f'{record.wall_s:.0f} s' if record.wall_s else '') if p)})"
 
@@ -710,7 +877,19 @@ def _aggregate(sweep_dir: Path, trials: Sequence[TrialRecord], notes: list[str])
     return result.tables.get("update_counts.md")
 
 
-_TABLE_COLUMNS = ("rank", "trial", "status", "mean_success", "mean_return", "evaluations", "seed", "start", "wall_s", "error", "run_dir")
+_TABLE_COLUMNS = (
+    "rank",
+    "trial",
+    "status",
+    "mean_success",
+    "mean_return",
+    "evaluations",
+    "seed",
+    "start",
+    "wall_s",
+    "error",
+    "run_dir",
+)
 
 
 def _write_trials_table(stem: Path, trials: Sequence[TrialRecord], *, ranked: bool) -> Path:
@@ -729,6 +908,11 @@ def _write_trials_table(stem: Path, trials: Sequence[TrialRecord], *, ranked: bo
     frame = pd.DataFrame(rows, columns=columns)
     frame.to_csv(stem.with_suffix(".csv"), index=False)
     shown = frame.drop(columns=["run_dir"]).copy()
+    for key in keys:
+        shown[key] = [
+            f"{v:.4g}" if isinstance(v, float) else toml_literal(v) if v is not None else ""
+            for v in shown[key]
+        ]
     for column in ("mean_success", "mean_return"):
         shown[column] = [("" if v is None or v != v else f"{v:.3f}") for v in shown[column]]
     shown["error"] = [str(e)[:120] for e in shown["error"]]
@@ -739,7 +923,10 @@ def _write_trials_table(stem: Path, trials: Sequence[TrialRecord], *, ranked: bo
         if ranked
         else "mean_success / mean_return: means over every (env, task) at the run's last evaluation."
     )
-    atomic_write_text(stem.with_suffix(".md"), f"# {title}\n\n{shown.to_markdown(index=False, disable_numparse=True)}\n\n{note}\n")
+    atomic_write_text(
+        stem.with_suffix(".md"),
+        f"# {title}\n\n{shown.to_markdown(index=False, disable_numparse=True)}\n\n{note}\n",
+    )
     return stem.with_suffix(".md")
 
 
@@ -795,9 +982,19 @@ def search_trainable(tune_config: Mapping[str, Any], plan: SearchPlan) -> None:
         nonlocal reported
         evals = read_evaluations(run_dir)
         complete = [e for e in evals if final or e.rows >= per_eval.get(e.phase, 1)]
-        reported = min(reported, len(complete))  # a continued run cut its CSV back to its checkpoint
+        reported = min(
+            reported, len(complete)
+        )  # a continued run cut its CSV back to its checkpoint
         for e in complete[reported:]:
-            tune.report({"mean_success": e.mean_success, "mean_return": e.mean_return, "epoch": e.epoch, "grad_steps": e.grad_steps, "phase": e.phase})
+            tune.report(
+                {
+                    "mean_success": e.mean_success,
+                    "mean_return": e.mean_return,
+                    "epoch": e.epoch,
+                    "grad_steps": e.grad_steps,
+                    "phase": e.phase,
+                }
+            )
         reported = len(complete)
 
     if is_finished(run_dir):
@@ -810,7 +1007,14 @@ def search_trainable(tune_config: Mapping[str, Any], plan: SearchPlan) -> None:
     def work() -> None:
         try:
             _set_threads(plan.threads)
-            run_seed(config, record.seed, run_dir.parent, quiet=True, resume=resume, command=list(plan.command))
+            run_seed(
+                config,
+                record.seed,
+                run_dir.parent,
+                quiet=True,
+                resume=resume,
+                command=list(plan.command),
+            )
         except BaseException as exc:  # noqa: BLE001 - handed to the reporting thread
             _write_error(run_dir, exc)
             failure.append(exc)
@@ -847,16 +1051,25 @@ def search(
     search.{csv,md} (ranked) and best.toml (the best sample's resolved config, for `seal run`).
     """
     command = _command(command)
+    check_address(address)
     say = progress or (lambda _msg: None)
     if resume is not None:
         search_dir = Path(resume)
         manifest = read_manifest(search_dir)
         if manifest.get("kind") != "search":
-            raise SealError(f"--resume {search_dir}: this is a {manifest.get('kind')!r} directory; resume it without --search")
+            raise SealError(
+                f"--resume {search_dir}: this is a {manifest.get('kind')!r} directory; resume it without --search"
+            )
         records = manifest["trials"]
         base = load_protocol(_saved_config_path(search_dir, manifest["protocol"]))
         for t in records:
-            t.status, t.error, t.wall_s = "pending", "", 0.0
+            # A trial ASHA stopped was judged by the scheduler already: kept, not run again.
+            t.start = "kept" if t.status == "stopped" else t.start
+            t.status, t.error, t.wall_s = (
+                ("stopped" if t.status == "stopped" else "pending"),
+                "",
+                0.0,
+            )
     else:
         if path is None:
             raise SealError("seal sweep --search: give one protocol FILE (or --resume SEARCH_DIR)")
@@ -864,19 +1077,39 @@ def search(
         run_seed_no = base.protocol.first_seed if seed is None else seed
         spec = parse_search(base, num_samples)
         samples = draw_samples(spec)
-        search_dir = Path(out).resolve() / base.name / f"search-{new_group_id(dumps_toml(config_to_dict(base)))}"
+        search_dir = (
+            Path(out).resolve()
+            / base.name
+            / f"search-{new_group_id(dumps_toml(config_to_dict(base)))}"
+        )
         records = [
-            TrialRecord(trial=f"sample-{k:03d}", protocol=base.name, seed=run_seed_no, run_dir=str(seed_dir(search_dir / f"sample-{k:03d}", run_seed_no)), sample=s)
+            TrialRecord(
+                trial=f"sample-{k:03d}",
+                protocol=base.name,
+                seed=run_seed_no,
+                run_dir=str(seed_dir(search_dir / f"sample-{k:03d}", run_seed_no)),
+                sample=s,
+            )
             for k, s in enumerate(samples)
         ]
         search_dir.mkdir(parents=True, exist_ok=True)
         _save_configs(search_dir, [base])
-        manifest = {"created": _now(), "command": " ".join(command), "protocol": base.name, "file": str(path), "search": dataclasses.asdict(spec)}
+        manifest = {
+            "created": _now(),
+            "command": " ".join(command),
+            "protocol": base.name,
+            "file": str(path),
+            "search": dataclasses.asdict(spec),
+        }
     spec = parse_search(base, manifest["search"]["num_samples"])
     configs = []
     for record in records:
         try:
-            configs.append(with_overrides(base, sample_overrides(record.sample), f"{base.path} [{record.trial}]"))
+            configs.append(
+                with_overrides(
+                    base, sample_overrides(record.sample), f"{base.path} [{record.trial}]"
+                )
+            )
         except SealError as exc:
             # A sampled value the schema rejects (e.g. a learning rate of 0) fails that trial only.
             configs.append(base)
@@ -885,10 +1118,11 @@ def search(
     _write_manifest(search_dir, "search", records, extra)
     say(f"search directory: {search_dir} ({len(records)} samples)")
 
-    runnable = [i for i, r in enumerate(records) if r.status != "failed"]
+    runnable = [i for i, r in enumerate(records) if r.status == "pending"]
     res = parse_resources(base)
     if runnable:
-        with RaySession(address, num_cpus):
+        with RaySession(address, num_cpus) as ray:
+            check_feasible(ray, base, res)
             _run_tune(search_dir, spec, base, configs, records, runnable, res, command, say)
     for record in records:
         record.refresh()
@@ -898,8 +1132,20 @@ def search(
     notes: list[str] = []
     if best is None:
         notes.append("no trial finished, so there is no best config")
+    unfinished = [t.trial for t in ranked if t.status == "pending"]
+    if unfinished:
+        notes.append(
+            f"{len(unfinished)} trial(s) did not finish; continue them with: seal sweep --search --resume {search_dir}"
+        )
     _write_manifest(search_dir, "search", ranked, extra)
-    return SweepResult(sweep_dir=search_dir, trials=ranked, table=trials_table, trials_table=trials_table, best_config=best, notes=notes)
+    return SweepResult(
+        sweep_dir=search_dir,
+        trials=ranked,
+        table=trials_table,
+        trials_table=trials_table,
+        best_config=best,
+        notes=notes,
+    )
 
 
 def _run_tune(
@@ -917,15 +1163,40 @@ def _run_tune(
     from ray import tune
     from ray.tune.schedulers import ASHAScheduler
 
+    class _Completed(tune.Callback):
+        """Collects the samples whose trials Tune completed (ran out or stopped by the scheduler).
+
+        An interrupted search leaves its running trials out, so they stay pending, not "stopped".
+        """
+
+        def __init__(self, done: set[int]) -> None:
+            self.done = done
+
+        def on_trial_complete(
+            self, iteration: int, trials: list[Any], trial: Any, **info: Any
+        ) -> None:
+            self.done.add(int(trial.config["sample"]))
+
+    completed: set[int] = set()
+
     # The legacy reporter honours verbose=0; the new one still draws a banner on stdout, which
     # would sit among `seal sweep`'s own output (the --json line must stay the last one).
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
-    plan = SearchPlan(configs=tuple(configs), records=tuple(records), threads=res.threads, command=tuple(command))
-    trainable = tune.with_resources(tune.with_parameters(search_trainable, plan=plan), {"cpu": res.cpus, "gpu": res.gpus})
+    plan = SearchPlan(
+        configs=tuple(configs), records=tuple(records), threads=res.threads, command=tuple(command)
+    )
+    trainable = tune.with_resources(
+        tune.with_parameters(search_trainable, plan=plan), {"cpu": res.cpus, "gpu": res.gpus}
+    )
     scheduler = None
     if spec.scheduler == "asha":
         max_t = max(evaluations_per_run(c) for c in configs)
-        scheduler = ASHAScheduler(time_attr="training_iteration", max_t=max(max_t, spec.grace_period), grace_period=spec.grace_period, reduction_factor=spec.reduction_factor)
+        scheduler = ASHAScheduler(
+            time_attr="training_iteration",
+            max_t=max(max_t, spec.grace_period),
+            grace_period=spec.grace_period,
+            reduction_factor=spec.reduction_factor,
+        )
     tuner = tune.Tuner(
         trainable,
         param_space={"sample": tune.grid_search(list(runnable))},
@@ -945,8 +1216,17 @@ def _run_tune(
             storage_path=str(search_dir.resolve()),
             verbose=0,
             failure_config=tune.FailureConfig(max_failures=0, fail_fast=False),
+            callbacks=[_Completed(completed)],
         ),
     )
+    starts = {
+        i: "kept"
+        if is_finished(records[i].run_dir)
+        else "continued"
+        if is_started(records[i].run_dir)
+        else "new"
+        for i in runnable
+    }
     started = time.monotonic()
     results = tuner.fit()
     errors: dict[int, str] = {}
@@ -962,6 +1242,7 @@ def _run_tune(
     wall = round(time.monotonic() - started, 3)
     for i in runnable:
         record = records[i]
+        record.start = starts[i]
         record.refresh()
         error_file = Path(record.run_dir) / "error.txt"
         if is_finished(record.run_dir):
@@ -969,9 +1250,11 @@ def _run_tune(
         elif error_file.is_file() or i in errors:
             record.status = "failed"
             record.error = _error_line(error_file) or errors.get(i, "failed")
+        elif i in completed:
+            record.status = "stopped"  # Tune completed it before the run finished: ASHA stopped it
         else:
-            record.status = "stopped"  # Tune ended it before the run finished: ASHA's early stopping
-        record.wall_s = round(seconds.get(i) or wall, 3)
+            record.status = "pending"  # interrupted (Ctrl-C): --resume continues it
+        record.wall_s = 0.0 if record.start == "kept" else round(seconds.get(i) or wall, 3)
         say(f"{record.trial} [{describe_sample(record.sample)}]: {_outcome(record)}")
 
 
@@ -984,7 +1267,12 @@ def _error_line(error_file: Path) -> str:
     return lines[-1] if lines else ""
 
 
-def _write_best(search_dir: Path, ranked: Sequence[TrialRecord], configs: Sequence[ProtocolConfig], records: Sequence[TrialRecord]) -> Path | None:
+def _write_best(
+    search_dir: Path,
+    ranked: Sequence[TrialRecord],
+    configs: Sequence[ProtocolConfig],
+    records: Sequence[TrialRecord],
+) -> Path | None:
     """best.toml: the best finished sample's resolved config without [search], ready for `seal run`."""
     best = next((t for t in ranked if t.status == "finished"), None)
     if best is None:
@@ -992,7 +1280,11 @@ def _write_best(search_dir: Path, ranked: Sequence[TrialRecord], configs: Sequen
     config = configs[[r.trial for r in records].index(best.trial)]
     data = config_to_dict(config)
     data.pop("search", None)
-    score = f"mean success {best.mean_success:.3f}, mean return {best.mean_return:.3f}" if best.mean_success is not None else "no evaluation"
+    score = (
+        f"mean success {best.mean_success:.3f}, mean return {best.mean_return:.3f}"
+        if best.mean_success is not None
+        else "no evaluation"
+    )
     header = (
         f"# Best config of the random search in {search_dir}\n"
         f"# {best.trial} ({score} at its last evaluation): {describe_sample(best.sample)}\n"

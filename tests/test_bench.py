@@ -44,7 +44,9 @@ def test_flop_formula_equals_flop_counter_on_our_update() -> None:
 
 
 def test_collection_bench_on_point_ends_on_identical_observations() -> None:
-    result = bench_collection("point", episodes=1, episode_length=10, backends=("sync", "subproc-batched"), num_workers=2)
+    result = bench_collection(
+        "point", episodes=1, episode_length=10, backends=("sync", "subproc-batched"), num_workers=2
+    )
     assert result["env_steps"] == 4 * 10  # 4 point tasks x 10 steps
     assert all(b["same_final_obs"] for b in result["backends"].values())
     assert result["auto_backend"] == "subproc-batched"

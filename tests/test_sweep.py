@@ -73,7 +73,9 @@ tensorboard = false
 """
 
 
-def write_protocol(tmp_path: Path, name: str = "tiny", init_alpha: float = 0.01, extra: str = "") -> Path:
+def write_protocol(
+    tmp_path: Path, name: str = "tiny", init_alpha: float = 0.01, extra: str = ""
+) -> Path:
     """A tiny point protocol (a few seconds per seed) written to tmp_path/<name>.toml."""
     path = tmp_path / f"{name}.toml"
     path.write_text(TINY.format(name=name, init_alpha=init_alpha) + textwrap.dedent(extra))
@@ -97,7 +99,13 @@ def test_search_table_parses_every_distribution(tmp_path: Path) -> None:
     "agent.gamma" = {dist = "grid", values = [0.9, 0.95]}
     """
     spec = parse_search(load_protocol(write_protocol(tmp_path, extra=extra)))
-    assert [p.key for p in spec.params] == ["agent.actor_lr", "agent.tau", "training.batch_per_task", "agent.hidden", "agent.gamma"]
+    assert [p.key for p in spec.params] == [
+        "agent.actor_lr",
+        "agent.tau",
+        "training.batch_per_task",
+        "agent.hidden",
+        "agent.gamma",
+    ]
     assert (spec.num_samples, spec.seed, spec.scheduler, spec.grace_period) == (3, 7, "asha", 2)
     samples = draw_samples(spec)
     # 3 draws for each of the 2 grid points.
@@ -110,12 +118,21 @@ def test_search_table_parses_every_distribution(tmp_path: Path) -> None:
         assert s["agent.hidden"] in ([32], [64, 64])
     assert draw_samples(spec) == samples  # same seed, same configs (what resume relies on)
     # --samples wins over the file's num_samples.
-    assert len(draw_samples(parse_search(load_protocol(write_protocol(tmp_path, extra=extra)), num_samples=1))) == 2
+    assert (
+        len(
+            draw_samples(
+                parse_search(load_protocol(write_protocol(tmp_path, extra=extra)), num_samples=1)
+            )
+        )
+        == 2
+    )
 
 
 def test_sample_becomes_overrides_of_the_resolved_config(tmp_path: Path) -> None:
     config = load_protocol(write_protocol(tmp_path))
-    overrides = sample_overrides({"agent.actor_lr": 1e-4, "agent.hidden": [64, 64], "protocol.device": "cpu"})
+    overrides = sample_overrides(
+        {"agent.actor_lr": 1e-4, "agent.hidden": [64, 64], "protocol.device": "cpu"}
+    )
     assert overrides == ["agent.actor_lr=0.0001", "agent.hidden=[64, 64]", 'protocol.device="cpu"']
     changed = with_overrides(config, overrides)
     assert (changed.agent.actor_lr, changed.agent.hidden) == (1e-4, (64, 64))
@@ -126,15 +143,23 @@ def test_sample_becomes_overrides_of_the_resolved_config(tmp_path: Path) -> None
     ("entry", "message"),
     [
         ('"agent.actor_lr" = {dist = "normal", low = 0, high = 1}', "dist = 'normal' is not valid"),
-        ('"agent.actor_lr" = {dist = "loguniform", low = 0.0, high = 1e-3}', "expected a number > 0"),
+        (
+            '"agent.actor_lr" = {dist = "loguniform", low = 0.0, high = 1e-3}',
+            "expected a number > 0",
+        ),
         ('"agent.actor_lr" = {dist = "uniform", low = 1e-3}', "high is missing"),
         ('"agent.actor_lr" = {dist = "choice", values = []}', "non-empty array"),
         ('"agent.actor_lr" = {dist = "uniform", low = 1, high = 1}', "must be below high"),
         ("samples = 4", "table.key"),
-        ('scheduler = "hyperband"\n"agent.tau" = {dist = "uniform", low = 0.001, high = 0.01}', "valid: 'none', 'asha'"),
+        (
+            'scheduler = "hyperband"\n"agent.tau" = {dist = "uniform", low = 0.001, high = 0.01}',
+            "valid: 'none', 'asha'",
+        ),
     ],
 )
-def test_bad_search_entries_name_the_key_and_what_is_valid(tmp_path: Path, entry: str, message: str) -> None:
+def test_bad_search_entries_name_the_key_and_what_is_valid(
+    tmp_path: Path, entry: str, message: str
+) -> None:
     config = load_protocol(write_protocol(tmp_path, extra=f"[search]\n{entry}\n"))
     with pytest.raises(ConfigError, match="search") as info:
         parse_search(config)
@@ -148,18 +173,38 @@ def test_search_without_a_search_table_says_how_to_write_one(tmp_path: Path) -> 
 
 
 def test_resources_table(tmp_path: Path) -> None:
-    res = parse_resources(load_protocol(write_protocol(tmp_path, extra="[resources]\ncpus = 2.5\ngpus = 0.25\n")))
+    res = parse_resources(
+        load_protocol(write_protocol(tmp_path, extra="[resources]\ncpus = 2.5\ngpus = 0.25\n"))
+    )
     assert (res.cpus, res.gpus, res.threads) == (2.5, 0.25, 2)
     assert parse_resources(load_protocol(write_protocol(tmp_path))).cpus == 1.0
     with pytest.raises(ConfigError, match=r"resources\.cpus = 0 is not valid"):
         parse_resources(load_protocol(write_protocol(tmp_path, extra="[resources]\ncpus = 0\n")))
-    with pytest.raises(ConfigError, match=r"resources\.memory is not a valid key; valid keys: cpus, gpus"):
+    with pytest.raises(
+        ConfigError, match=r"resources\.memory is not a valid key; valid keys: cpus, gpus"
+    ):
         parse_resources(load_protocol(write_protocol(tmp_path, extra="[resources]\nmemory = 4\n")))
+
+
+def test_evaluations_per_run_sets_ashas_horizon(tmp_path: Path) -> None:
+    from seal.sweep import evaluations_per_run
+
+    # 20 epochs, interval 10: evaluations at 10 and 20 -> 2; 25 epochs: 10, 20 and the last (25) -> 3.
+    assert evaluations_per_run(load_protocol(write_protocol(tmp_path))) == 2
+    assert evaluations_per_run(load_protocol(write_protocol(tmp_path), ["protocol.epochs=25"])) == 3
 
 
 def test_ranking_puts_finished_then_stopped_then_failed(tmp_path: Path) -> None:
     def rec(name: str, status: str, success: float | None, ret: float | None) -> TrialRecord:
-        return TrialRecord(trial=name, protocol="p", seed=0, run_dir=str(tmp_path / name), status=status, mean_success=success, mean_return=ret)
+        return TrialRecord(
+            trial=name,
+            protocol="p",
+            seed=0,
+            run_dir=str(tmp_path / name),
+            status=status,
+            mean_success=success,
+            mean_return=ret,
+        )
 
     trials = [
         rec("failed", "failed", None, None),
@@ -170,7 +215,13 @@ def test_ranking_puts_finished_then_stopped_then_failed(tmp_path: Path) -> None:
     ]
     # Finished by success (0.5 first), equal success by return (-6 before -16); ASHA-stopped after
     # every finished trial even with higher success; failed last.
-    assert [t.trial for t in rank_trials(trials)] == ["best", "tie-high-return", "tie-low-return", "stopped-high", "failed"]
+    assert [t.trial for t in rank_trials(trials)] == [
+        "best",
+        "tie-high-return",
+        "tie-low-return",
+        "stopped-high",
+        "failed",
+    ]
 
 
 def test_read_evaluations_and_completion_marker(tmp_path: Path) -> None:
@@ -186,17 +237,24 @@ def test_read_evaluations_and_completion_marker(tmp_path: Path) -> None:
     )
     evals = read_evaluations(run)
     # Epoch 10: success (0 + 1) / 2 = 0.5, return (-10 - 4) / 2 = -7; epoch 20: 0.75 and -5.
-    assert [(e.epoch, e.mean_success, e.mean_return, e.rows) for e in evals] == [(10, 0.5, -7.0, 2), (20, 0.75, -5.0, 2)]
+    assert [(e.epoch, e.mean_success, e.mean_return, e.rows) for e in evals] == [
+        (10, 0.5, -7.0, 2),
+        (20, 0.75, -5.0, 2),
+    ]
     assert not is_finished(run)
     (run / "provenance.json").write_text(json.dumps({"start_time": "x", "end_time": None}))
     assert not is_finished(run)
-    (run / "provenance.json").write_text(json.dumps({"start_time": "x", "end_time": "2026-11-22T04:00:00+00:00"}))
+    (run / "provenance.json").write_text(
+        json.dumps({"start_time": "x", "end_time": "2026-11-22T04:00:00+00:00"})
+    )
     assert is_finished(run)
 
 
 def test_seal_run_and_protocols_never_import_ray() -> None:
-    code = "import sys, seal.cli.run_cmd, seal.protocols, seal.cli.sweep_cmd, seal.cli.main; seal.cli.main.build_parser(); print('ray' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    code = "import sys, seal.cli.run_cmd, seal.protocols, seal.protocols.runner, seal.cli.sweep_cmd, seal.cli.main; seal.cli.main.build_parser(); print('ray' in sys.modules)"
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
     assert out.stdout.strip() == "False"
 
 
@@ -221,16 +279,27 @@ def test_search_sample_the_schema_rejects_fails_alone_without_ray(tmp_path: Path
 def ray_session():  # noqa: ANN201 - yields the ray module
     """One local Ray for every test below (startup costs seconds); sweeps reuse an initialised Ray."""
     import ray  # the dev extra installs it; a missing Ray fails these tests rather than skipping them
-    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="warning")
+
+    ray.init(
+        address="local",
+        num_cpus=2,
+        include_dashboard=False,
+        log_to_driver=False,
+        logging_level="warning",
+    )
     yield ray
     ray.shutdown()
 
 
-def test_two_seeds_give_two_run_dirs_and_one_table(ray_session, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # noqa: ANN001
+def test_two_seeds_give_two_run_dirs_and_one_table(
+    ray_session, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:  # noqa: ANN001
     from seal.cli.main import main
 
     protocol = write_protocol(tmp_path)
-    code = main(["sweep", str(protocol), "--seeds", "0-1", "--out", str(tmp_path / "reports"), "--json"])
+    code = main(
+        ["sweep", str(protocol), "--seeds", "0-1", "--out", str(tmp_path / "reports"), "--json"]
+    )
     assert code == 0
     data = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     runs = [Path(p) for p in data["run_dirs"]]
@@ -239,7 +308,9 @@ def test_two_seeds_give_two_run_dirs_and_one_table(ray_session, tmp_path: Path, 
     assert runs[0].parent.parent == (tmp_path / "reports" / "tiny").resolve()
     for run in runs:
         # The run directory `seal run` writes, finished.
-        assert {"config.toml", "provenance.json", "metrics.csv", "train.csv", "checkpoints"} <= {p.name for p in run.iterdir()}
+        assert {"config.toml", "provenance.json", "metrics.csv", "train.csv", "checkpoints"} <= {
+            p.name for p in run.iterdir()
+        }
         assert is_finished(run)
         assert len(read_evaluations(run)) == 2  # epochs 10 and 20
     table = Path(data["table"])
@@ -274,7 +345,9 @@ def test_search_ranks_the_config_that_cannot_learn_last(ray_session, tmp_path: P
     assert best.agent.tau == result.trials[0].sample["agent.tau"]
 
 
-def test_failing_trial_is_reported_others_complete_and_resume_keeps_finished(ray_session, tmp_path: Path) -> None:  # noqa: ANN001
+def test_failing_trial_is_reported_others_complete_and_resume_keeps_finished(
+    ray_session, tmp_path: Path
+) -> None:  # noqa: ANN001
     from seal.sweep import sweep
 
     good = write_protocol(tmp_path, "good")
@@ -287,7 +360,9 @@ def test_failing_trial_is_reported_others_complete_and_resume_keeps_finished(ray
     failed = by_name["diverges"]
     assert failed.status == "failed" and "training diverged" in failed.error
     assert (Path(failed.run_dir) / "error.txt").is_file()
-    assert result.to_json()["failed"] == [{"trial": "diverges/seed-0", "run_dir": failed.run_dir, "error": failed.error}]
+    assert result.to_json()["failed"] == [
+        {"trial": "diverges/seed-0", "run_dir": failed.run_dir, "error": failed.error}
+    ]
     assert result.to_json()["run_dirs"] == [by_name["good"].run_dir]
     assert result.table is not None and result.table.name == "update_counts.md"
     assert "diverges/seed-0" in (result.sweep_dir / "trials.md").read_text()
@@ -306,4 +381,3 @@ def test_resume_of_a_missing_sweep_dir_is_a_user_error(tmp_path: Path) -> None:
 
     with pytest.raises(SealError, match="not a sweep directory"):
         sweep(resume=tmp_path)
-

@@ -18,12 +18,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "--learn adds the slow learning checks (point with/without one-hot, reach-v3)."
         ),
     )
-    parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
-    parser.add_argument("--quick", action="store_true", help="few repeats and short episodes (noisier numbers)")
-    parser.add_argument("--learn", action="store_true", help="also run the learning evidence (slow; not for CI)")
-    parser.add_argument("--only", nargs="+", metavar="KEY", help="run only these keys, e.g. --only sac_vs_sb3")
-    parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads for both sides (default: torch's)")
-    parser.add_argument("--repeats", type=int, default=None, help="timing repeats (best of N); overrides the preset")
+    parser.add_argument(
+        "--json", action="store_true", help="print one JSON object instead of the table"
+    )
+    parser.add_argument(
+        "--quick", action="store_true", help="few repeats and short episodes (noisier numbers)"
+    )
+    parser.add_argument(
+        "--learn", action="store_true", help="also run the learning evidence (slow; not for CI)"
+    )
+    parser.add_argument(
+        "--only", nargs="+", metavar="KEY", help="run only these keys, e.g. --only sac_vs_sb3"
+    )
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="torch intra-op threads for both sides (default: torch's)",
+    )
+    parser.add_argument(
+        "--repeats", type=int, default=None, help="timing repeats (best of N); overrides the preset"
+    )
     parser.set_defaults(func=run)
 
 
@@ -45,6 +60,11 @@ def run(args: argparse.Namespace) -> int:
         if args.repeats < 1:
             raise SealError(f"--repeats must be >= 1, got {args.repeats}")
         settings = dataclasses.replace(settings, repeats=args.repeats)
-    result = run_bench(settings, only=args.only, learn=args.learn, log=lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True))
+    result = run_bench(
+        settings,
+        only=args.only,
+        learn=args.learn,
+        log=lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True),
+    )
     print(json.dumps(result, indent=2, default=float) if args.json else format_table(result))
     return 0

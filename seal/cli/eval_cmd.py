@@ -9,13 +9,38 @@ import os
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add `seal eval`."""
-    p = subparsers.add_parser("eval", help="evaluate a run checkpoint (deterministic policy, success at any step)", description=__doc__)
-    p.add_argument("checkpoint", metavar="CHECKPOINT", help="a checkpoint of a run, e.g. reports/<protocol>/<group>/seed-0/checkpoints/best.pt")
-    p.add_argument("--episodes", type=int, default=None, metavar="N", help="episodes per task (default: the run's [evaluation].episodes)")
-    p.add_argument("--seed", type=int, default=12345, help="seed of the evaluation envs (default: 12345)")
+    p = subparsers.add_parser(
+        "eval",
+        help="evaluate a run checkpoint (deterministic policy, success at any step)",
+        description=__doc__,
+    )
+    p.add_argument(
+        "checkpoint",
+        metavar="CHECKPOINT",
+        help="a checkpoint of a run, e.g. reports/<protocol>/<group>/seed-0/checkpoints/best.pt",
+    )
+    p.add_argument(
+        "--episodes",
+        type=int,
+        default=None,
+        metavar="N",
+        help="episodes per task (default: the run's [evaluation].episodes)",
+    )
+    p.add_argument(
+        "--seed", type=int, default=12345, help="seed of the evaluation envs (default: 12345)"
+    )
     p.add_argument("--device", default="auto", help="torch device (default: auto)")
-    p.add_argument("--video", default=None, metavar="DIR", help="also write one MP4 per task under DIR (needs offscreen MuJoCo rendering: EGL or OSMesa)")
-    p.add_argument("--json", action="store_true", help='print one JSON line {"checkpoint", "phase", "epoch", "success": {env: {task: s}}, "return": {...}}')
+    p.add_argument(
+        "--video",
+        default=None,
+        metavar="DIR",
+        help="also write one MP4 per task under DIR (needs offscreen MuJoCo rendering: EGL or OSMesa)",
+    )
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help='print one JSON line {"checkpoint", "phase", "epoch", "success": {env: {task: s}}, "return": {...}}',
+    )
     p.set_defaults(func=run)
 
 
@@ -44,7 +69,9 @@ def run(args: argparse.Namespace) -> int:
         written = record_videos(policy, model.adapters, args.video, seed=args.seed)
     else:
         written = []
-    results = evaluate(policy, model.adapters, episodes=episodes, seed=args.seed, backend=config.training.collector)
+    results = evaluate(
+        policy, model.adapters, episodes=episodes, seed=args.seed, backend=config.training.collector
+    )
     if args.json:
         print(
             json.dumps(
@@ -53,18 +80,26 @@ def run(args: argparse.Namespace) -> int:
                     "phase": data["phase"],
                     "epoch": data["epoch"],
                     "episodes": episodes,
-                    "success": {e: {t: v["success"] for t, v in r.items()} for e, r in results.items()},
-                    "return": {e: {t: v["return"] for t, v in r.items()} for e, r in results.items()},
+                    "success": {
+                        e: {t: v["success"] for t, v in r.items()} for e, r in results.items()
+                    },
+                    "return": {
+                        e: {t: v["return"] for t, v in r.items()} for e, r in results.items()
+                    },
                     "videos": [str(p) for p in written],
                 }
             )
         )
         return 0
-    print(f"{args.checkpoint}: protocol {config.name!r}, phase {data['phase']!r}, epoch {data['epoch']}, {episodes} episodes per task")
+    print(
+        f"{args.checkpoint}: protocol {config.name!r}, phase {data['phase']!r}, epoch {data['epoch']}, {episodes} episodes per task"
+    )
     width = max(len(t) for r in results.values() for t in r)
     for env, per_task in results.items():
         for task, v in per_task.items():
-            print(f"  {env:<10} {task:<{width}}  success {v['success']:.2f}  return {v['return']:9.2f}")
+            print(
+                f"  {env:<10} {task:<{width}}  success {v['success']:.2f}  return {v['return']:9.2f}"
+            )
     print(f"  mean success {mean_success(results):.3f}")
     for path in written:
         print(f"  video: {path}")

@@ -13,9 +13,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sub = p.add_subparsers(dest="protocol_command", metavar="SUBCOMMAND", required=True)
     explain = sub.add_parser("explain", help="print every resolved value with its documentation")
     add_protocol_arguments(explain)
-    explain.add_argument("--toml", action="store_true", help="print the resolved config as TOML (what a run saves as config.toml)")
+    explain.add_argument(
+        "--toml",
+        action="store_true",
+        help="print the resolved config as TOML (what a run saves as config.toml)",
+    )
     explain.set_defaults(func=run_explain)
-    check = sub.add_parser("check", help="validate a protocol file; exit 2 with the offending key if it is invalid")
+    check = sub.add_parser(
+        "check", help="validate a protocol file; exit 2 with the offending key if it is invalid"
+    )
     add_protocol_arguments(check)
     check.set_defaults(func=run_check)
 
@@ -34,5 +40,7 @@ def run_check(args: argparse.Namespace) -> int:
     from seal.protocols import load_protocol
 
     config = load_protocol(args.file, args.overrides, args.scale)
-    print(f"{args.file}: ok (protocol {config.name!r}, kind {config.kind}, envs {', '.join(config.envs)})")
+    print(
+        f"{args.file}: ok (protocol {config.name!r}, kind {config.kind}, envs {', '.join(config.envs)})"
+    )
     return 0

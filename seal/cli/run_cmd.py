@@ -10,21 +10,59 @@ from pathlib import Path
 
 def add_protocol_arguments(parser: argparse.ArgumentParser) -> None:
     """FILE, --set and --scale: shared by `seal run` and `seal protocol explain`."""
-    parser.add_argument("file", metavar="FILE", help="protocol TOML file, e.g. protocols/quickstart.toml")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="TABLE.KEY=VALUE", help="override one value (TOML syntax), e.g. --set protocol.epochs=200; repeatable")
-    parser.add_argument("--scale", type=float, default=None, metavar="F", help="multiply total epochs and every schedule duration by F (floor 1); per-epoch quantities are unchanged")
+    parser.add_argument(
+        "file", metavar="FILE", help="protocol TOML file, e.g. protocols/quickstart.toml"
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="TABLE.KEY=VALUE",
+        help="override one value (TOML syntax), e.g. --set protocol.epochs=200; repeatable",
+    )
+    parser.add_argument(
+        "--scale",
+        type=float,
+        default=None,
+        metavar="F",
+        help="multiply total epochs and every schedule duration by F (floor 1); per-epoch quantities are unchanged",
+    )
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add `seal run`."""
-    p = subparsers.add_parser("run", help="run a protocol (all its seeds) and write run directories", description=__doc__)
+    p = subparsers.add_parser(
+        "run", help="run a protocol (all its seeds) and write run directories", description=__doc__
+    )
     add_protocol_arguments(p)
-    p.add_argument("--out", default="reports", metavar="DIR", help="reports root; runs go to DIR/<protocol>/<group>/seed-<n> (default: reports)")
-    p.add_argument("--seeds", default=None, metavar="N|A-B|A,B", help="run these seeds instead of the protocol's (e.g. 0-1 or 3)")
-    p.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue this seed directory from its last checkpoint (uses the config saved in it)")
+    p.add_argument(
+        "--out",
+        default="reports",
+        metavar="DIR",
+        help="reports root; runs go to DIR/<protocol>/<group>/seed-<n> (default: reports)",
+    )
+    p.add_argument(
+        "--seeds",
+        default=None,
+        metavar="N|A-B|A,B",
+        help="run these seeds instead of the protocol's (e.g. 0-1 or 3)",
+    )
+    p.add_argument(
+        "--resume",
+        default=None,
+        metavar="RUN_DIR",
+        help="continue this seed directory from its last checkpoint (uses the config saved in it)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--json", action="store_true", help='end with one JSON line: {"run_dir", "update_counts", "final_success"[, "run_dirs"]}')
-    p.add_argument("--no-report", action="store_true", help="do not make tables and plots at the end")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help='end with one JSON line: {"run_dir", "update_counts", "final_success"[, "run_dirs"]}',
+    )
+    p.add_argument(
+        "--no-report", action="store_true", help="do not make tables and plots at the end"
+    )
     p.set_defaults(func=run)
 
 
@@ -38,7 +76,9 @@ def parse_seeds(text: str) -> list[int]:
             lo, sep, hi = part.strip().partition("-")
             seeds.extend(range(int(lo), int(hi) + 1) if sep else [int(lo)])
     except ValueError:
-        raise SealError(f"--seeds {text!r}: expected N, A-B or A,B,... of non-negative ints") from None
+        raise SealError(
+            f"--seeds {text!r}: expected N, A-B or A,B,... of non-negative ints"
+        ) from None
     if not seeds or min(seeds) < 0:
         raise SealError(f"--seeds {text!r}: expected N, A-B or A,B,... of non-negative ints")
     return seeds
@@ -79,5 +119,8 @@ def _report(group: Path, quiet: bool) -> None:
     try:
         report([group], out=group)
     except Exception:  # noqa: BLE001 - the runs are on disk; say what failed and go on
-        print(f"seal run: warning: making tables and plots for {group} failed (the runs are complete; retry with `seal report {group}`):", file=sys.stderr)
+        print(
+            f"seal run: warning: making tables and plots for {group} failed (the runs are complete; retry with `seal report {group}`):",
+            file=sys.stderr,
+        )
         traceback.print_exc(file=sys.stderr)

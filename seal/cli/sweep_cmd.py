@@ -21,27 +21,82 @@ def register(subparsers: Any) -> None:
             "`seal run` writes, all seeds of a protocol in one group, and the finished runs are "
             "aggregated into `seal report`'s tables. With --search, draw --samples configs from "
             "the protocol's [search] table and let Ray Tune run them (ASHA early stopping with "
-            "scheduler = \"asha\"), then write a ranked table and best.toml. A [resources] table "
+            'scheduler = "asha"), then write a ranked table and best.toml. A [resources] table '
             "(cpus, gpus) sets what each trial reserves. Without --address a local Ray starts "
             "inside this process; --address auto or HOST:PORT joins a running cluster."
         ),
     )
-    parser.add_argument("files", nargs="*", metavar="FILE", help="protocol TOML files (one with --search)")
-    parser.add_argument("--seeds", default=None, metavar="N|A-B|A,B", help="seeds of every protocol (default: each protocol's own); --search uses one seed, default the protocol's first")
-    parser.add_argument("--scale", type=float, default=None, metavar="F", help="multiply total epochs and every schedule duration by F (as `seal run --scale`)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="TABLE.KEY=VALUE", help="override one value of every protocol (TOML syntax); repeatable")
-    parser.add_argument("--address", default=None, metavar="auto|HOST:PORT", help="join this Ray cluster (default: start a local Ray in this process)")
-    parser.add_argument("--num-cpus", type=int, default=None, metavar="N", help="CPUs of the local Ray (default: all of this machine's); ignored with --address")
-    parser.add_argument("--out", default="reports", metavar="DIR", help="reports root: runs go to DIR/<protocol>/<group>/seed-<n> (default: reports)")
-    parser.add_argument("--resume", default=None, metavar="SWEEP_DIR", help="continue an earlier sweep (or, with --search, search) directory: finished trials are kept, others continue or start")
-    parser.add_argument("--search", action="store_true", help="random search over the protocol's [search] table with Ray Tune")
-    parser.add_argument("--samples", type=int, default=None, metavar="N", help="--search: random draws (default: [search].num_samples, else 10)")
-    parser.add_argument("--json", action="store_true", help='end with one JSON line: {"run_dirs": [...], "table": path, "sweep_dir", "failed", ...}')
+    parser.add_argument(
+        "files", nargs="*", metavar="FILE", help="protocol TOML files (one with --search)"
+    )
+    parser.add_argument(
+        "--seeds",
+        default=None,
+        metavar="N|A-B|A,B",
+        help="seeds of every protocol (default: each protocol's own); --search uses one seed, default the protocol's first",
+    )
+    parser.add_argument(
+        "--scale",
+        type=float,
+        default=None,
+        metavar="F",
+        help="multiply total epochs and every schedule duration by F (as `seal run --scale`)",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="TABLE.KEY=VALUE",
+        help="override one value of every protocol (TOML syntax); repeatable",
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        metavar="auto|HOST:PORT",
+        help="join this Ray cluster (default: start a local Ray in this process)",
+    )
+    parser.add_argument(
+        "--num-cpus",
+        type=int,
+        default=None,
+        metavar="N",
+        help="CPUs of the local Ray (default: all of this machine's); ignored with --address",
+    )
+    parser.add_argument(
+        "--out",
+        default="reports",
+        metavar="DIR",
+        help="reports root: runs go to DIR/<protocol>/<group>/seed-<n> (default: reports)",
+    )
+    parser.add_argument(
+        "--resume",
+        default=None,
+        metavar="SWEEP_DIR",
+        help="continue an earlier sweep (or, with --search, search) directory: finished trials are kept, others continue or start",
+    )
+    parser.add_argument(
+        "--search",
+        action="store_true",
+        help="random search over the protocol's [search] table with Ray Tune",
+    )
+    parser.add_argument(
+        "--samples",
+        type=int,
+        default=None,
+        metavar="N",
+        help="--search: random draws (default: [search].num_samples, else 10)",
+    )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help='end with one JSON line: {"run_dirs": [...], "table": path, "sweep_dir", "failed", ...}',
+    )
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the sweep or search; exit 1 when a trial failed (everything is still written)."""
+    """Run the sweep or search; exit 1 when a trial failed or did not finish (everything is still written)."""
     from seal.cli.run_cmd import parse_seeds
     from seal.errors import SealError
     from seal.sweep import search, sweep
@@ -51,11 +106,21 @@ def run(args: argparse.Namespace) -> int:
 
     seeds = parse_seeds(args.seeds) if args.seeds else None
     if args.resume and args.files:
-        raise SealError(f"--resume {args.resume}: give either protocol FILEs or --resume, not both (a resume runs what the sweep directory recorded)")
-    common = {"out": args.out, "address": args.address, "num_cpus": args.num_cpus, "resume": args.resume, "progress": say}
+        raise SealError(
+            f"--resume {args.resume}: give either protocol FILEs or --resume, not both (a resume runs what the sweep directory recorded)"
+        )
+    common = {
+        "out": args.out,
+        "address": args.address,
+        "num_cpus": args.num_cpus,
+        "resume": args.resume,
+        "progress": say,
+    }
     if args.search:
         if len(args.files) > 1:
-            raise SealError(f"--search takes one protocol FILE, got {len(args.files)}: {' '.join(args.files)}")
+            raise SealError(
+                f"--search takes one protocol FILE, got {len(args.files)}: {' '.join(args.files)}"
+            )
         if seeds is not None and len(seeds) != 1:
             raise SealError(
                 f"--seeds {args.seeds}: a search runs one seed per sample; search with one seed, then run "
@@ -72,7 +137,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         if args.samples is not None:
             raise SealError("--samples is only used with --search")
-        result = sweep(args.files, seeds=seeds, overrides=args.overrides, scale=args.scale, **common)
+        result = sweep(
+            args.files, seeds=seeds, overrides=args.overrides, scale=args.scale, **common
+        )
     for note in result.notes:
         say(f"note: {note}")
     if args.json:
@@ -84,4 +151,5 @@ def run(args: argparse.Namespace) -> int:
         if result.best_config is not None:
             print(f"best config: {result.best_config}  (seal run {result.best_config})")
         print(f"sweep directory: {result.sweep_dir}")
-    return 1 if result.failed else 0
+    unfinished = any(t.status == "pending" for t in result.trials)
+    return 1 if result.failed or unfinished else 0

@@ -80,7 +80,9 @@ def save_checkpoint(
     return path
 
 
-def read_checkpoint(path: str | os.PathLike[str], map_location: str | torch.device = "cpu") -> dict[str, Any]:
+def read_checkpoint(
+    path: str | os.PathLike[str], map_location: str | torch.device = "cpu"
+) -> dict[str, Any]:
     """The raw checkpoint dict (format, agent, replay, extra); SealError if missing or unreadable."""
     path = Path(path)
     if not path.is_file():
@@ -94,7 +96,9 @@ def read_checkpoint(path: str | os.PathLike[str], map_location: str | torch.devi
     return state
 
 
-def load_checkpoint(path: str | os.PathLike[str], agent: Agent, replay: MultiTaskReplay | None = None) -> dict[str, Any]:
+def load_checkpoint(
+    path: str | os.PathLike[str], agent: Agent, replay: MultiTaskReplay | None = None
+) -> dict[str, Any]:
     """Restore `agent` (and `replay` when given) from `path`; returns the caller's extra state.
 
     Asking for the replay of a checkpoint saved without one (an export) raises SealError.
@@ -103,7 +107,9 @@ def load_checkpoint(path: str | os.PathLike[str], agent: Agent, replay: MultiTas
     agent.load_state_dict(state["agent"])
     if replay is not None:
         if state["replay"] is None:
-            raise SealError(f"checkpoint {path} was saved without its replay (export); resuming a run needs a checkpoint with replay")
+            raise SealError(
+                f"checkpoint {path} was saved without its replay (export); resuming a run needs a checkpoint with replay"
+            )
         replay.load_state_dict(state["replay"])
     agent.last_checkpoint = str(path)
     return state["extra"]

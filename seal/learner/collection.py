@@ -228,7 +228,9 @@ class _SubprocBatchedBackend(_Backend):
     worker, not per env.
     """
 
-    def __init__(self, groups: Mapping[str, Sequence[_Instance]], num_workers: int, start_method: str) -> None:
+    def __init__(
+        self, groups: Mapping[str, Sequence[_Instance]], num_workers: int, start_method: str
+    ) -> None:
         ctx = mp.get_context(start_method)
         self.num_workers = max(1, min(num_workers, max(len(v) for v in groups.values())))
         w_count = self.num_workers
@@ -237,7 +239,9 @@ class _SubprocBatchedBackend(_Backend):
         for w in range(w_count):
             mine = {env: list(insts)[w::w_count] for env, insts in groups.items() if len(insts) > w}
             parent, child = ctx.Pipe()
-            proc = ctx.Process(target=_worker_main, args=(child, mine), daemon=True, name=f"seal-collect-{w}")
+            proc = ctx.Process(
+                target=_worker_main, args=(child, mine), daemon=True, name=f"seal-collect-{w}"
+            )
             proc.start()
             child.close()
             self.conns.append(parent)
@@ -250,7 +254,9 @@ class _SubprocBatchedBackend(_Backend):
         try:
             status, payload = self.conns[w].recv()
         except EOFError:
-            raise RuntimeError(f"collection worker {w} died (exit code {self.procs[w].exitcode})") from None
+            raise RuntimeError(
+                f"collection worker {w} died (exit code {self.procs[w].exitcode})"
+            ) from None
         if status != "ok":
             raise RuntimeError(f"collection worker {w} failed:\n{payload}")
         return payload
@@ -264,13 +270,20 @@ class _SubprocBatchedBackend(_Backend):
                 out.setdefault(int(w), {})[env] = np.flatnonzero(owner == w)
         return out
 
-    def _send(self, cmd: str, sel: Selection, actions: dict[str, np.ndarray] | None) -> dict[int, dict[str, np.ndarray]]:
+    def _send(
+        self, cmd: str, sel: Selection, actions: dict[str, np.ndarray] | None
+    ) -> dict[int, dict[str, np.ndarray]]:
         split = self._split(sel)
         for w, rows_by_env in split.items():
             if actions is None:
-                payload: Any = {env: sel[env][rows] // self.num_workers for env, rows in rows_by_env.items()}
+                payload: Any = {
+                    env: sel[env][rows] // self.num_workers for env, rows in rows_by_env.items()
+                }
             else:
-                payload = {env: (sel[env][rows] // self.num_workers, actions[env][rows]) for env, rows in rows_by_env.items()}
+                payload = {
+                    env: (sel[env][rows] // self.num_workers, actions[env][rows])
+                    for env, rows in rows_by_env.items()
+                }
             self.conns[w].send((cmd, payload))
         return split
 
@@ -297,7 +310,9 @@ class _SubprocBatchedBackend(_Backend):
             answer = self._receive(w)
             for env, rows in rows_by_env.items():
                 if env not in out:
-                    out[env] = [np.empty((len(sel[env]), *a.shape[1:]), a.dtype) for a in answer[env]]
+                    out[env] = [
+                        np.empty((len(sel[env]), *a.shape[1:]), a.dtype) for a in answer[env]
+                    ]
                 for dst, src in zip(out[env], answer[env], strict=True):
                     dst[rows] = src
         return {env: tuple(arrs) for env, arrs in out.items()}  # type: ignore[misc]
@@ -364,7 +379,13 @@ class _GymAsyncBackend(_Backend):
         out: dict[str, StepArrays] = {}
         for env in self._pending:
             obs, rew, term, trunc, info = self.vec[env].step_wait()
-            out[env] = (np.array(obs), np.asarray(rew, float), np.asarray(term, bool), np.asarray(trunc, bool), np.asarray(info["success"], float))
+            out[env] = (
+                np.array(obs),
+                np.asarray(rew, float),
+                np.asarray(term, bool),
+                np.asarray(trunc, bool),
+                np.asarray(info["success"], float),
+            )
         self._pending = []
         return out
 
@@ -416,15 +437,25 @@ class Collector:
         if tasks is not None:
             for env in tasks:
                 if env not in self.adapters:
-                    raise UnknownNameError("environment in collector tasks", env, list(self.adapters))
-        self.task_ids = {env: np.array([self.adapters[env].tasks.index(t) for t in ts], dtype=np.int64) for env, ts in self.tasks.items()}
+                    raise UnknownNameError(
+                        "environment in collector tasks", env, list(self.adapters)
+                    )
+        self.task_ids = {
+            env: np.array([self.adapters[env].tasks.index(t) for t in ts], dtype=np.int64)
+            for env, ts in self.tasks.items()
+        }
         self.env_steps = {env: np.zeros(len(ts), dtype=np.int64) for env, ts in self.tasks.items()}
         groups = {
-            env: [_Instance(env, task, instance_seed(self.seed, env, task), self.adapters[env]) for task in ts]
+            env: [
+                _Instance(env, task, instance_seed(self.seed, env, task), self.adapters[env])
+                for task in ts
+            ]
             for env, ts in self.tasks.items()
         }
         self._action_rng = {
-            env: np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(zlib.crc32(env.encode()), 1)))
+            env: np.random.default_rng(
+                np.random.SeedSequence(self.seed, spawn_key=(zlib.crc32(env.encode()), 1))
+            )
             for env in self.tasks
         }
         n = sum(len(ts) for ts in self.tasks.values())
@@ -497,22 +528,47 @@ class Collector:
                 lengths[env][run] += 1
                 self.env_steps[env][run] += 1
                 if sink is not None:
-                    sink(env, self.task_ids[env][run], step_obs[env], step_actions[env], rewards, next_obs, terminated)
+                    sink(
+                        env,
+                        self.task_ids[env][run],
+                        step_obs[env],
+                        step_actions[env],
+                        rewards,
+                        next_obs,
+                        terminated,
+                    )
         return EpisodeStats(dict(self.tasks), mask, returns, successes, lengths)
 
-    def _actions(self, policy: Policy | None, random_actions: bool, running: Selection, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    def _actions(
+        self,
+        policy: Policy | None,
+        random_actions: bool,
+        running: Selection,
+        obs: dict[str, np.ndarray],
+    ) -> dict[str, np.ndarray]:
         """One batched policy call (or uniform sample) per environment over its running instances."""
         out: dict[str, np.ndarray] = {}
         for env, run in running.items():
             space = self.adapters[env].action_space
             if random_actions:
-                out[env] = self._action_rng[env].uniform(space.low, space.high, size=(len(run), *space.shape)).astype(space.dtype)
+                out[env] = (
+                    self._action_rng[env]
+                    .uniform(space.low, space.high, size=(len(run), *space.shape))
+                    .astype(space.dtype)
+                )
             else:
                 assert policy is not None
-                out[env] = np.asarray(policy(env, obs[env], self.task_ids[env][run]), dtype=space.dtype)
+                out[env] = np.asarray(
+                    policy(env, obs[env], self.task_ids[env][run]), dtype=space.dtype
+                )
         return out
 
-    def evaluate(self, policy: Policy, episodes: int, active: Mapping[str, Sequence[bool] | np.ndarray] | None = None) -> dict[str, dict[str, dict[str, float]]]:
+    def evaluate(
+        self,
+        policy: Policy,
+        episodes: int,
+        active: Mapping[str, Sequence[bool] | np.ndarray] | None = None,
+    ) -> dict[str, dict[str, dict[str, float]]]:
         """Mean success rate and return over `episodes` episodes per task: {env: {task: {...}}}.
 
         Pass a deterministic policy and use a Collector seeded apart from the training one.
@@ -531,7 +587,9 @@ class Collector:
                     }
         return out
 
-    def _active_mask(self, active: Mapping[str, Sequence[bool] | np.ndarray] | None) -> dict[str, np.ndarray]:
+    def _active_mask(
+        self, active: Mapping[str, Sequence[bool] | np.ndarray] | None
+    ) -> dict[str, np.ndarray]:
         mask = {env: np.ones(len(ts), dtype=bool) for env, ts in self.tasks.items()}
         if active is None:
             return mask
@@ -540,7 +598,9 @@ class Collector:
                 raise UnknownNameError("environment in active mask", env, list(self.tasks))
             arr = np.asarray(m, dtype=bool)
             if arr.shape != mask[env].shape:
-                raise SealError(f"active mask for {env!r} has shape {arr.shape}; expected ({len(self.tasks[env])},) for tasks {list(self.tasks[env])}")
+                raise SealError(
+                    f"active mask for {env!r} has shape {arr.shape}; expected ({len(self.tasks[env])},) for tasks {list(self.tasks[env])}"
+                )
             mask[env] = arr
         return mask
 

@@ -66,7 +66,10 @@ class StackedMLP(nn.Module):
         super().__init__()
         self.in_dim, self.widths, self.ensemble = in_dim, tuple(widths), ensemble
         dims = (in_dim, *self.widths)
-        self.weights = nn.ParameterList(nn.Parameter(torch.empty(ensemble, i, o)) for i, o in zip(dims[:-1], dims[1:], strict=True))
+        self.weights = nn.ParameterList(
+            nn.Parameter(torch.empty(ensemble, i, o))
+            for i, o in zip(dims[:-1], dims[1:], strict=True)
+        )
         self.biases = nn.ParameterList(nn.Parameter(torch.empty(ensemble, 1, o)) for o in dims[1:])
 
     @property
@@ -104,7 +107,12 @@ class MultiHeadLinear(nn.Module):
 
     def __init__(self, in_dim: int, out_dim: int, num_heads: int, ensemble: int = 1) -> None:
         super().__init__()
-        self.in_dim, self.out_dim, self.num_heads, self.ensemble = in_dim, out_dim, num_heads, ensemble
+        self.in_dim, self.out_dim, self.num_heads, self.ensemble = (
+            in_dim,
+            out_dim,
+            num_heads,
+            ensemble,
+        )
         self.weight = nn.Parameter(torch.empty(ensemble, in_dim, num_heads * out_dim))
         self.bias = nn.Parameter(torch.empty(ensemble, 1, num_heads * out_dim))
 
@@ -157,19 +165,22 @@ class TaskNetwork(nn.Module):
         else:
             translator_hidden, latent_dim = translator
             for key, segs in segments.items():
-                self.translators[key] = StackedMLP(sum(width for _, width in segs), (*translator_hidden, latent_dim), ensemble)
+                self.translators[key] = StackedMLP(
+                    sum(width for _, width in segs), (*translator_hidden, latent_dim), ensemble
+                )
             trunk_in = latent_dim
         self.trunk = StackedMLP(trunk_in, trunk_hidden, ensemble)
-        self.heads = nn.ModuleDict({key: MultiHeadLinear(self.trunk.out_dim, out_dims[key], num_heads[key], ensemble) for key in segments})
+        self.heads = nn.ModuleDict(
+            {
+                key: MultiHeadLinear(self.trunk.out_dim, out_dims[key], num_heads[key], ensemble)
+                for key in segments
+            }
+        )
 
     def reset_parameters(self, generator: torch.Generator) -> None:
         """Re-draw every parameter, in a fixed order (translators, trunk, heads)."""
         for module in (*self.translators.values(), self.trunk, *self.heads.values()):
             module.reset_parameters(generator)
-
-    def input_layer(self, key: str) -> StackedMLP:
-        """The module whose first layer reads env `key`'s input columns."""
-        return self.translators[key] if key in self.translators else self.trunk
 
     def env_parameters(self, key: str) -> list[nn.Parameter]:
         """Parameters used by env `key`: its translator, the shared trunk and its heads."""
@@ -183,7 +194,9 @@ class TaskNetwork(nn.Module):
         return self.heads[key](self.trunk(x), task_ids)
 
 
-def tanh_gaussian(mean_log_std: torch.Tensor, noise: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+def tanh_gaussian(
+    mean_log_std: torch.Tensor, noise: torch.Tensor | None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Action and log-probability of a tanh-squashed Gaussian policy output.
 
     `mean_log_std` is (B, 2 * act_dim): the mean, then the log std (clamped to [LOG_STD_MIN,

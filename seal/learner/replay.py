@@ -17,7 +17,9 @@ import torch
 from seal.errors import SealError, UnknownNameError
 from seal.learner.config import Batch, EnvSpec
 
-DEFAULT_CAPACITY = 1_000_000  # transitions per environment (Meta-World), split evenly over its tasks
+DEFAULT_CAPACITY = (
+    1_000_000  # transitions per environment (Meta-World), split evenly over its tasks
+)
 _FIELDS = ("obs", "actions", "rewards", "next_obs", "terminations")
 
 
@@ -39,7 +41,9 @@ def available_memory_bytes() -> int | None:
     return None
 
 
-def replay_bytes(specs: Sequence[EnvSpec], capacity: int | Mapping[str, int] = DEFAULT_CAPACITY) -> int:
+def replay_bytes(
+    specs: Sequence[EnvSpec], capacity: int | Mapping[str, int] = DEFAULT_CAPACITY
+) -> int:
     """Bytes the float32 buffers of `specs` take at `capacity` transitions per environment."""
     total = 0
     for spec in specs:
@@ -51,11 +55,18 @@ def replay_bytes(specs: Sequence[EnvSpec], capacity: int | Mapping[str, int] = D
 def _capacity_of(spec: EnvSpec, capacity: int | Mapping[str, int]) -> int:
     value = capacity[spec.name] if isinstance(capacity, Mapping) else capacity
     if not isinstance(value, int | np.integer) or value < spec.num_tasks:
-        raise SealError(f"replay capacity of {spec.name!r} must be an int >= its number of tasks ({spec.num_tasks}), got {value!r}")
+        raise SealError(
+            f"replay capacity of {spec.name!r} must be an int >= its number of tasks ({spec.num_tasks}), got {value!r}"
+        )
     return int(value)
 
 
-def counts_from_ratio(ratios: Mapping[str, float], num_tasks: Mapping[str, int], batch_per_task: int, rng: np.random.Generator | None = None) -> dict[str, np.ndarray]:
+def counts_from_ratio(
+    ratios: Mapping[str, float],
+    num_tasks: Mapping[str, int],
+    batch_per_task: int,
+    rng: np.random.Generator | None = None,
+) -> dict[str, np.ndarray]:
     """Per-task sample counts of one update from environment proportions.
 
     The update's total is batch_per_task * (total number of tasks of all envs in `num_tasks`),
@@ -101,14 +112,23 @@ class MultiTaskReplay:
     (cumulative, int64); the update-count metric reads it.
     """
 
-    def __init__(self, specs: Sequence[EnvSpec], capacity: int | Mapping[str, int] = DEFAULT_CAPACITY, device: str | torch.device = "cpu", check_memory: bool = True) -> None:
+    def __init__(
+        self,
+        specs: Sequence[EnvSpec],
+        capacity: int | Mapping[str, int] = DEFAULT_CAPACITY,
+        device: str | torch.device = "cpu",
+        check_memory: bool = True,
+    ) -> None:
         self.specs = {s.name: s for s in specs}
         self.device = torch.device(device)
         needed = replay_bytes(specs, capacity)
         if check_memory:
             available = available_memory_bytes()
             if available is not None and needed > available:
-                per_env = ", ".join(f"{s.name}: {_capacity_of(s, capacity):,} transitions = {replay_bytes([s], capacity) / 2**30:.2f} GiB" for s in specs)
+                per_env = ", ".join(
+                    f"{s.name}: {_capacity_of(s, capacity):,} transitions = {replay_bytes([s], capacity) / 2**30:.2f} GiB"
+                    for s in specs
+                )
                 raise SealError(
                     f"replay needs {needed / 2**30:.2f} GiB ({per_env}) but only {available / 2**30:.2f} GiB of memory is available; lower the replay capacity or train fewer tasks"
                 )
@@ -138,7 +158,16 @@ class MultiTaskReplay:
             raise UnknownNameError("environment", env, list(self.specs))
         return self.specs[env]
 
-    def add(self, env: str, task_ids: np.ndarray, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray, terminations: np.ndarray) -> None:
+    def add(
+        self,
+        env: str,
+        task_ids: np.ndarray,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminations: np.ndarray,
+    ) -> None:
         """Store one step of N instances of `env`; instance i belongs to task task_ids[i] (repeats allowed)."""
         spec = self._spec(env)
         task_ids = np.asarray(task_ids, dtype=np.int64).reshape(-1)
@@ -146,7 +175,9 @@ class MultiTaskReplay:
         if n == 0:
             return
         if task_ids.min() < 0 or task_ids.max() >= spec.num_tasks:
-            raise SealError(f"replay.add({env!r}): task ids must be in [0, {spec.num_tasks}), got {sorted(set(task_ids.tolist()))}")
+            raise SealError(
+                f"replay.add({env!r}): task ids must be in [0, {spec.num_tasks}), got {sorted(set(task_ids.tolist()))}"
+            )
         # Rank of each instance among those of the same task, so repeats get consecutive slots.
         order = np.argsort(task_ids, kind="stable")
         sorted_ids = task_ids[order]
@@ -155,14 +186,24 @@ class MultiTaskReplay:
         cap = self.capacity_per_task[env]
         slots = (self.position[env][task_ids] + rank) % cap
         store = self.storage[env]
-        values = {"obs": obs, "actions": actions, "rewards": rewards, "next_obs": next_obs, "terminations": terminations}
+        values = {
+            "obs": obs,
+            "actions": actions,
+            "rewards": rewards,
+            "next_obs": next_obs,
+            "terminations": terminations,
+        }
         for field in _FIELDS:
-            store[field][task_ids, slots] = np.asarray(values[field], dtype=np.float32).reshape(n, *store[field].shape[2:])
+            store[field][task_ids, slots] = np.asarray(values[field], dtype=np.float32).reshape(
+                n, *store[field].shape[2:]
+            )
         added = np.bincount(task_ids, minlength=spec.num_tasks)
         self.position[env] = (self.position[env] + added) % cap
         self.size[env] = np.minimum(self.size[env] + added, cap)
 
-    def sample(self, counts: Mapping[str, np.ndarray], rng: np.random.Generator) -> dict[str, Batch]:
+    def sample(
+        self, counts: Mapping[str, np.ndarray], rng: np.random.Generator
+    ) -> dict[str, Batch]:
         """Draw counts[env][t] transitions uniformly with replacement from each task's buffer.
 
         Returns one Batch per env with a non-zero total, rows grouped by task in task order, and
@@ -173,12 +214,16 @@ class MultiTaskReplay:
             spec = self._spec(env)
             env_counts = np.asarray(env_counts, dtype=np.int64)
             if env_counts.shape != (spec.num_tasks,) or (env_counts < 0).any():
-                raise SealError(f"replay.sample: counts of {env!r} must be {spec.num_tasks} non-negative ints (one per task), got {env_counts.tolist()}")
+                raise SealError(
+                    f"replay.sample: counts of {env!r} must be {spec.num_tasks} non-negative ints (one per task), got {env_counts.tolist()}"
+                )
             if env_counts.sum() == 0:
                 continue
             empty = np.flatnonzero((env_counts > 0) & (self.size[env] == 0))
             if empty.size:
-                raise SealError(f"replay.sample: {env!r} task(s) {empty.tolist()} have no transitions yet but were asked for {env_counts[empty].tolist()}")
+                raise SealError(
+                    f"replay.sample: {env!r} task(s) {empty.tolist()} have no transitions yet but were asked for {env_counts[empty].tolist()}"
+                )
             task_ids = np.repeat(np.arange(spec.num_tasks), env_counts)
             rows = rng.integers(0, self.size[env][task_ids])
             store = self.storage[env]
@@ -206,7 +251,9 @@ class MultiTaskReplay:
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         """Restore `state_dict` output into buffers of the same envs and capacities."""
         if dict(state["capacity_per_task"]) != self.capacity_per_task:
-            raise SealError(f"replay state has capacities per task {dict(state['capacity_per_task'])}, but this replay has {self.capacity_per_task}")
+            raise SealError(
+                f"replay state has capacities per task {dict(state['capacity_per_task'])}, but this replay has {self.capacity_per_task}"
+            )
         for env, saved in state["envs"].items():
             self._spec(env)
             store = self.storage[env]

@@ -41,7 +41,15 @@ from seal.learner.networks import Segments, TaskNetwork, tanh_gaussian
 
 STATE_FORMAT = 1
 # Per-env scalars returned by update(), in the order they are stacked before the single .tolist().
-_SCALARS = ("losses/{}/qf1", "losses/{}/qf2", "losses/{}/critic", "losses/{}/actor", "losses/{}/alpha", "charts/{}/mean_q", "charts/{}/entropy")
+_SCALARS = (
+    "losses/{}/qf1",
+    "losses/{}/qf2",
+    "losses/{}/critic",
+    "losses/{}/actor",
+    "losses/{}/alpha",
+    "charts/{}/mean_q",
+    "charts/{}/entropy",
+)
 
 
 def _module_key(name: str) -> str:
@@ -75,16 +83,22 @@ class Agent:
         if len(set(names)) != len(names):
             raise SealError(f"Agent: environment names repeat: {names}")
         if config.architecture == "mtmhsac" and len(specs) != 1:
-            raise SealError(f"agent.architecture = \"mtmhsac\" trains one environment, got {len(specs)} ({', '.join(names)}); use \"seal\" for several")
+            raise SealError(
+                f'agent.architecture = "mtmhsac" trains one environment, got {len(specs)} ({", ".join(names)}); use "seal" for several'
+            )
         keys = {s.name: _module_key(s.name) for s in specs}
         if len(set(keys.values())) != len(keys):
-            raise SealError(f"Agent: environment names {names} collide after replacing '.' with '_'")
+            raise SealError(
+                f"Agent: environment names {names} collide after replacing '.' with '_'"
+            )
         self.config = config
         self.seed = int(seed)
         self.device = resolve_device(config.device)
         self.specs: dict[str, EnvSpec] = {s.name: s for s in specs}
         self._keys = keys
-        init_seed, update_seed, act_seed = np.random.SeedSequence(self.seed).generate_state(3, np.uint32).tolist()
+        init_seed, update_seed, act_seed = (
+            np.random.SeedSequence(self.seed).generate_state(3, np.uint32).tolist()
+        )
         # Init draws on CPU so the same seed gives the same weights on every device.
         self._init_generator = torch.Generator().manual_seed(init_seed)
         # Separate streams: how often the collector acts does not change the update's noise.
@@ -92,9 +106,18 @@ class Agent:
         self._act_generator = torch.Generator(self.device).manual_seed(act_seed)
 
         task_segment = {s.name: ((("task", s.num_tasks),) if config.one_hot else ()) for s in specs}
-        self.actor_segments: dict[str, Segments] = {keys[s.name]: (("obs", s.obs_dim), *task_segment[s.name]) for s in specs}
-        self.critic_segments: dict[str, Segments] = {keys[s.name]: (("obs", s.obs_dim), *task_segment[s.name], ("action", s.critic_act_dim)) for s in specs}
-        translator = None if config.architecture == "mtmhsac" else (config.translator_hidden, config.latent_dim)
+        self.actor_segments: dict[str, Segments] = {
+            keys[s.name]: (("obs", s.obs_dim), *task_segment[s.name]) for s in specs
+        }
+        self.critic_segments: dict[str, Segments] = {
+            keys[s.name]: (("obs", s.obs_dim), *task_segment[s.name], ("action", s.critic_act_dim))
+            for s in specs
+        }
+        translator = (
+            None
+            if config.architecture == "mtmhsac"
+            else (config.translator_hidden, config.latent_dim)
+        )
         trunk = config.hidden if config.architecture == "mtmhsac" else config.trunk_hidden
         self.actor = TaskNetwork(
             self.actor_segments,
@@ -112,8 +135,13 @@ class Agent:
             translator,
             ensemble=2,  # twin Q: qf1 and qf2 as one stacked network
         )
-        self.log_alpha = nn.ParameterDict({keys[s.name]: nn.Parameter(torch.empty(s.num_tasks)) for s in specs})
-        self.target_entropy = {s.name: float(-s.act_dim if config.target_entropy is None else config.target_entropy) for s in specs}
+        self.log_alpha = nn.ParameterDict(
+            {keys[s.name]: nn.Parameter(torch.empty(s.num_tasks)) for s in specs}
+        )
+        self.target_entropy = {
+            s.name: float(-s.act_dim if config.target_entropy is None else config.target_entropy)
+            for s in specs
+        }
         if config.optimizer == "per_env":
             self._groups = [[name] for name in self.specs]
         else:
@@ -150,14 +178,24 @@ class Agent:
         self._actor_params: list[list[nn.Parameter]] = []
         self._critic_params: list[list[nn.Parameter]] = []
         for members in self._groups:
-            actor_params = _unique(p for name in members for p in self.actor.env_parameters(self._keys[name]))
-            critic_params = _unique(p for name in members for p in self.critic.env_parameters(self._keys[name]))
+            actor_params = _unique(
+                p for name in members for p in self.actor.env_parameters(self._keys[name])
+            )
+            critic_params = _unique(
+                p for name in members for p in self.critic.env_parameters(self._keys[name])
+            )
             self._actor_params.append(actor_params)
             self._critic_params.append(critic_params)
-            self.actor_optimizers.append(torch.optim.Adam(actor_params, lr=self.config.actor_lr * self._lr_factor, **fused))
-            self.critic_optimizers.append(torch.optim.Adam(critic_params, lr=self.config.critic_lr * self._lr_factor, **fused))
+            self.actor_optimizers.append(
+                torch.optim.Adam(actor_params, lr=self.config.actor_lr * self._lr_factor, **fused)
+            )
+            self.critic_optimizers.append(
+                torch.optim.Adam(critic_params, lr=self.config.critic_lr * self._lr_factor, **fused)
+            )
         self._alpha_params = list(self.log_alpha.values())
-        self.alpha_optimizer = torch.optim.Adam(self._alpha_params, lr=self.config.alpha_lr, **fused)
+        self.alpha_optimizer = torch.optim.Adam(
+            self._alpha_params, lr=self.config.alpha_lr, **fused
+        )
         self._online_critic = list(self.critic.parameters())
         self._target_critic = list(self.critic_target.parameters())
 
@@ -196,37 +234,66 @@ class Agent:
         """Raw obs with the one-hot task id appended when config.one_hot."""
         if not self.config.one_hot:
             return obs
-        return torch.cat((obs, F.one_hot(task_ids, self.specs[name].num_tasks).to(obs.dtype)), dim=-1)
+        return torch.cat(
+            (obs, F.one_hot(task_ids, self.specs[name].num_tasks).to(obs.dtype)), dim=-1
+        )
 
-    def _critic_input(self, name: str, actor_input: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+    def _critic_input(
+        self, name: str, actor_input: torch.Tensor, actions: torch.Tensor
+    ) -> torch.Tensor:
         """[actor input, action zero-padded to act_pad_to]."""
         pad = self.specs[name].critic_act_dim - actions.shape[-1]
         if pad:
             actions = F.pad(actions, (0, pad))
         return torch.cat((actor_input, actions), dim=-1)
 
-    def _policy(self, name: str, x: torch.Tensor, task_ids: torch.Tensor, generator: torch.Generator, deterministic: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    def _policy(
+        self,
+        name: str,
+        x: torch.Tensor,
+        task_ids: torch.Tensor,
+        generator: torch.Generator,
+        deterministic: bool,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Tanh-Gaussian action and its log-probability for each row."""
         mean_log_std = self.actor(self._keys[name], x, task_ids)
         noise = None
         if not deterministic:
-            noise = torch.randn(mean_log_std.shape[0], self.specs[name].act_dim, generator=generator, device=x.device, dtype=x.dtype)
+            noise = torch.randn(
+                mean_log_std.shape[0],
+                self.specs[name].act_dim,
+                generator=generator,
+                device=x.device,
+                dtype=x.dtype,
+            )
         return tanh_gaussian(mean_log_std, noise)
 
     # ------------------------------------------------------------------ acting
-    def act(self, env_name: str, obs: np.ndarray, task_ids: np.ndarray, deterministic: bool = False) -> np.ndarray:
+    def act(
+        self, env_name: str, obs: np.ndarray, task_ids: np.ndarray, deterministic: bool = False
+    ) -> np.ndarray:
         """Actions (N, act_dim) float32 in [-1, 1] for raw observations (N, obs_dim) of `env_name`."""
         spec = self._spec(env_name)
         obs = np.asarray(obs, dtype=np.float32)
         task_ids = np.asarray(task_ids, dtype=np.int64)
         if obs.ndim != 2 or obs.shape[1] != spec.obs_dim or task_ids.shape != (obs.shape[0],):
-            raise SealError(f"act({env_name!r}): expected obs (N, {spec.obs_dim}) and task_ids (N,), got {obs.shape} and {task_ids.shape}")
+            raise SealError(
+                f"act({env_name!r}): expected obs (N, {spec.obs_dim}) and task_ids (N,), got {obs.shape} and {task_ids.shape}"
+            )
         if task_ids.size and (task_ids.min() < 0 or task_ids.max() >= spec.num_tasks):
-            raise SealError(f"act({env_name!r}): task ids must be in [0, {spec.num_tasks}), got {sorted(set(task_ids.tolist()))}")
+            raise SealError(
+                f"act({env_name!r}): task ids must be in [0, {spec.num_tasks}), got {sorted(set(task_ids.tolist()))}"
+            )
         with torch.inference_mode():
             obs_t = torch.from_numpy(obs).to(self.device)
             ids_t = torch.from_numpy(task_ids).to(self.device)
-            actions, _ = self._policy(env_name, self._actor_input(env_name, obs_t, ids_t), ids_t, self._act_generator, deterministic)
+            actions, _ = self._policy(
+                env_name,
+                self._actor_input(env_name, obs_t, ids_t),
+                ids_t,
+                self._act_generator,
+                deterministic,
+            )
             return actions.cpu().numpy()
 
     def _spec(self, env_name: str) -> EnvSpec:
@@ -235,30 +302,51 @@ class Agent:
         return self.specs[env_name]
 
     # ------------------------------------------------------------------ the update
-    def _critic_loss(self, name: str, obs_in: torch.Tensor, next_obs_in: torch.Tensor, batch: Batch, alpha: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def _critic_loss(
+        self,
+        name: str,
+        obs_in: torch.Tensor,
+        next_obs_in: torch.Tensor,
+        batch: Batch,
+        alpha: torch.Tensor,
+    ) -> tuple[torch.Tensor, ...]:
         """qf1_loss, qf2_loss and the (2, B) Q values of the batch's actions."""
         key = self._keys[name]
         with torch.no_grad():
-            next_state_actions, next_state_log_pi = self._policy(name, next_obs_in, batch.task_ids, self._update_generator, False)
-            qf_next_target = self.critic_target(key, self._critic_input(name, next_obs_in, next_state_actions), batch.task_ids).squeeze(-1)
+            next_state_actions, next_state_log_pi = self._policy(
+                name, next_obs_in, batch.task_ids, self._update_generator, False
+            )
+            qf_next_target = self.critic_target(
+                key, self._critic_input(name, next_obs_in, next_state_actions), batch.task_ids
+            ).squeeze(-1)
             min_qf_next_target = qf_next_target.amin(0) - alpha[batch.task_ids] * next_state_log_pi
-            next_q_value = batch.rewards + (1.0 - batch.terminations) * self.config.gamma * min_qf_next_target
-        qf_a_values = self.critic(key, self._critic_input(name, obs_in, batch.actions), batch.task_ids).squeeze(-1)
+            next_q_value = (
+                batch.rewards + (1.0 - batch.terminations) * self.config.gamma * min_qf_next_target
+            )
+        qf_a_values = self.critic(
+            key, self._critic_input(name, obs_in, batch.actions), batch.task_ids
+        ).squeeze(-1)
         qf1_a_values, qf2_a_values = qf_a_values
         qf1_loss = F.mse_loss(qf1_a_values, next_q_value)
         qf2_loss = F.mse_loss(qf2_a_values, next_q_value)
         return qf1_loss, qf2_loss, qf_a_values
 
-    def _actor_loss(self, name: str, obs_in: torch.Tensor, task_ids: torch.Tensor, alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _actor_loss(
+        self, name: str, obs_in: torch.Tensor, task_ids: torch.Tensor, alpha: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """actor_loss and the (detached later) log-probabilities of the sampled actions."""
         pi, log_pi = self._policy(name, obs_in, task_ids, self._update_generator, False)
-        qf_pi = self.critic(self._keys[name], self._critic_input(name, obs_in, pi), task_ids).squeeze(-1)
+        qf_pi = self.critic(
+            self._keys[name], self._critic_input(name, obs_in, pi), task_ids
+        ).squeeze(-1)
         min_qf_pi = qf_pi.amin(0)
         actor_loss = (alpha[task_ids] * log_pi - min_qf_pi).mean()
         return actor_loss, log_pi
 
     @staticmethod
-    def _step(optimizer: torch.optim.Optimizer, params: list[nn.Parameter], loss: torch.Tensor) -> None:
+    def _step(
+        optimizer: torch.optim.Optimizer, params: list[nn.Parameter], loss: torch.Tensor
+    ) -> None:
         """Backward into exactly `params` (no grads for frozen parts of the graph), then step."""
         grads = torch.autograd.grad(loss, params, allow_unused=True)
         for p, g in zip(params, grads, strict=True):
@@ -289,25 +377,51 @@ class Agent:
                 if batch.obs.device != self.device:
                     batch = Batch(*(t.to(self.device, non_blocking=True) for t in batch))
                 alpha = self.log_alpha[self._keys[name]].detach().exp()
-                inputs[name] = (batch, alpha, self._actor_input(name, batch.obs, batch.task_ids), self._actor_input(name, batch.next_obs, batch.task_ids))
+                inputs[name] = (
+                    batch,
+                    alpha,
+                    self._actor_input(name, batch.obs, batch.task_ids),
+                    self._actor_input(name, batch.next_obs, batch.task_ids),
+                )
 
             # ---- critic: one step of this group's critic optimiser over its envs' summed losses
-            critic_terms = {name: critic_loss_fn(name, obs_in, next_obs_in, batch, alpha) for name, (batch, alpha, obs_in, next_obs_in) in inputs.items()}
+            critic_terms = {
+                name: critic_loss_fn(name, obs_in, next_obs_in, batch, alpha)
+                for name, (batch, alpha, obs_in, next_obs_in) in inputs.items()
+            }
             qf_loss = sum(qf1 + qf2 for qf1, qf2, _ in critic_terms.values())
             self._step(self.critic_optimizers[group], self._critic_params[group], qf_loss)
 
             # ---- actor: with the critic just updated, as in cleanrl
-            actor_terms = {name: actor_loss_fn(name, obs_in, batch.task_ids, alpha) for name, (batch, alpha, obs_in, _) in inputs.items()}
+            actor_terms = {
+                name: actor_loss_fn(name, obs_in, batch.task_ids, alpha)
+                for name, (batch, alpha, obs_in, _) in inputs.items()
+            }
             actor_loss = sum(loss for loss, _ in actor_terms.values())
             self._step(self.actor_optimizers[group], self._actor_params[group], actor_loss)
 
             # ---- temperature: one log_alpha per task, trained towards the env's target entropy
             for name, (batch, alpha, _, _) in inputs.items():
                 log_pi = actor_terms[name][1].detach()
-                env_alpha_loss = (-self.log_alpha[self._keys[name]][batch.task_ids] * (log_pi + self.target_entropy[name])).mean()
+                env_alpha_loss = (
+                    -self.log_alpha[self._keys[name]][batch.task_ids]
+                    * (log_pi + self.target_entropy[name])
+                ).mean()
                 alpha_loss = env_alpha_loss if alpha_loss is None else alpha_loss + env_alpha_loss
                 qf1, qf2, qf_a_values = critic_terms[name]
-                scalars.append(torch.stack((qf1, qf2, qf1 + qf2, actor_terms[name][0], env_alpha_loss, qf_a_values.mean(), -log_pi.mean())).detach())
+                scalars.append(
+                    torch.stack(
+                        (
+                            qf1,
+                            qf2,
+                            qf1 + qf2,
+                            actor_terms[name][0],
+                            env_alpha_loss,
+                            qf_a_values.mean(),
+                            -log_pi.mean(),
+                        )
+                    ).detach()
+                )
                 scalars.append(alpha)
                 order.append(name)
         if alpha_loss is not None:
@@ -334,13 +448,20 @@ class Agent:
         bad = [k for k, v in metrics.items() if not math.isfinite(v)]
         if bad:
             where = self.last_checkpoint or "none saved yet"
-            raise TrainingDivergedError(f"training diverged at update {self.num_updates}: {', '.join(f'{k} = {metrics[k]}' for k in bad)}; last good checkpoint: {where}")
+            raise TrainingDivergedError(
+                f"training diverged at update {self.num_updates}: {', '.join(f'{k} = {metrics[k]}' for k in bad)}; last good checkpoint: {where}"
+            )
         return metrics
 
     # ------------------------------------------------------------------ state
     def parameters_finite(self) -> bool:
         """True when every network parameter and temperature is finite."""
-        params = [*self.actor.parameters(), *self.critic.parameters(), *self.critic_target.parameters(), *self.log_alpha.values()]
+        params = [
+            *self.actor.parameters(),
+            *self.critic.parameters(),
+            *self.critic_target.parameters(),
+            *self.log_alpha.values(),
+        ]
         return bool(torch.stack([torch.isfinite(p).all() for p in params]).all())
 
     def state_dict(self) -> dict[str, Any]:
@@ -357,7 +478,11 @@ class Agent:
             "actor_optimizers": [o.state_dict() for o in self.actor_optimizers],
             "critic_optimizers": [o.state_dict() for o in self.critic_optimizers],
             "alpha_optimizer": self.alpha_optimizer.state_dict(),
-            "rng": {"init": self._init_generator.get_state(), "update": self._update_generator.get_state(), "act": self._act_generator.get_state()},
+            "rng": {
+                "init": self._init_generator.get_state(),
+                "update": self._update_generator.get_state(),
+                "act": self._act_generator.get_state(),
+            },
             "lr_factor": self._lr_factor,
             "num_updates": self.num_updates,
         }
@@ -365,16 +490,22 @@ class Agent:
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         """Restore everything `state_dict` saved; the specs and network shapes must match."""
         if state.get("format") != STATE_FORMAT:
-            raise SealError(f"agent state has format {state.get('format')!r}; this seal reads format {STATE_FORMAT}")
+            raise SealError(
+                f"agent state has format {state.get('format')!r}; this seal reads format {STATE_FORMAT}"
+            )
         mine = [asdict(s) for s in self.specs.values()]
         if list(state["specs"]) != mine:
-            raise SealError(f"agent state is for environments {state['specs']}, but this agent has {mine}")
+            raise SealError(
+                f"agent state is for environments {state['specs']}, but this agent has {mine}"
+            )
         try:
             self.actor.load_state_dict(state["actor"])
             self.critic.load_state_dict(state["critic"])
             self.critic_target.load_state_dict(state["critic_target"])
         except RuntimeError as exc:
-            raise SealError(f"agent state does not fit this agent's networks (saved config {state['config']}): {exc}") from exc
+            raise SealError(
+                f"agent state does not fit this agent's networks (saved config {state['config']}): {exc}"
+            ) from exc
         with torch.no_grad():
             for k, v in state["log_alpha"].items():
                 self.log_alpha[k].copy_(v)
@@ -382,7 +513,9 @@ class Agent:
         self._build_optimizers()
         for optimizer, saved in zip(self.actor_optimizers, state["actor_optimizers"], strict=True):
             optimizer.load_state_dict(saved)
-        for optimizer, saved in zip(self.critic_optimizers, state["critic_optimizers"], strict=True):
+        for optimizer, saved in zip(
+            self.critic_optimizers, state["critic_optimizers"], strict=True
+        ):
             optimizer.load_state_dict(saved)
         self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])
         self._init_generator.set_state(state["rng"]["init"])
@@ -407,15 +540,31 @@ class Agent:
         if reinit_critic is None:
             reinit_critic = self.config.reinit_critic_on_transfer
         if state["config"]["architecture"] != self.config.architecture:
-            raise SealError(f"cannot transfer a {state['config']['architecture']!r} agent into a {self.config.architecture!r} agent")
+            raise SealError(
+                f"cannot transfer a {state['config']['architecture']!r} agent into a {self.config.architecture!r} agent"
+            )
         source_keys = list(state["segments"]["actor"])
         if len(source_keys) == 1 and len(self._keys) == 1:
             key_map = {next(iter(self._keys.values())): source_keys[0]}
         else:
             key_map = {k: k for k in self._keys.values() if k in source_keys}
-        _transfer_network(self.actor, state["actor"], state["segments"]["actor"], self.actor_segments, key_map, copy_heads=False)
+        _transfer_network(
+            self.actor,
+            state["actor"],
+            state["segments"]["actor"],
+            self.actor_segments,
+            key_map,
+            copy_heads=False,
+        )
         if not reinit_critic:
-            _transfer_network(self.critic, state["critic"], state["segments"]["critic"], self.critic_segments, key_map, copy_heads=True)
+            _transfer_network(
+                self.critic,
+                state["critic"],
+                state["segments"]["critic"],
+                self.critic_segments,
+                key_map,
+                copy_heads=True,
+            )
         self.critic_target.load_state_dict(self.critic.state_dict())
         with torch.no_grad():
             for key, source_key in key_map.items():
@@ -426,7 +575,15 @@ class Agent:
         self._build_optimizers()
 
 
-def _transfer_network(net: TaskNetwork, source: Mapping[str, torch.Tensor], source_segments: Mapping[str, Segments], segments: Mapping[str, Segments], key_map: Mapping[str, str], *, copy_heads: bool) -> None:
+def _transfer_network(
+    net: TaskNetwork,
+    source: Mapping[str, torch.Tensor],
+    source_segments: Mapping[str, Segments],
+    segments: Mapping[str, Segments],
+    key_map: Mapping[str, str],
+    *,
+    copy_heads: bool,
+) -> None:
     """Copy `source` parameters into `net` as `Agent.transfer_from` describes."""
     target = net.state_dict()
     reverse = {f".{k}.": f".{v}." for k, v in key_map.items()}
@@ -439,27 +596,37 @@ def _transfer_network(net: TaskNetwork, source: Mapping[str, torch.Tensor], sour
         if name.startswith(("translators.", "heads.")) and env_key is None:
             continue  # an env the source never had keeps its fresh init
         if source_name not in source:
-            raise SealError(f"cannot transfer: the saved agent has no parameter {source_name!r} (is it the same architecture?)")
+            raise SealError(
+                f"cannot transfer: the saved agent has no parameter {source_name!r} (is it the same architecture?)"
+            )
         old = source[source_name].to(param.device)
         if name.startswith("heads."):
             if copy_heads:
                 loaded[name] = _copy_heads(param, old, name)
             continue
-        is_input = name.endswith("weights.0") and (name.startswith("translators.") or not net.translators)
+        is_input = name.endswith("weights.0") and (
+            name.startswith("translators.") or not net.translators
+        )
         if is_input:
             key = env_key if env_key is not None else next(iter(key_map))
             loaded[name] = _copy_columns(param, old, segments[key], source_segments[key_map[key]])
         elif old.shape == param.shape:
             loaded[name] = old.clone()
         else:
-            raise SealError(f"cannot transfer {name}: saved shape {tuple(old.shape)} vs {tuple(param.shape)} here; hidden widths must match")
+            raise SealError(
+                f"cannot transfer {name}: saved shape {tuple(old.shape)} vs {tuple(param.shape)} here; hidden widths must match"
+            )
     net.load_state_dict({**target, **loaded})
 
 
-def _copy_columns(param: torch.Tensor, old: torch.Tensor, segments: Segments, source_segments: Segments) -> torch.Tensor:
+def _copy_columns(
+    param: torch.Tensor, old: torch.Tensor, segments: Segments, source_segments: Segments
+) -> torch.Tensor:
     """Input-layer weight (G, in, out): copy each named segment's overlapping rows, zero the rest."""
     if old.shape[0] != param.shape[0] or old.shape[2] != param.shape[2]:
-        raise SealError(f"cannot transfer input layer: saved shape {tuple(old.shape)} vs {tuple(param.shape)} here; hidden widths must match")
+        raise SealError(
+            f"cannot transfer input layer: saved shape {tuple(old.shape)} vs {tuple(param.shape)} here; hidden widths must match"
+        )
     out = torch.zeros_like(param)
     source_offsets, offset = {}, 0
     for seg, width in source_segments:
@@ -478,7 +645,9 @@ def _copy_columns(param: torch.Tensor, old: torch.Tensor, segments: Segments, so
 def _copy_heads(param: torch.Tensor, old: torch.Tensor, name: str) -> torch.Tensor:
     """Multi-head weight (G, in, H*out) or bias (G, 1, H*out): copy heads both have, keep the rest."""
     if old.shape[:2] != param.shape[:2]:
-        raise SealError(f"cannot transfer {name}: saved shape {tuple(old.shape)} vs {tuple(param.shape)} here")
+        raise SealError(
+            f"cannot transfer {name}: saved shape {tuple(old.shape)} vs {tuple(param.shape)} here"
+        )
     out = param.clone()
     n = min(old.shape[-1], param.shape[-1])
     out[..., :n] = old[..., :n]

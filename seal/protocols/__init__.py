@@ -12,7 +12,16 @@ from __future__ import annotations
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_to_dict, dumps_toml, explain, load_protocol
 
-__all__ = ["ProtocolConfig", "RunResult", "config_to_dict", "dumps_toml", "explain", "load_protocol", "run_protocol", "run_seed"]
+__all__ = [
+    "ProtocolConfig",
+    "RunResult",
+    "config_to_dict",
+    "dumps_toml",
+    "explain",
+    "load_protocol",
+    "run_protocol",
+    "run_seed",
+]
 
 
 def __getattr__(name: str):  # noqa: ANN202 - lazy: the runner imports torch and the learner

@@ -45,7 +45,9 @@ def parse_override(text: str, path: str = "--set") -> tuple[list[str], Any]:
     key, sep, raw = text.partition("=")
     parts = [p.strip() for p in key.strip().split(".")]
     if not sep or len(parts) < 2 or not all(parts):
-        raise ConfigError(f"{path}: override {text!r} must look like table.key=value (e.g. protocol.epochs=100)")
+        raise ConfigError(
+            f"{path}: override {text!r} must look like table.key=value (e.g. protocol.epochs=100)"
+        )
     try:
         value = tomllib.loads(f"v = {raw.strip()}")["v"]
     except tomllib.TOMLDecodeError:
@@ -130,7 +132,9 @@ def coerce(value: Any, tp: Any, where: str) -> Any:
     if origin is typing.Literal:
         if value in args and not isinstance(value, bool):
             return value
-        raise ConfigError(f"{where} = {value!r} is not valid; valid: {', '.join(repr(a) for a in args)}")
+        raise ConfigError(
+            f"{where} = {value!r} is not valid; valid: {', '.join(repr(a) for a in args)}"
+        )
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
             return None
@@ -171,15 +175,23 @@ def coerce(value: Any, tp: Any, where: str) -> Any:
         elif origin is tuple and args:
             if len(args) != len(value):
                 raise bad
-            items = [coerce(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True))]
+            items = [
+                coerce(v, a, f"{where}[{i}]")
+                for i, (v, a) in enumerate(zip(value, args, strict=True))
+            ]
         else:
-            items = [coerce(v, args[0], f"{where}[{i}]") if args else v for i, v in enumerate(value)]
+            items = [
+                coerce(v, args[0], f"{where}[{i}]") if args else v for i, v in enumerate(value)
+            ]
         return tuple(items) if origin is tuple else items
     if origin is dict:
         if not isinstance(value, dict):
             raise bad
         if args:
-            return {coerce(k, args[0], where): coerce(v, args[1], f"{where}.{k}") for k, v in value.items()}
+            return {
+                coerce(k, args[0], where): coerce(v, args[1], f"{where}.{k}")
+                for k, v in value.items()
+            }
         return dict(value)
     if dataclasses.is_dataclass(tp) and isinstance(tp, type):
         if not isinstance(value, dict):
@@ -192,7 +204,9 @@ def coerce(value: Any, tp: Any, where: str) -> Any:
     return value
 
 
-def build_dataclass(cls: type, table: Mapping[str, Any], where: str, defaults: Mapping[str, Any] | None = None) -> Any:
+def build_dataclass(
+    cls: type, table: Mapping[str, Any], where: str, defaults: Mapping[str, Any] | None = None
+) -> Any:
     """An instance of dataclass `cls` from a TOML table, every key and value checked.
 
     `where` is "file: table" for messages; `defaults` replace the class defaults for keys the
@@ -204,7 +218,9 @@ def build_dataclass(cls: type, table: Mapping[str, Any], where: str, defaults: M
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(table) - set(fields))
     if unknown:
-        raise ConfigError(f"{where}.{unknown[0]} is not a valid key; valid keys: {', '.join(fields)}")
+        raise ConfigError(
+            f"{where}.{unknown[0]} is not a valid key; valid keys: {', '.join(fields)}"
+        )
     kwargs: dict[str, Any] = dict(defaults or {})
     for key, value in table.items():
         kwargs[key] = coerce(value, hints.get(key, Any), f"{where}.{key}")
@@ -273,7 +289,9 @@ def _build_envs(raw: Any, file: str) -> dict[str, EnvConfig]:
     from seal.envs import adapter_class
 
     if not isinstance(raw, dict) or not raw:
-        raise ConfigError(f"{file}: envs must have at least one [envs.<name>] table, e.g. [envs.mw] adapter = \"metaworld\"")
+        raise ConfigError(
+            f'{file}: envs must have at least one [envs.<name>] table, e.g. [envs.mw] adapter = "metaworld"'
+        )
     envs: dict[str, EnvConfig] = {}
     for name, table in raw.items():
         where = f"{file}: envs.{name}"
@@ -291,29 +309,45 @@ def _build_envs(raw: Any, file: str) -> dict[str, EnvConfig]:
             key = "episode_length" if "episode_length" in str(exc) else "tasks"
             raise ConfigError(f"{where}.{key}: {exc}") from None
         # Resolved: set names expanded and the adapter's default episode length filled in.
-        envs[name] = EnvConfig(adapter=adapter_name, tasks=tuple(adapter.tasks), episode_length=adapter.episode_length)
+        envs[name] = EnvConfig(
+            adapter=adapter_name, tasks=tuple(adapter.tasks), episode_length=adapter.episode_length
+        )
     return envs
 
 
 def _check_kind(config: ProtocolConfig, file: str) -> None:
     kind, envs = config.kind, list(config.envs)
     if kind == "baseline" and len(envs) != 1:
-        raise ConfigError(f"{file}: envs has {len(envs)} environments ({', '.join(envs)}); kind = \"baseline\" trains on exactly one")
+        raise ConfigError(
+            f'{file}: envs has {len(envs)} environments ({", ".join(envs)}); kind = "baseline" trains on exactly one'
+        )
     if kind == "joint" and len(envs) < 2:
-        raise ConfigError(f"{file}: envs has {len(envs)} environment(s); kind = \"joint\" needs at least two")
+        raise ConfigError(
+            f'{file}: envs has {len(envs)} environment(s); kind = "joint" needs at least two'
+        )
     if kind == "finetune":
         ft = config.finetune
         if ft is None:
-            raise ConfigError(f"{file}: kind = \"finetune\" needs a [finetune] table with source and target")
+            raise ConfigError(
+                f'{file}: kind = "finetune" needs a [finetune] table with source and target'
+            )
         for key in ("source", "target"):
             if getattr(ft, key) not in config.envs:
-                raise ConfigError(f"{file}: finetune.{key} = {getattr(ft, key)!r} is not one of the [envs] tables; valid: {', '.join(envs)}")
+                raise ConfigError(
+                    f"{file}: finetune.{key} = {getattr(ft, key)!r} is not one of the [envs] tables; valid: {', '.join(envs)}"
+                )
         if ft.source == ft.target:
-            raise ConfigError(f"{file}: finetune.target = {ft.target!r} must differ from finetune.source")
+            raise ConfigError(
+                f"{file}: finetune.target = {ft.target!r} must differ from finetune.source"
+            )
         if len(envs) != 2:
-            raise ConfigError(f"{file}: kind = \"finetune\" uses exactly two [envs] tables (source and target), got {', '.join(envs)}")
+            raise ConfigError(
+                f'{file}: kind = "finetune" uses exactly two [envs] tables (source and target), got {", ".join(envs)}'
+            )
     elif config.finetune is not None:
-        raise ConfigError(f"{file}: finetune is only valid with kind = \"finetune\" (this protocol's kind is {kind!r})")
+        raise ConfigError(
+            f'{file}: finetune is only valid with kind = "finetune" (this protocol\'s kind is {kind!r})'
+        )
 
 
 def default_architecture(kind: str) -> str:
@@ -328,13 +362,24 @@ def _build_agent(raw: Any, kind: str, device: str, file: str) -> Any:
         return table
     names = {f.name for f in dataclasses.fields(cls)}
     # [protocol].device is the one place a user sets the device; [agent].device may still override it.
-    defaults = {k: v for k, v in {"architecture": default_architecture(kind), "device": device}.items() if k in names}
+    defaults: dict[str, Any] = {"architecture": default_architecture(kind), "device": device}
+    if kind == "finetune":
+        # The aligned observation already carries the aligned one-hot id at a fixed index
+        # (Appendix D), so by default the agent appends no second one.
+        defaults["one_hot"] = False
+    defaults = {k: v for k, v in defaults.items() if k in names}
     return build_dataclass(cls, table, f"{file}: agent", defaults)
 
 
 def _validate_scheduler(table: dict[str, Any], envs: dict[str, EnvConfig], file: str) -> None:
     if table:
-        scheduling.build(table, {n: e.tasks for n, e in envs.items()}, {n: e.adapter for n, e in envs.items()}, file)
+        scheduling.build(
+            table,
+            {n: e.tasks for n, e in envs.items()},
+            {n: e.adapter for n, e in envs.items()},
+            file,
+            episode_lengths={n: e.episode_length for n, e in envs.items()},
+        )
 
 
 def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolConfig:
@@ -342,7 +387,9 @@ def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolCon
     file = str(path)
     unknown = [t for t in raw if t not in ALL_TABLES]
     if unknown:
-        raise ConfigError(f"{file}: [{unknown[0]}] is not a valid table; valid tables: {', '.join(ALL_TABLES)}")
+        raise ConfigError(
+            f"{file}: [{unknown[0]}] is not a valid table; valid tables: {', '.join(ALL_TABLES)}"
+        )
     for table in ALL_TABLES:
         if table in raw and not isinstance(raw[table], dict):
             raise ConfigError(f"{file}: {table} must be a table ([{table}]), got {raw[table]!r}")
@@ -350,9 +397,19 @@ def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolCon
     proto_table.setdefault("name", Path(file).stem if file != "<memory>" else "protocol")
     protocol = build_dataclass(ProtocolTable, proto_table, f"{file}: protocol")
     if not protocol.name or "/" in protocol.name or protocol.name.startswith("."):
-        raise ConfigError(f"{file}: protocol.name = {protocol.name!r} must be a non-empty folder name without '/'")
-    tables = {name: build_dataclass(cls, raw.get(name, {}), f"{file}: {name}") for name, cls in SIMPLE_TABLES.items() if name not in ("protocol", "finetune")}
-    finetune = build_dataclass(FinetuneConfig, raw["finetune"], f"{file}: finetune") if "finetune" in raw else None
+        raise ConfigError(
+            f"{file}: protocol.name = {protocol.name!r} must be a non-empty folder name without '/'"
+        )
+    tables = {
+        name: build_dataclass(cls, raw.get(name, {}), f"{file}: {name}")
+        for name, cls in SIMPLE_TABLES.items()
+        if name not in ("protocol", "finetune")
+    }
+    finetune = (
+        build_dataclass(FinetuneConfig, raw["finetune"], f"{file}: finetune")
+        if "finetune" in raw
+        else None
+    )
     envs = _build_envs(raw.get("envs"), file)
     config = ProtocolConfig(
         path=file,
@@ -367,7 +424,9 @@ def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolCon
     )
     _check_kind(config, file)
     if config.kind == "finetune" and config.scheduler:
-        raise ConfigError(f"{file}: scheduler is not used by kind = \"finetune\" (each phase trains on one env with uniform batches); remove [scheduler]")
+        raise ConfigError(
+            f'{file}: scheduler is not used by kind = "finetune" (each phase trains on one env with uniform batches); remove [scheduler]'
+        )
     _validate_scheduler(config.scheduler, envs, file)
     if finetune is not None:
         config = config.replace(
@@ -380,7 +439,9 @@ def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolCon
     return config
 
 
-def load_protocol(path: str | Path, overrides: Iterable[str] = (), scale: float | None = None) -> ProtocolConfig:
+def load_protocol(
+    path: str | Path, overrides: Iterable[str] = (), scale: float | None = None
+) -> ProtocolConfig:
     """Read, override, validate and scale a protocol file; nothing is written."""
     raw = apply_overrides(read_toml(path), overrides, str(path))
     config = config_from_dict(raw, str(path))
@@ -431,12 +492,23 @@ def _toml_value(value: Any) -> str:
             return ("-inf" if value < 0 else "inf") if math.isinf(value) else "nan"
         return repr(value)
     if isinstance(value, str):
-        escaped = value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n").replace("\t", "\\t")
+        escaped = (
+            value.replace("\\", "\\\\")
+            .replace('"', '\\"')
+            .replace("\n", "\\n")
+            .replace("\t", "\\t")
+        )
         return f'"{escaped}"'
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     if isinstance(value, dict):
-        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items() if v is not None) + "}"
+        return (
+            "{"
+            + ", ".join(
+                f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items() if v is not None
+            )
+            + "}"
+        )
     raise TypeError(f"cannot write {value!r} ({type(value).__name__}) as TOML")
 
 
@@ -472,9 +544,17 @@ def explain(config: ProtocolConfig) -> str:
     def section(title: str, obj: Any, cls: type | None) -> None:
         out.append(f"[{title}]")
         docs = field_docs(cls) if cls is not None else {}
-        values = {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)} if dataclasses.is_dataclass(obj) else dict(obj)
+        values = (
+            {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
+            if dataclasses.is_dataclass(obj)
+            else dict(obj)
+        )
         for key, value in values.items():
-            shown = _toml_value(list(value) if isinstance(value, tuple) else value) if value is not None else "(none)"
+            shown = (
+                _toml_value(list(value) if isinstance(value, tuple) else value)
+                if value is not None
+                else "(none)"
+            )
             doc = docs.get(key, "").splitlines()[0] if docs.get(key) else ""
             out.append(f"{key} = {shown}" + (f"    # {doc}" if doc else ""))
         out.append("")

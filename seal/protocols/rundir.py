@@ -102,7 +102,9 @@ class CsvLog:
 
 def _fmt(value: Any) -> Any:
     if isinstance(value, float):
-        return repr(value)  # round-trips exactly, so resumed rows compare equal to uninterrupted ones
+        return repr(
+            value
+        )  # round-trips exactly, so resumed rows compare equal to uninterrupted ones
     return value
 
 
@@ -122,7 +124,9 @@ class RunDir:
         """Make a fresh run directory with config.toml and provenance.json; refuses an existing one."""
         path = Path(path)
         if (path / "config.toml").exists():
-            raise SealError(f"run directory {path} already exists; use --resume {path} to continue it")
+            raise SealError(
+                f"run directory {path} already exists; use --resume {path} to continue it"
+            )
         (path / "checkpoints").mkdir(parents=True, exist_ok=True)
         atomic_write_text(path / "config.toml", config_toml)
         run = cls(path)
@@ -134,7 +138,9 @@ class RunDir:
         """An existing run directory (for resume)."""
         path = Path(path)
         if not (path / "config.toml").is_file():
-            raise SealError(f"--resume {path}: not a run directory (no config.toml); run directories look like reports/<protocol>/<group>/seed-<n>")
+            raise SealError(
+                f"--resume {path}: not a run directory (no config.toml); run directories look like reports/<protocol>/<group>/seed-<n>"
+            )
         return cls(path)
 
     # ------------------------------------------------------------ metadata
@@ -145,7 +151,9 @@ class RunDir:
 
     def write_provenance(self, provenance: Mapping[str, Any]) -> None:
         """Replace provenance.json atomically."""
-        atomic_write_text(self.path / "provenance.json", json.dumps(dict(provenance), indent=2) + "\n")
+        atomic_write_text(
+            self.path / "provenance.json", json.dumps(dict(provenance), indent=2) + "\n"
+        )
 
     def update_provenance(self, **fields: Any) -> None:
         """Set some provenance fields (e.g. end_time) atomically."""

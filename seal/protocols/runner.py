@@ -15,9 +15,10 @@ The epoch (garage MTSAC convention, issue 4's table)::
 
 Exact resume: a checkpoint holds the agent, the replay, the scheduler, the counters and the RNG
 states, and the CSV row counts. Env instances continue their own RNG streams from episode to
-episode, which a checkpoint cannot capture, so the training and evaluation collectors are rebuilt
+episode, which a checkpoint cannot capture, so the collector's env instances are rebuilt
 with seeds derived from (seed, phase, epoch) right after every checkpoint, in uninterrupted and in
 resumed runs alike: a resumed run then replays exactly what the uninterrupted run did.
+Training and evaluation episodes share the env instances (see `Run._collector`).
 """
 
 from __future__ import annotations
@@ -95,11 +96,17 @@ def derive_seed(*parts: int | str) -> int:
     return int(np.random.SeedSequence(ints).generate_state(1, np.uint32)[0])
 
 
-def build_adapters(config: ProtocolConfig, envs: Sequence[str] | None = None) -> dict[str, EnvAdapter]:
+def build_adapters(
+    config: ProtocolConfig, envs: Sequence[str] | None = None
+) -> dict[str, EnvAdapter]:
     """The adapters of the protocol's envs (all, or the named ones), with their resolved tasks."""
     names = list(config.envs) if envs is None else list(envs)
     return {
-        n: make_adapter(config.envs[n].adapter, tasks=list(config.envs[n].tasks), episode_length=config.envs[n].episode_length)
+        n: make_adapter(
+            config.envs[n].adapter,
+            tasks=list(config.envs[n].tasks),
+            episode_length=config.envs[n].episode_length,
+        )
         for n in names
     }
 
@@ -130,24 +137,29 @@ def agent_config(config: ProtocolConfig) -> Any:
         AgentConfig,
         dict(agent or {}),
         f"{config.path}: agent",
-        {"architecture": default_architecture(config.kind), "device": config.protocol.device},
+        {
+            "architecture": default_architecture(config.kind),
+            "device": config.protocol.device,
+            **({"one_hot": False} if config.kind == "finetune" else {}),
+        },
     )
 
 
 def run_agent_config(config: ProtocolConfig, device: str) -> Any:
     """The AgentConfig a run trains with on `device`."""
-    cfg = dataclasses.replace(agent_config(config), device=device)
-    if config.kind == "finetune":
-        # The aligned observation already carries the aligned one-hot id at a fixed index
-        # (Appendix D), so the agent must not append a second one.
-        cfg = dataclasses.replace(cfg, one_hot=False)
-    return cfg
+    return dataclasses.replace(agent_config(config), device=device)
 
 
 class PhaseModel:
     """How the agent of one phase meets the envs: its specs, names, and the obs/id transforms."""
 
-    def __init__(self, config: ProtocolConfig, phase: Phase, adapters: Mapping[str, EnvAdapter], alignment: Any) -> None:
+    def __init__(
+        self,
+        config: ProtocolConfig,
+        phase: Phase,
+        adapters: Mapping[str, EnvAdapter],
+        alignment: Any,
+    ) -> None:
         from seal.learner import EnvSpec
 
         self.phase = phase
@@ -155,18 +167,30 @@ class PhaseModel:
         self.alignment = alignment if phase.aligned else None
         if self.alignment is None:
             self.agent_env = {e: e for e in phase.envs}
-            self.specs = [EnvSpec(e, a.obs_dim, a.act_dim, len(a.tasks)) for e, a in self.adapters.items()]
+            self.specs = [
+                EnvSpec(e, a.obs_dim, a.act_dim, len(a.tasks)) for e, a in self.adapters.items()
+            ]
         else:
             (env,) = phase.envs
             a = self.adapters[env]
             self.agent_env = {env: ALIGNED_ENV}
             # The policy outputs the env's own action size (its last layer is per env and is
             # re-initialised at transfer); the critic's action input is padded to the widest env.
-            self.specs = [EnvSpec(ALIGNED_ENV, alignment.obs_dim, a.act_dim, alignment.num_ids, act_pad_to=alignment.act_dim)]
+            self.specs = [
+                EnvSpec(
+                    ALIGNED_ENV,
+                    alignment.obs_dim,
+                    a.act_dim,
+                    alignment.num_ids,
+                    act_pad_to=alignment.act_dim,
+                )
+            ]
         # The replay keeps one buffer per task of the env even where tasks share an aligned id
         # (the three kitchen doors), so the per-task update counts stay separate; sampled task
         # ids are mapped to aligned ids before the update.
-        self.replay_specs = [dataclasses.replace(s, num_tasks=len(self.env_tasks_of(s.name))) for s in self.specs]
+        self.replay_specs = [
+            dataclasses.replace(s, num_tasks=len(self.env_tasks_of(s.name))) for s in self.specs
+        ]
         self.env_of_agent = {v: k for k, v in self.agent_env.items()}
         self.env_tasks = {e: tuple(a.tasks) for e, a in self.adapters.items()}
 
@@ -181,7 +205,13 @@ class PhaseModel:
 
     def policy(self, agent: Any, deterministic: bool) -> AgentPolicy:
         """The agent as a collector policy over this phase's raw envs."""
-        return AgentPolicy(agent, deterministic=deterministic, alignment=self.alignment, agent_env=self.agent_env, alignment_names=self.aligned_names())
+        return AgentPolicy(
+            agent,
+            deterministic=deterministic,
+            alignment=self.alignment,
+            agent_env=self.agent_env,
+            alignment_names=self.aligned_names(),
+        )
 
     def aligned_ids(self, env: str) -> np.ndarray:
         """Local task index -> the id the agent's heads use."""
@@ -241,7 +271,16 @@ class PhaseState:
 class Run:
     """One seed of one protocol: owns the run directory, phases, checkpoints and resume."""
 
-    def __init__(self, config: ProtocolConfig, seed: int, path: Path, *, quiet: bool = True, resume: bool = False, command: list[str] | None = None) -> None:
+    def __init__(
+        self,
+        config: ProtocolConfig,
+        seed: int,
+        path: Path,
+        *,
+        quiet: bool = True,
+        resume: bool = False,
+        command: list[str] | None = None,
+    ) -> None:
         self.config = config
         self.seed = int(seed)
         self.quiet = quiet
@@ -250,7 +289,9 @@ class Run:
             torch.set_num_threads(config.protocol.threads)
         self.device = provenance.resolve_device(config.protocol.device)
         self.adapters = build_adapters(config)
-        self.alignment = build_alignment(config, self.adapters) if config.kind == "finetune" else None
+        self.alignment = (
+            build_alignment(config, self.adapters) if config.kind == "finetune" else None
+        )
         self.agent_cfg = run_agent_config(config, self.device)
         if resume:
             self.rundir = RunDir.open(path)
@@ -290,7 +331,11 @@ class Run:
             self.rundir.open_tensorboard(purge_step=purge)
         try:
             for phase in self.phases[start_phase:]:
-                payload = resume_payload if resume_payload is not None and phase.index == start_phase else None
+                payload = (
+                    resume_payload
+                    if resume_payload is not None and phase.index == start_phase
+                    else None
+                )
                 self.results[phase.name] = self._run_phase(phase, payload)
         finally:
             self.rundir.close()
@@ -309,20 +354,31 @@ class Run:
     def _new_agent(self, model: PhaseModel) -> Any:
         from seal.learner import Agent
 
-        return Agent(model.specs, self.agent_cfg, derive_seed(self.seed, "agent", model.phase.index))
+        return Agent(
+            model.specs, self.agent_cfg, derive_seed(self.seed, "agent", model.phase.index)
+        )
 
     def _new_replay(self, model: PhaseModel) -> Any:
         from seal.learner import MultiTaskReplay
 
-        return MultiTaskReplay(model.replay_specs, self.config.replay.capacity_per_env, device=self.device)
+        return MultiTaskReplay(
+            model.replay_specs, self.config.replay.capacity_per_env, device=self.device
+        )
 
-    def _collectors(self, model: PhaseModel, anchor: int) -> tuple[Any, Any]:
+    def _collector(self, model: PhaseModel, anchor: int) -> Any:
+        """The phase's env instances, seeded from (seed, phase, epoch of the last checkpoint).
+
+        Training and evaluation episodes run on the same instances (each episode starts from a
+        reset that continues the instance's RNG stream): building MuJoCo envs costs about a
+        second each, and evaluation episodes never feed the replay.
+        """
         from seal.learner.collection import Collector
 
-        backend = self.config.training.collector
-        train = Collector(model.adapters, seed=derive_seed(self.seed, "train", model.phase.index, anchor), backend=backend)
-        ev = Collector(model.adapters, seed=derive_seed(self.seed, "eval", model.phase.index, anchor), backend=backend)
-        return train, ev
+        return Collector(
+            model.adapters,
+            seed=derive_seed(self.seed, "envs", model.phase.index, anchor),
+            backend=self.config.training.collector,
+        )
 
     def _initial_agent(self, phase: Phase, model: PhaseModel) -> Any:
         agent = self._new_agent(model)
@@ -331,7 +387,9 @@ class Run:
             assert ft is not None
             best = self.rundir.best_path("pretrain")
             if not best.is_file():
-                raise SealError(f"{self.rundir.path}: fine-tuning needs the pre-training's best checkpoint {best}, which is missing")
+                raise SealError(
+                    f"{self.rundir.path}: fine-tuning needs the pre-training's best checkpoint {best}, which is missing"
+                )
             source = load_checkpoint(best)
             agent.transfer_from(source["agent"], reinit_critic=ft.reinit_critic)
             agent.set_lr_factor(ft.lr_factor)
@@ -356,39 +414,66 @@ class Run:
         if payload is not None:
             agent.load_state_dict(payload["agent"])
             if payload.get("replay") is None:
-                raise SealError(f"{self.rundir.path}: the checkpoint holds no replay (checkpoint.save_replay = false), so the run cannot resume exactly")
+                raise SealError(
+                    f"{self.rundir.path}: the checkpoint holds no replay (checkpoint.save_replay = false), so the run cannot resume exactly"
+                )
             replay.load_state_dict(payload["replay"])
             scheduler.load_state_dict(payload["scheduler"])
             state = PhaseState(**payload["runner"]["state"])
             np_rng.bit_generator.state = payload["runner"]["np_rng"]
             torch.set_rng_state(payload["runner"]["torch_rng"])
             random.setstate(_tuple_state(payload["runner"]["py_rng"]))
-        train_collector, eval_collector = self._collectors(model, state.anchor_epoch)
-        id_maps = {model.agent_env[e]: torch.as_tensor(model.aligned_ids(e), dtype=torch.long) for e in phase.envs}
+        collector = self._collector(model, state.anchor_epoch)
+        id_maps = {
+            model.agent_env[e]: torch.as_tensor(model.aligned_ids(e), dtype=torch.long)
+            for e in phase.envs
+        }
         total_tasks = sum(len(t) for t in model.env_tasks.values())
         train_policy = model.policy(agent, deterministic=False)
         eval_policy = model.policy(agent, deterministic=True)
         sums: dict[str, float] = {}
         n_updates = 0
         bar = None if self.quiet else _progress_bar(phase, state.epoch)
-        tick_time, tick_env, tick_grad = time.monotonic(), sum(map(sum, state.env_steps.values())), state.grad_steps
+        tick_time, tick_env, tick_grad = (
+            time.monotonic(),
+            sum(map(sum, state.env_steps.values())),
+            state.grad_steps,
+        )
         started = time.monotonic() - state.wall_s
         try:
             while state.epoch < phase.epochs:
                 from seal.schedulers import Progress
 
-                task_steps = {(e, t): state.env_steps[e][i] for e, ts in model.env_tasks.items() for i, t in enumerate(ts)}
-                plan = scheduler.plan(Progress(epoch=state.epoch, env_steps=sum(task_steps.values()), grad_steps=state.grad_steps, task_env_steps=task_steps))
+                task_steps = {
+                    (e, t): state.env_steps[e][i]
+                    for e, ts in model.env_tasks.items()
+                    for i, t in enumerate(ts)
+                }
+                plan = scheduler.plan(
+                    Progress(
+                        epoch=state.epoch,
+                        env_steps=sum(task_steps.values()),
+                        grad_steps=state.grad_steps,
+                        task_env_steps=task_steps,
+                    )
+                )
                 if plan.reset_agent:
                     agent.reset_parameters()
                 # ---- collect: warm-up envs act uniformly at random, the others with the policy
                 warm = {e: sum(state.env_steps[e]) < cfg.training.warmup_steps for e in phase.envs}
                 collected_lengths: dict[str, int] = {}
                 for random_actions in (True, False):
-                    active = {e: (np.asarray(plan.collect[e], dtype=bool) if warm[e] == random_actions else np.zeros(len(model.env_tasks[e]), dtype=bool)) for e in phase.envs}
+                    active = {
+                        e: (
+                            np.asarray(plan.collect[e], dtype=bool)
+                            if warm[e] == random_actions
+                            else np.zeros(len(model.env_tasks[e]), dtype=bool)
+                        )
+                        for e in phase.envs
+                    }
                     if not any(m.any() for m in active.values()):
                         continue
-                    stats = train_collector.collect_episodes(
+                    stats = collector.collect_episodes(
                         None if random_actions else train_policy,
                         active=active,
                         random_actions=random_actions,
@@ -410,18 +495,34 @@ class Run:
                             [int(stats.lengths[e][i]) for i in idx],
                         )
                 # ---- update: only once every env has finished its warm-up
-                if all(sum(state.env_steps[e]) >= cfg.training.warmup_steps for e in phase.envs) and collected_lengths:
+                if (
+                    all(sum(state.env_steps[e]) >= cfg.training.warmup_steps for e in phase.envs)
+                    and collected_lengths
+                ):
                     steps = self._grad_steps(plan, collected_lengths)
                     counts = plan.batch_counts(cfg.training.batch_per_task * total_tasks)
-                    sample_counts = {model.agent_env[e]: np.asarray(c, dtype=np.int64) for e, c in counts.items() if int(np.sum(c)) > 0}
+                    sample_counts = {
+                        model.agent_env[e]: np.asarray(c, dtype=np.int64)
+                        for e, c in counts.items()
+                        if int(np.sum(c)) > 0
+                    }
                     for _ in range(steps):
                         batches = replay.sample(sample_counts, np_rng)
-                        batches = {k: b._replace(task_ids=id_maps[k].to(b.task_ids.device)[b.task_ids]) for k, b in batches.items()} if model.alignment is not None else batches
+                        batches = (
+                            {
+                                k: b._replace(task_ids=id_maps[k].to(b.task_ids.device)[b.task_ids])
+                                for k, b in batches.items()
+                            }
+                            if model.alignment is not None
+                            else batches
+                        )
                         try:
                             losses = agent.update(batches)
                         except TrainingDivergedError as exc:
                             last = self.rundir.latest_checkpoint()
-                            raise SealError(f"{self.rundir.path}: training diverged in phase {phase.name!r} at gradient step {state.grad_steps + 1} ({exc}); last good checkpoint: {last or 'none yet'}") from None
+                            raise SealError(
+                                f"{self.rundir.path}: training diverged in phase {phase.name!r} at gradient step {state.grad_steps + 1} ({exc}); last good checkpoint: {last or 'none yet'}"
+                            ) from None
                         state.grad_steps += 1
                         n_updates += 1
                         for k, v in losses.items():
@@ -431,39 +532,63 @@ class Run:
                 last_epoch = epoch >= phase.epochs or scheduler.done
                 # ---- training curves: the mean of every logged value over the interval's updates
                 if n_updates and (epoch % cfg.logging.train_interval == 0 or last_epoch):
-                    self.rundir.log_train(self._train_rows(phase, model, epoch, state.grad_steps, {k: v / n_updates for k, v in sums.items()}))
+                    self.rundir.log_train(
+                        self._train_rows(
+                            phase,
+                            model,
+                            epoch,
+                            state.grad_steps,
+                            {k: v / n_updates for k, v in sums.items()},
+                        )
+                    )
                     sums, n_updates = {}, 0
                 # ---- evaluation (Appendix B)
                 if epoch % cfg.evaluation.interval == 0 or last_epoch:
-                    self._evaluate(phase, model, agent, replay, scheduler, eval_policy, eval_collector, state, started)
+                    self._evaluate(
+                        phase,
+                        model,
+                        agent,
+                        replay,
+                        scheduler,
+                        eval_policy,
+                        collector,
+                        state,
+                        started,
+                    )
                 request = scheduler.wants_scores()
                 if request is not None:
                     scheduler.observe_scores(self._scores(request, model, agent, epoch))
                 # ---- scheduler timeline and checkpoint
                 timeline = scheduler.timeline()
                 if len(timeline) > state.timeline_rows:
-                    self.rundir.log_scheduler([{"phase": phase.name, **r} for r in timeline[state.timeline_rows :]])
+                    self.rundir.log_scheduler(
+                        [{"phase": phase.name, **r} for r in timeline[state.timeline_rows :]]
+                    )
                     state.timeline_rows = len(timeline)
                 if epoch % cfg.checkpoint.interval == 0 or last_epoch:
                     state.wall_s = time.monotonic() - started
                     state.anchor_epoch = epoch
                     self._checkpoint(phase, agent, replay, scheduler, state, np_rng)
-                    # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
-                    train_collector.close()
-                    eval_collector.close()
-                    train_collector, eval_collector = self._collectors(model, epoch)
+                    if not last_epoch:
+                        # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
+                        collector.close()
+                        collector = self._collector(model, epoch)
                 if bar is not None:
                     now = time.monotonic()
                     env_now = sum(map(sum, state.env_steps.values()))
                     dt = max(now - tick_time, 1e-9)
-                    bar.set_postfix_str(_postfix(env_now - tick_env, state.grad_steps - tick_grad, dt, state.last_success), refresh=False)
+                    bar.set_postfix_str(
+                        _postfix(
+                            env_now - tick_env, state.grad_steps - tick_grad, dt, state.last_success
+                        ),
+                        refresh=False,
+                    )
                     bar.update(1)
                     tick_time, tick_env, tick_grad = now, env_now, state.grad_steps
                 if scheduler.done:
                     break
         finally:
-            train_collector.close()
-            eval_collector.close()
+            collector.close()
             if bar is not None:
                 bar.close()
         return state
@@ -479,16 +604,44 @@ class Run:
         # -1: the longest episode collected this epoch (see TrainingConfig.grad_steps_per_epoch).
         return int(max(collected_lengths.values())) if n == -1 else int(n)
 
-    def _train_rows(self, phase: Phase, model: PhaseModel, epoch: int, grad_steps: int, values: Mapping[str, float]) -> list[dict[str, Any]]:
+    def _train_rows(
+        self,
+        phase: Phase,
+        model: PhaseModel,
+        epoch: int,
+        grad_steps: int,
+        values: Mapping[str, float],
+    ) -> list[dict[str, Any]]:
         return [
-            {"seed": self.seed, "phase": phase.name, "epoch": epoch, "grad_steps": grad_steps, "env": env, "key": name, "value": float(v)}
+            {
+                "seed": self.seed,
+                "phase": phase.name,
+                "epoch": epoch,
+                "grad_steps": grad_steps,
+                "env": env,
+                "key": name,
+                "value": float(v),
+            }
             for key, value in values.items()
             for env, name, v in train_rows_for(key, value, model)
         ]
 
-    def _evaluate(self, phase: Phase, model: PhaseModel, agent: Any, replay: Any, scheduler: Any, policy: Any, collector: Any, state: PhaseState, started: float) -> None:
+    def _evaluate(
+        self,
+        phase: Phase,
+        model: PhaseModel,
+        agent: Any,
+        replay: Any,
+        scheduler: Any,
+        policy: Any,
+        collector: Any,
+        state: PhaseState,
+        started: float,
+    ) -> None:
         cfg = self.config
-        results = evaluate(policy, model.adapters, episodes=cfg.evaluation.episodes, seed=0, collector=collector)
+        results = evaluate(
+            policy, model.adapters, episodes=cfg.evaluation.episodes, seed=0, collector=collector
+        )
         wall = time.monotonic() - started
         rows = []
         success_by_key: dict[tuple[str, str], float] = {}
@@ -513,18 +666,33 @@ class Run:
                     }
                 )
                 success_by_key[(env, task)] = r["success"]
-                if r["success"] >= cfg.evaluation.threshold and task not in state.reached.get(env, {}):
+                if r["success"] >= cfg.evaluation.threshold and task not in state.reached.get(
+                    env, {}
+                ):
                     state.reached.setdefault(env, {})[task] = updates
         self.rundir.log_eval(rows)
-        state.last_success = {e: {t: results[e][t]["success"] for t in model.env_tasks[e]} for e in phase.envs}
-        self.rundir.log_charts({f"{e}/mean_success": float(np.mean(list(v.values()))) for e, v in state.last_success.items()}, state.grad_steps)
+        state.last_success = {
+            e: {t: results[e][t]["success"] for t in model.env_tasks[e]} for e in phase.envs
+        }
+        self.rundir.log_charts(
+            {
+                f"{e}/mean_success": float(np.mean(list(v.values())))
+                for e, v in state.last_success.items()
+            },
+            state.grad_steps,
+        )
         scheduler.observe_eval(state.epoch, success_by_key)
         mean = mean_success(results)
         if mean > state.best_mean_success:
             state.best_mean_success = mean
-            save_checkpoint(self.rundir.best_path(phase.name if len(self.phases) > 1 else None), self._payload(phase, agent, None, None, state, None, best=True))
+            save_checkpoint(
+                self.rundir.best_path(phase.name if len(self.phases) > 1 else None),
+                self._payload(phase, agent, None, None, state, None, best=True),
+            )
 
-    def _scores(self, request: Any, model: PhaseModel, agent: Any, epoch: int) -> dict[tuple[str, str], float]:
+    def _scores(
+        self, request: Any, model: PhaseModel, agent: Any, epoch: int
+    ) -> dict[tuple[str, str], float]:
         """SMT Eq. 5 scores: mean over episodes of sum_t gamma^t r_t - log pi(a_t|s_t) (stochastic policy).
 
         The entropy term needs `agent.log_prob(env, obs, actions, task_ids)`; an agent without it
@@ -538,17 +706,32 @@ class Run:
         totals = {k: 0.0 for k in keys}
         policy = model.policy(agent, deterministic=False)
         log_prob = getattr(agent, "log_prob", None)
-        with Collector({e: model.adapters[e] for e in tasks}, seed=derive_seed(self.seed, "score", model.phase.index, epoch), tasks=tasks, backend="sync") as col:
+        with Collector(
+            {e: model.adapters[e] for e in tasks},
+            seed=derive_seed(self.seed, "score", model.phase.index, epoch),
+            tasks=tasks,
+            backend="sync",
+        ) as col:
             for _ in range(request.episodes):
                 t_of: dict[str, np.ndarray] = {}
 
-                def sink(env: str, task_ids: np.ndarray, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray, *_: Any, _t: dict[str, np.ndarray] = t_of) -> None:
+                def sink(
+                    env: str,
+                    task_ids: np.ndarray,
+                    obs: np.ndarray,
+                    actions: np.ndarray,
+                    rewards: np.ndarray,
+                    *_: Any,
+                    _t: dict[str, np.ndarray] = t_of,
+                ) -> None:
                     names = model.adapters[env].tasks
                     steps = _t.setdefault(env, np.zeros(len(names), dtype=np.int64))
                     term = rewards * request.discount ** steps[task_ids]
                     if log_prob is not None:
                         name, agent_obs, ids = policy.agent_inputs(env, obs, task_ids)
-                        term = term - np.asarray(log_prob(name, agent_obs, actions, ids), dtype=np.float64)
+                        term = term - np.asarray(
+                            log_prob(name, agent_obs, actions, ids), dtype=np.float64
+                        )
                     for j, tid in enumerate(task_ids):
                         totals[(env, names[tid])] += float(term[j]) / request.episodes
                     steps[task_ids] += 1
@@ -556,7 +739,16 @@ class Run:
                 col.collect_episodes(policy, sink=sink)
         return totals
 
-    def _payload(self, phase: Phase, agent: Any, replay: Any, scheduler: Any, state: PhaseState, np_rng: Any, best: bool = False) -> dict[str, Any]:
+    def _payload(
+        self,
+        phase: Phase,
+        agent: Any,
+        replay: Any,
+        scheduler: Any,
+        state: PhaseState,
+        np_rng: Any,
+        best: bool = False,
+    ) -> dict[str, Any]:
         return {
             "seal_checkpoint": 1,
             "config_toml": dumps_toml(config_to_dict(self.config)),
@@ -567,7 +759,9 @@ class Run:
             "best": best,
             "mean_success": state.best_mean_success,
             "agent": agent.state_dict(),
-            "replay": replay.state_dict() if replay is not None and self.config.checkpoint.save_replay else None,
+            "replay": replay.state_dict()
+            if replay is not None and self.config.checkpoint.save_replay
+            else None,
             "scheduler": scheduler.state_dict() if scheduler is not None else None,
             "runner": None
             if best
@@ -582,9 +776,13 @@ class Run:
             },
         }
 
-    def _checkpoint(self, phase: Phase, agent: Any, replay: Any, scheduler: Any, state: PhaseState, np_rng: Any) -> None:
+    def _checkpoint(
+        self, phase: Phase, agent: Any, replay: Any, scheduler: Any, state: PhaseState, np_rng: Any
+    ) -> None:
         self.rundir.flush()
-        path = self.rundir.checkpoint_path(state.epoch, phase.name if len(self.phases) > 1 else None)
+        path = self.rundir.checkpoint_path(
+            state.epoch, phase.name if len(self.phases) > 1 else None
+        )
         save_checkpoint(path, self._payload(phase, agent, replay, scheduler, state, np_rng))
         agent.last_checkpoint = str(path)  # named by TrainingDivergedError
         self.rundir.prune(self.config.checkpoint.keep_last)
@@ -622,7 +820,11 @@ def train_rows_for(key: str, value: float, model: PhaseModel) -> list[tuple[str,
     env = model.env_of_agent[parts[1]]
     if len(parts) == 4 and parts[2] == "alpha" and parts[3].isdigit():
         ids = model.aligned_ids(env)
-        return [(env, f"alpha/{task}", value) for task, i in zip(model.env_tasks[env], ids, strict=True) if int(i) == int(parts[3])]
+        return [
+            (env, f"alpha/{task}", value)
+            for task, i in zip(model.env_tasks[env], ids, strict=True)
+            if int(i) == int(parts[3])
+        ]
     short = f"{parts[0]}/{'/'.join(parts[2:])}"
     return [(env, _TRAIN_KEYS.get(short, "/".join(parts[2:])), value)]
 
@@ -630,10 +832,19 @@ def train_rows_for(key: str, value: float, model: PhaseModel) -> list[tuple[str,
 def _progress_bar(phase: Phase, initial: int) -> Any:
     from tqdm import tqdm
 
-    return tqdm(total=phase.epochs, initial=initial, desc=f"{phase.name}", unit="epoch", dynamic_ncols=True, file=sys.stderr)
+    return tqdm(
+        total=phase.epochs,
+        initial=initial,
+        desc=f"{phase.name}",
+        unit="epoch",
+        dynamic_ncols=True,
+        file=sys.stderr,
+    )
 
 
-def _postfix(env_steps: int, grad_steps: int, dt: float, success: Mapping[str, Mapping[str, float]]) -> str:
+def _postfix(
+    env_steps: int, grad_steps: int, dt: float, success: Mapping[str, Mapping[str, float]]
+) -> str:
     parts = [f"env {env_steps / dt:,.0f}/s", f"upd {grad_steps / dt:,.0f}/s"]
     for env, per_task in success.items():
         if per_task:
@@ -648,13 +859,24 @@ class _ReplaySink:
         self.replay = replay
         self.model = model
 
-    def __call__(self, env: str, task_ids: np.ndarray, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray, next_obs: np.ndarray, terminations: np.ndarray) -> None:
+    def __call__(
+        self,
+        env: str,
+        task_ids: np.ndarray,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminations: np.ndarray,
+    ) -> None:
         model = self.model
         if model.alignment is not None:
             name = model.adapters[env].name
             obs = model.alignment.transform_obs(name, obs, task_ids)
             next_obs = model.alignment.transform_obs(name, next_obs, task_ids)
-        self.replay.add(model.agent_env[env], task_ids, obs, actions, rewards, next_obs, terminations)
+        self.replay.add(
+            model.agent_env[env], task_ids, obs, actions, rewards, next_obs, terminations
+        )
 
 
 # ---------------------------------------------------------------- public API
@@ -665,10 +887,23 @@ def new_group_dir(config: ProtocolConfig, out: str | Path = "reports") -> Path:
     return Path(out) / config.name / new_group_id(dumps_toml(config_to_dict(config)))
 
 
-def run_seed(config: ProtocolConfig, seed: int, group_dir: str | Path, *, quiet: bool = True, resume: bool = False, command: list[str] | None = None) -> RunResult:
-    """Run one seed of `config` into `group_dir/seed-<seed>` (or resume it from its last checkpoint)."""
+def run_seed(
+    config: ProtocolConfig,
+    seed: int,
+    group_dir: str | Path,
+    *,
+    quiet: bool = True,
+    resume: bool = False,
+    command: list[str] | None = None,
+) -> RunResult:
+    """Run one seed of `config` into `group_dir/seed-<seed>`.
+
+    With `resume=True` an existing run directory continues from its last checkpoint with the
+    config saved in it (a finished run returns at once); a missing one starts fresh, so a sweep
+    can call this again for every trial after an interruption.
+    """
     path = seed_dir(Path(group_dir), seed)
-    if resume:
+    if resume and (path / "config.toml").is_file():
         saved = _saved_config(path)
         run = Run(saved, seed, path, quiet=quiet, resume=True, command=command)
     else:
@@ -676,19 +911,27 @@ def run_seed(config: ProtocolConfig, seed: int, group_dir: str | Path, *, quiet:
     return run.run()
 
 
-def resume_run(run_dir: str | Path, *, quiet: bool = True, protocol_name: str | None = None) -> RunResult:
+def resume_run(
+    run_dir: str | Path, *, quiet: bool = True, protocol_name: str | None = None
+) -> RunResult:
     """Continue a run directory from its last checkpoint, with the config it saved."""
     path = Path(run_dir)
     seed = parse_seed_dir(path)
     if seed is None:
-        raise SealError(f"--resume {path}: expected a seed directory named seed-<n> (reports/<protocol>/<group>/seed-<n>)")
+        raise SealError(
+            f"--resume {path}: expected a seed directory named seed-<n> (reports/<protocol>/<group>/seed-<n>)"
+        )
     saved = _saved_config(path)
     if protocol_name is not None and saved.name != protocol_name:
-        raise SealError(f"--resume {path}: this run is of protocol {saved.name!r}, not {protocol_name!r}")
+        raise SealError(
+            f"--resume {path}: this run is of protocol {saved.name!r}, not {protocol_name!r}"
+        )
     return Run(saved, seed, path, quiet=quiet, resume=True).run()
 
 
-def load_policy(checkpoint: str | Path, device: str = "auto") -> tuple[ProtocolConfig, PhaseModel, Any, dict[str, Any]]:
+def load_policy(
+    checkpoint: str | Path, device: str = "auto"
+) -> tuple[ProtocolConfig, PhaseModel, Any, dict[str, Any]]:
     """(config, phase model, agent with the saved weights, raw checkpoint) of a run checkpoint."""
     import tomllib
 
@@ -710,10 +953,18 @@ def _saved_config(path: Path) -> ProtocolConfig:
     import tomllib
 
     RunDir.open(path)
-    return config_from_dict(tomllib.loads((path / "config.toml").read_text()), str(path / "config.toml"))
+    return config_from_dict(
+        tomllib.loads((path / "config.toml").read_text()), str(path / "config.toml")
+    )
 
 
-def run_protocol(config: ProtocolConfig, *, out: str | Path = "reports", quiet: bool = True, command: list[str] | None = None) -> tuple[Path, list[RunResult]]:
+def run_protocol(
+    config: ProtocolConfig,
+    *,
+    out: str | Path = "reports",
+    quiet: bool = True,
+    command: list[str] | None = None,
+) -> tuple[Path, list[RunResult]]:
     """Run every seed of `config` one after another into one new group; returns (group dir, results)."""
     group = new_group_dir(config, out)
     results = [run_seed(config, s, group, quiet=quiet, command=command) for s in config.seeds]
@@ -730,5 +981,8 @@ def result_json(results: Sequence[RunResult]) -> str:
     }
     if len(results) > 1:
         data["run_dirs"] = [str(r.run_dir) for r in results]
-    return json.dumps(data, allow_nan=False, default=lambda o: None if isinstance(o, float) and not math.isfinite(o) else str(o))
-
+    return json.dumps(
+        data,
+        allow_nan=False,
+        default=lambda o: None if isinstance(o, float) and not math.isfinite(o) else str(o),
+    )

@@ -24,7 +24,9 @@ def parse_scheduler(table: Mapping[str, Any], where: str) -> Any:
         raise ConfigError(f"{where}: scheduler: {exc}") from None
 
 
-def resolve_table(table: Mapping[str, Any], where: str, scale: float | None = None) -> dict[str, Any]:
+def resolve_table(
+    table: Mapping[str, Any], where: str, scale: float | None = None
+) -> dict[str, Any]:
     """The [scheduler] table with every field resolved (and durations scaled); {} stays {}."""
     if not table:
         return {}
@@ -48,7 +50,14 @@ def build(
 
     config = parse_scheduler(table, where)
     try:
-        return build_scheduler(config, env_tasks, seed=seed, adapters=adapters, episode_lengths=episode_lengths, source=where)
+        return build_scheduler(
+            config,
+            env_tasks,
+            seed=seed,
+            adapters=adapters,
+            episode_lengths=episode_lengths,
+            source=where,
+        )
     except ConfigError:
         raise
     except (SealError, TypeError, ValueError) as exc:

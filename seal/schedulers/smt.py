@@ -14,7 +14,9 @@ Stage 1 (the first B1 env steps):
 - Every T_reset env steps the agent's parameters are re-initialised (`Plan.reset_agent`), the
   replay buffers kept.
 
-Stage 2 (the next B2 env steps): only the unsolvable pool collects. Then `done` is True.
+Stage 2 (the next B2 env steps): only the unsolvable pool collects. Then `done` is True. If
+stage 1 runs out of tasks early (main and training empty), stage 2 starts at once and also gets
+the stage-1 budget left over, so B1 + B2 stays the total; with no unsolvable task it ends at once.
 
 Budgets count env steps of the episodes the scheduler asked for (`observe_episodes`), so the
 stage-1 and stage-2 spending add up to B1 + B2 (plus at most one epoch's collection of
@@ -154,6 +156,7 @@ class SMTScheduler(Scheduler):
         self.scores: dict[TaskKey, float] | None = None
         self.stage = 1
         self.stage_used = {1: 0, 2: 0}
+        self.stage2_budget = config.budget_stage2
         self.resets_done = 0
         self.scores_done = 0
         self.has_data: set[TaskKey] = set()
@@ -215,6 +218,10 @@ class SMTScheduler(Scheduler):
             for key in list(self.training):
                 self._move(key, MAIN)
             self.stage = 2
+            # B_total = B1 + B2 is fixed (§4.3): stage-1 budget left by an early end goes to stage 2.
+            self.stage2_budget = config.budget_stage2 + max(
+                0, config.budget_stage1 - self.stage_used[1]
+            )
             self._dirty = True
         if self.stage == 1:
             if config.reset and self.stage_used[1] // config.reset_interval > self.resets_done:
@@ -224,7 +231,7 @@ class SMTScheduler(Scheduler):
                 self._enter_training(self._pick_from_main())
             collecting = set(self.training)
         else:
-            if self.stage_used[2] >= config.budget_stage2 or not self.members(UNSOLVABLE):
+            if self.stage_used[2] >= self.stage2_budget or not self.members(UNSOLVABLE):
                 if not self._done:
                     self._done = True
                     self._dirty = True
@@ -293,7 +300,7 @@ class SMTScheduler(Scheduler):
 
     @property
     def done(self) -> bool:
-        """True once stage 2 has spent B2 env steps (or had no unsolvable task to train)."""
+        """True once stage 2 has spent its budget (or had no unsolvable task to train)."""
         return self._done
 
     @property
@@ -338,6 +345,7 @@ class SMTScheduler(Scheduler):
             "scores": None if self.scores is None else keyed(self.scores),
             "stage": self.stage,
             "stage_used": [self.stage_used[1], self.stage_used[2]],
+            "stage2_budget": self.stage2_budget,
             "resets_done": self.resets_done,
             "scores_done": self.scores_done,
             "has_data": [list(k) for k in sorted(self.has_data)],
@@ -369,6 +377,7 @@ class SMTScheduler(Scheduler):
         )
         self.stage = int(state["stage"])
         self.stage_used = {1: int(state["stage_used"][0]), 2: int(state["stage_used"][1])}
+        self.stage2_budget = int(state["stage2_budget"])
         self.resets_done = int(state["resets_done"])
         self.scores_done = int(state["scores_done"])
         self.has_data = {(k[0], k[1]) for k in state["has_data"]}

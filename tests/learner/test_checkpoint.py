@@ -36,26 +36,52 @@ def _filled(seed: int = 0) -> tuple[Agent, MultiTaskReplay]:
         ids = np.arange(spec.num_tasks)
         for _ in range(10):
             obs = rng.normal(size=(spec.num_tasks, spec.obs_dim)).astype(np.float32)
-            replay.add(spec.name, ids, obs, agent.act(spec.name, obs, ids), rng.normal(size=spec.num_tasks), obs + 1, np.zeros(spec.num_tasks))
+            replay.add(
+                spec.name,
+                ids,
+                obs,
+                agent.act(spec.name, obs, ids),
+                rng.normal(size=spec.num_tasks),
+                obs + 1,
+                np.zeros(spec.num_tasks),
+            )
     return agent, replay
 
 
 def _params(agent: Agent) -> list[torch.Tensor]:
-    return [p.detach().clone() for p in (*agent.actor.parameters(), *agent.critic.parameters(), *agent.critic_target.parameters(), *agent.log_alpha.values())]
+    return [
+        p.detach().clone()
+        for p in (
+            *agent.actor.parameters(),
+            *agent.critic.parameters(),
+            *agent.critic_target.parameters(),
+            *agent.log_alpha.values(),
+        )
+    ]
 
 
-def test_resume_then_update_is_bitwise_identical_to_updating_without_the_round_trip(tmp_path: Path) -> None:
+def test_resume_then_update_is_bitwise_identical_to_updating_without_the_round_trip(
+    tmp_path: Path,
+) -> None:
     agent, replay = _filled()
     rng = np.random.default_rng(1)
     counts = counts_from_ratio({"mw": 0.5, "fk": 0.5}, {"mw": 3, "fk": 2}, batch_per_task=4)
     for _ in range(3):
         agent.update(replay.sample(counts, rng))
-    path = save_checkpoint(tmp_path / "ckpt.pt", agent, replay, extra={"rng": rng.bit_generator.state, "env_steps": 123})
+    path = save_checkpoint(
+        tmp_path / "ckpt.pt",
+        agent,
+        replay,
+        extra={"rng": rng.bit_generator.state, "env_steps": 123},
+    )
     assert agent.last_checkpoint == str(path)
     expected = agent.update(replay.sample(counts, rng))
     expected_params = _params(agent)
 
-    resumed, resumed_replay = Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=99), MultiTaskReplay(SPECS, capacity=60)
+    resumed, resumed_replay = (
+        Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=99),
+        MultiTaskReplay(SPECS, capacity=60),
+    )
     extra = load_checkpoint(path, resumed, resumed_replay)
     assert extra["env_steps"] == 123 and resumed.num_updates == 3
     resumed_rng = np.random.default_rng()
@@ -68,10 +94,14 @@ def test_resume_then_update_is_bitwise_identical_to_updating_without_the_round_t
         np.testing.assert_array_equal(resumed_replay.consumed[env], replay.consumed[env])
     # the act stream is restored too
     obs = np.ones((2, 5), np.float32)
-    np.testing.assert_array_equal(agent.act("mw", obs, np.array([0, 2])), resumed.act("mw", obs, np.array([0, 2])))
+    np.testing.assert_array_equal(
+        agent.act("mw", obs, np.array([0, 2])), resumed.act("mw", obs, np.array([0, 2]))
+    )
 
 
-def test_writes_are_atomic_and_leave_no_temp_files(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_writes_are_atomic_and_leave_no_temp_files(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     agent, replay = _filled()
     path = save_checkpoint(tmp_path / "ckpt.pt", agent, replay)
     good = path.read_bytes()
@@ -93,7 +123,9 @@ def test_nan_parameters_never_overwrite_a_good_checkpoint(tmp_path: Path) -> Non
     good = path.read_bytes()
     with torch.no_grad():
         agent.actor.trunk.weights[0][0, 0, 0] = float("nan")
-    with pytest.raises(TrainingDivergedError, match=f"refusing to write checkpoint .*last good checkpoint: {path}"):
+    with pytest.raises(
+        TrainingDivergedError, match=f"refusing to write checkpoint .*last good checkpoint: {path}"
+    ):
         save_checkpoint(path, agent, replay)
     assert path.read_bytes() == good
 
@@ -109,7 +141,10 @@ def test_nan_loss_stops_training_naming_the_update_and_last_checkpoint(tmp_path:
     agent, replay = _filled()
     path = save_checkpoint(tmp_path / "good.pt", agent, replay)
     batch = replay.sample(counts, rng)["mw"]
-    with pytest.raises(TrainingDivergedError, match=rf"diverged at update 1: losses/mw/qf1 = nan.*last good checkpoint: {path}"):
+    with pytest.raises(
+        TrainingDivergedError,
+        match=rf"diverged at update 1: losses/mw/qf1 = nan.*last good checkpoint: {path}",
+    ):
         agent.update({"mw": batch._replace(rewards=torch.full_like(batch.rewards, float("nan")))})
 
 

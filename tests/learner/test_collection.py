@@ -30,7 +30,9 @@ class ToyEnv(gym.Env):
     def _obs(self) -> np.ndarray:
         return np.array([self.x, self.t, self.np_random.normal()])
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
         self.x, self.t = 0.0, 0
         return self._obs(), {}
@@ -40,7 +42,13 @@ class ToyEnv(gym.Env):
         self.x += float(action[0])
         terminated = TERMINATE_AT.get(self.task) == self.t
         truncated = self.t >= self.episode_length
-        return self._obs(), self.x, terminated, truncated, {"success": float(SUCCESS_AT[self.task] == self.t)}
+        return (
+            self._obs(),
+            self.x,
+            terminated,
+            truncated,
+            {"success": float(SUCCESS_AT[self.task] == self.t)},
+        )
 
 
 class ToyAdapter(EnvAdapter):
@@ -114,7 +122,17 @@ def test_sink_stores_termination_not_truncation() -> None:
     rows: list[tuple] = []
 
     def sink(env, task_ids, obs, actions, rewards, next_obs, terminations) -> None:
-        rows.append((env, task_ids.copy(), obs.copy(), actions.copy(), rewards.copy(), next_obs.copy(), terminations.copy()))
+        rows.append(
+            (
+                env,
+                task_ids.copy(),
+                obs.copy(),
+                actions.copy(),
+                rewards.copy(),
+                next_obs.copy(),
+                terminations.copy(),
+            )
+        )
 
     with Collector({"toy2": Toy2Adapter()}, seed=3, backend="sync") as col:
         col.collect_episodes(half_policy([]), sink=sink)
@@ -130,7 +148,9 @@ def test_sink_stores_termination_not_truncation() -> None:
     np.testing.assert_allclose(rows[5][5][0][:2], [3.0, 6.0])
 
 
-def transitions(backend: str, seed: int, envs: dict[str, EnvAdapter], episodes: int = 2) -> list[np.ndarray]:
+def transitions(
+    backend: str, seed: int, envs: dict[str, EnvAdapter], episodes: int = 2
+) -> list[np.ndarray]:
     out: list[np.ndarray] = []
 
     def sink(env, task_ids, obs, actions, rewards, next_obs, terminations) -> None:
@@ -172,7 +192,9 @@ def test_instance_seeds_differ_by_task_and_do_not_depend_on_the_subset() -> None
 
 def test_active_mask_steps_only_active_tasks() -> None:
     with Collector(adapters(), seed=0, backend="sync") as col:
-        stats = col.collect_episodes(half_policy([]), active={"toy": [False, True, False], "toy2": [False, False]})
+        stats = col.collect_episodes(
+            half_policy([]), active={"toy": [False, True, False], "toy2": [False, False]}
+        )
         np.testing.assert_array_equal(col.env_steps["toy"], [0, 4, 0])
         np.testing.assert_array_equal(col.env_steps["toy2"], [0, 0])
         assert list(stats.per_task()) == [("toy", "b")]
@@ -195,7 +217,10 @@ def test_user_errors_name_the_bad_value() -> None:
         Collector(adapters(), seed=0, backend="threads")
     with pytest.raises(UnknownNameError, match="'z'"):
         Collector(adapters(), seed=0, tasks={"toy": ["z"]})
-    with Collector(adapters(), seed=0, backend="sync") as col, pytest.raises(SealError, match="needs a policy"):
+    with (
+        Collector(adapters(), seed=0, backend="sync") as col,
+        pytest.raises(SealError, match="needs a policy"),
+    ):
         col.collect_episodes(None)
 
 
@@ -215,10 +240,18 @@ class BrokenAdapter(ToyAdapter):
 
 
 def test_worker_errors_reach_the_caller() -> None:
-    with Collector({"broken": BrokenAdapter()}, seed=0, backend="subproc-batched", num_workers=2) as col, pytest.raises(RuntimeError, match="physics exploded in a"):
+    with (
+        Collector(
+            {"broken": BrokenAdapter()}, seed=0, backend="subproc-batched", num_workers=2
+        ) as col,
+        pytest.raises(RuntimeError, match="physics exploded in a"),
+    ):
         col.collect_episodes(None, random_actions=True)
 
 
 def test_gym_async_refuses_partial_masks() -> None:
-    with Collector({"toy": ToyAdapter()}, seed=0, backend="gym-async") as col, pytest.raises(SealError, match="all instances of environment 'toy'"):
+    with (
+        Collector({"toy": ToyAdapter()}, seed=0, backend="gym-async") as col,
+        pytest.raises(SealError, match="all instances of environment 'toy'"),
+    ):
         col.collect_episodes(None, random_actions=True, active={"toy": [True, False, True]})

@@ -40,13 +40,27 @@ _SCRIPT = textwrap.dedent(
 )
 
 
-def _losses(seed: int) -> np.ndarray:
-    out = subprocess.run([sys.executable, "-c", _SCRIPT, str(seed)], capture_output=True, text=True, check=True, timeout=300)
-    return np.array(json.loads(out.stdout.strip().splitlines()[-1]))
+def _losses(seeds: list[int]) -> list[np.ndarray]:
+    """Run the script once per seed, each in its own process (all started together)."""
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", _SCRIPT, str(seed)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for seed in seeds
+    ]
+    results = []
+    for proc in procs:
+        out, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, err
+        results.append(np.array(json.loads(out.strip().splitlines()[-1])))
+    return results
 
 
 def test_same_seed_same_losses_in_separate_processes_other_seed_differs() -> None:
-    first, second, other = _losses(0), _losses(0), _losses(1)
+    first, second, other = _losses([0, 0, 1])
     assert first.shape == (100, 4)
     np.testing.assert_array_equal(first, second)  # bitwise, every update
     assert not np.any(first == other)  # a different seed differs at every update and loss

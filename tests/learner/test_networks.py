@@ -66,7 +66,9 @@ def test_tanh_gaussian_log_prob_by_hand() -> None:
     # log N(0; 0, 1) - log(1 - 0 + 1e-6) = -0.5 * log(2 pi) - 1e-6 = -0.9189395 (to 1e-7).
     action, log_prob = tanh_gaussian(torch.zeros(1, 8), torch.zeros(1, 4))
     assert action.abs().max() == 0
-    assert log_prob.item() == pytest.approx(4 * (-0.5 * math.log(2 * math.pi) - math.log(1 + 1e-6)), abs=1e-5)
+    assert log_prob.item() == pytest.approx(
+        4 * (-0.5 * math.log(2 * math.pi) - math.log(1 + 1e-6)), abs=1e-5
+    )
     # mean 0.5, log std -1, noise 2: u = 0.5 + 2 e^-1 = 1.2357589, a = tanh(u) = 0.8444...,
     # log p = -0.5 * 4 + 1 - 0.9189385 - log(1 - a^2 + 1e-6)
     u = 0.5 + 2 * math.exp(-1)
@@ -83,7 +85,9 @@ def test_tanh_gaussian_matches_torch_distributions_and_clamps_log_std() -> None:
     action, log_prob = tanh_gaussian(out, noise)
     mean, log_std = out[:, :3], out[:, 3:]
     u = mean + log_std.exp() * noise
-    reference = torch.distributions.Normal(mean, log_std.exp()).log_prob(u) - torch.log(1 - torch.tanh(u) ** 2 + 1e-6)
+    reference = torch.distributions.Normal(mean, log_std.exp()).log_prob(u) - torch.log(
+        1 - torch.tanh(u) ** 2 + 1e-6
+    )
     torch.testing.assert_close(log_prob, reference.sum(-1), rtol=1e-5, atol=1e-5)
     # a log std of -100 is clamped to LOG_STD_MIN = -20: the term -log std contributes +20
     _, clamped = tanh_gaussian(torch.tensor([[0.0, -100.0]]), torch.tensor([[0.0]]))
@@ -98,7 +102,11 @@ def test_default_mtmhsac_shapes_match_metaworld_mt10() -> None:
     assert tuple(agent.actor.heads["metaworld"].weight.shape) == (1, 400, 10 * 8)
     critic = [tuple(w.shape) for w in agent.critic.trunk.weights]
     assert critic == [(2, 53, 400), (2, 400, 400), (2, 400, 400)]  # twin Q, obs + one-hot + action
-    assert tuple(agent.critic.heads["metaworld"].weight.shape) == (2, 400, 1)  # single-head critic by default
+    assert tuple(agent.critic.heads["metaworld"].weight.shape) == (
+        2,
+        400,
+        1,
+    )  # single-head critic by default
     assert tuple(agent.log_alpha["metaworld"].shape) == (10,)
     assert torch.allclose(agent.log_alpha["metaworld"], torch.zeros(10))  # init alpha 1
 
@@ -107,7 +115,10 @@ def test_default_seal_shapes_translators_trunk_heads() -> None:
     specs = [EnvSpec("metaworld", 39, 4, 10), EnvSpec("kitchen", 59, 9, 10)]
     agent = Agent(specs, AgentConfig(architecture="seal"), seed=0)
     # translator f_theta_i: (obs_i + one-hot) -> 400 -> latent 400 ("2 x 400")
-    assert [tuple(w.shape) for w in agent.actor.translators["kitchen"].weights] == [(1, 69, 400), (1, 400, 400)]
+    assert [tuple(w.shape) for w in agent.actor.translators["kitchen"].weights] == [
+        (1, 69, 400),
+        (1, 400, 400),
+    ]
     assert [tuple(w.shape) for w in agent.actor.trunk.weights] == [(1, 400, 400)] * 3
     assert tuple(agent.actor.heads["kitchen"].weight.shape) == (1, 400, 10 * 18)
     assert tuple(agent.actor.heads["metaworld"].weight.shape) == (1, 400, 10 * 8)
@@ -122,18 +133,30 @@ def test_seal_per_env_optimisers_own_translator_trunk_and_head() -> None:
     assert len(agent.actor_optimizers) == 2 and len(agent.critic_optimizers) == 2
     for i, env in enumerate(("a", "b")):
         owned = {id(p) for group in agent.actor_optimizers[i].param_groups for p in group["params"]}
-        expected = {id(p) for m in (agent.actor.translators[env], agent.actor.trunk, agent.actor.heads[env]) for p in m.parameters()}
+        expected = {
+            id(p)
+            for m in (agent.actor.translators[env], agent.actor.trunk, agent.actor.heads[env])
+            for p in m.parameters()
+        }
         assert owned == expected
-        critic_owned = {id(p) for group in agent.critic_optimizers[i].param_groups for p in group["params"]}
+        critic_owned = {
+            id(p) for group in agent.critic_optimizers[i].param_groups for p in group["params"]
+        }
         assert critic_owned == {id(p) for p in agent.critic.env_parameters(env)}
     shared = Agent(specs, AgentConfig(architecture="seal", optimizer="shared", **SMALL), seed=0)
     assert len(shared.actor_optimizers) == 1
-    assert len(shared.actor_optimizers[0].param_groups[0]["params"]) == len(list(shared.actor.parameters()))
+    assert len(shared.actor_optimizers[0].param_groups[0]["params"]) == len(
+        list(shared.actor.parameters())
+    )
 
 
 def test_target_critics_share_no_storage_with_online_ones() -> None:
     for config in (AgentConfig(**SMALL), AgentConfig(architecture="seal", **SMALL)):
-        specs = [EnvSpec("a", 3, 2, 2)] if config.architecture == "mtmhsac" else [EnvSpec("a", 3, 2, 2), EnvSpec("b", 4, 3, 2)]
+        specs = (
+            [EnvSpec("a", 3, 2, 2)]
+            if config.architecture == "mtmhsac"
+            else [EnvSpec("a", 3, 2, 2), EnvSpec("b", 4, 3, 2)]
+        )
         agent = Agent(specs, config, seed=0)
         online = {p.untyped_storage().data_ptr() for p in agent.critic.parameters()}
         target = {p.untyped_storage().data_ptr() for p in agent.critic_target.parameters()}
@@ -142,4 +165,21 @@ def test_target_critics_share_no_storage_with_online_ones() -> None:
         for p, q in zip(agent.critic.parameters(), agent.critic_target.parameters(), strict=True):
             assert torch.equal(p, q)
         agent.reset_parameters()  # the reset re-copies the targets, still without sharing
-        assert not {p.untyped_storage().data_ptr() for p in agent.critic_target.parameters()} & {p.untyped_storage().data_ptr() for p in agent.critic.parameters()}
+        assert not {p.untyped_storage().data_ptr() for p in agent.critic_target.parameters()} & {
+            p.untyped_storage().data_ptr() for p in agent.critic.parameters()
+        }
+
+
+def test_device_auto_resolves_to_cpu_without_cuda_and_bad_names_raise() -> None:
+    from seal.device import resolve_device
+    from seal.errors import SealError
+
+    expected = "cuda" if torch.cuda.is_available() else "cpu"
+    assert resolve_device("auto").type == expected
+    assert resolve_device("cpu") == torch.device("cpu")
+    with pytest.raises(SealError, match="valid: auto, cpu, cuda"):
+        resolve_device("tpu0")
+    if not torch.cuda.is_available():
+        with pytest.raises(SealError, match="has 0 CUDA device"):
+            resolve_device("cuda:1")
+    assert Agent([EnvSpec("e", 2, 1, 1)], AgentConfig(**SMALL), seed=0).device.type == expected

@@ -18,7 +18,15 @@ def _add_tagged(replay: MultiTaskReplay, env: str, task_ids: list[int], step: in
     obs = np.zeros((n, spec.obs_dim), np.float32)
     obs[:, 0] = task_ids
     obs[:, 1] = step
-    replay.add(env, np.array(task_ids), obs, np.full((n, spec.act_dim), step, np.float32), np.full(n, step), obs + 100, np.zeros(n))
+    replay.add(
+        env,
+        np.array(task_ids),
+        obs,
+        np.full((n, spec.act_dim), step, np.float32),
+        np.full(n, step),
+        obs + 100,
+        np.zeros(n),
+    )
 
 
 def test_add_and_sample_keep_tasks_apart_and_count_consumed() -> None:
@@ -83,7 +91,9 @@ def test_counts_from_ratio_splits_exactly() -> None:
     uneven = counts_from_ratio({"a": 1.0, "b": 0.0}, {"a": 4, "b": 1}, batch_per_task=2)
     np.testing.assert_array_equal(uneven["a"], [3, 3, 2, 2])
     np.testing.assert_array_equal(uneven["b"], [0])
-    drawn = counts_from_ratio({"a": 1.0}, {"a": 4, "b": 1}, batch_per_task=2, rng=np.random.default_rng(0))
+    drawn = counts_from_ratio(
+        {"a": 1.0}, {"a": 4, "b": 1}, batch_per_task=2, rng=np.random.default_rng(0)
+    )
     assert drawn["a"].sum() == 10 and sorted(drawn["a"].tolist()) == [2, 2, 3, 3]
     with pytest.raises(SealError, match="data ratios"):
         counts_from_ratio({"a": 0.0}, {"a": 2}, 4)

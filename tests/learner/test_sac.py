@@ -55,7 +55,14 @@ def test_losses_by_hand_on_a_network_with_known_weights() -> None:
         agent.critic.heads["toy"].bias.copy_(torch.tensor([[[1.0]], [[2.0]]]))
         agent.critic_target.load_state_dict(agent.critic.state_dict())
     rewards, terminations = [0.5, -1.0, 2.0], [0.0, 1.0, 0.0]
-    batch = Batch(torch.randn(3, 2), torch.rand(3, 1), torch.tensor(rewards), torch.randn(3, 2), torch.tensor(terminations), torch.zeros(3, dtype=torch.long))
+    batch = Batch(
+        torch.randn(3, 2),
+        torch.rand(3, 1),
+        torch.tensor(rewards),
+        torch.randn(3, 2),
+        torch.tensor(terminations),
+        torch.zeros(3, dtype=torch.long),
+    )
     # The update draws the next-state noise, then the policy noise, from its own generator.
     g = torch.Generator()
     g.set_state(agent._update_generator.get_state())
@@ -66,7 +73,10 @@ def test_losses_by_hand_on_a_network_with_known_weights() -> None:
     alpha, gamma = 2.0, 0.99
     next_log_pi = [_log_prob(0.5, -1.0, e)[1] for e in eps_next]
     # next_q_value = r + gamma * (1 - term) * (min(qf1_target, qf2_target) - alpha * next_log_pi), min = 1
-    y = [r + gamma * (1 - d) * (1.0 - alpha * lp) for r, d, lp in zip(rewards, terminations, next_log_pi, strict=True)]
+    y = [
+        r + gamma * (1 - d) * (1.0 - alpha * lp)
+        for r, d, lp in zip(rewards, terminations, next_log_pi, strict=True)
+    ]
     qf1_loss = sum((1.0 - t) ** 2 for t in y) / 3
     qf2_loss = sum((2.0 - t) ** 2 for t in y) / 3
     assert metrics["losses/toy/qf1"] == pytest.approx(qf1_loss, rel=1e-5)
@@ -89,10 +99,14 @@ def test_losses_by_hand_on_a_network_with_known_weights() -> None:
     assert metrics["charts/toy/alpha/0"] == pytest.approx(2.0)  # the temperature this update used
     assert metrics["charts/toy/entropy"] == pytest.approx(-sum(log_pi) / 3, rel=1e-5)
     # Polyak: target bias = 0.995 * 1 + 0.005 * q1_new
-    assert agent.critic_target.heads["toy"].bias[0, 0, 0].item() == pytest.approx(0.995 + 0.005 * q1_new, rel=1e-6)
+    assert agent.critic_target.heads["toy"].bias[0, 0, 0].item() == pytest.approx(
+        0.995 + 0.005 * q1_new, rel=1e-6
+    )
     # Temperature: one Adam step of lr 3e-4 against the sign of d alpha_loss / d log_alpha.
     d_log_alpha = sum(-(lp - 1.0) for lp in log_pi) / 3
-    assert agent.log_alpha["toy"].item() == pytest.approx(math.log(2) - 3e-4 * np.sign(d_log_alpha), abs=1e-7)
+    assert agent.log_alpha["toy"].item() == pytest.approx(
+        math.log(2) - 3e-4 * np.sign(d_log_alpha), abs=1e-7
+    )
 
 
 def test_per_task_temperatures_move_only_for_sampled_tasks() -> None:
@@ -114,7 +128,9 @@ def test_act_shapes_bounds_and_determinism() -> None:
     a = agent.act("e", obs, ids, deterministic=False)
     assert a.shape == (6, 3) and a.dtype == np.float32 and np.all(np.abs(a) <= 1)
     assert not np.array_equal(a, agent.act("e", obs, ids, deterministic=False))
-    np.testing.assert_array_equal(agent.act("e", obs, ids, deterministic=True), agent.act("e", obs, ids, deterministic=True))
+    np.testing.assert_array_equal(
+        agent.act("e", obs, ids, deterministic=True), agent.act("e", obs, ids, deterministic=True)
+    )
     with pytest.raises(SealError, match=r"expected obs \(N, 5\)"):
         agent.act("e", obs[:, :4], ids)
     with pytest.raises(SealError, match=r"task ids must be in \[0, 2\)"):
@@ -127,7 +143,10 @@ def test_one_hot_is_appended_inside_the_agent() -> None:
     spec = EnvSpec("e", 3, 1, 2)
     with_hot = Agent([spec], AgentConfig(**SMALL), seed=0)
     without = Agent([spec], AgentConfig(one_hot=False, multi_head_policy=False, **SMALL), seed=0)
-    assert with_hot.actor.trunk.weights[0].shape[1] == 5 and without.actor.trunk.weights[0].shape[1] == 3
+    assert (
+        with_hot.actor.trunk.weights[0].shape[1] == 5
+        and without.actor.trunk.weights[0].shape[1] == 3
+    )
     obs = np.ones((2, 3), np.float32)
     # without one-hot or heads, the policy cannot tell tasks apart
     a = without.act("e", obs, np.array([0, 1]), deterministic=True)
@@ -148,7 +167,9 @@ def test_learns_a_different_action_per_task_in_a_one_step_bandit() -> None:
         obs = torch.zeros(64, 2)
         rewards = -((actions[:, 0] - targets[ids]) ** 2)
         agent.update({"bandit": Batch(obs, actions, rewards, obs, torch.ones(64), ids)})
-    a = agent.act("bandit", np.zeros((2, 2), np.float32), np.array([0, 1]), deterministic=True)[:, 0]
+    a = agent.act("bandit", np.zeros((2, 2), np.float32), np.array([0, 1]), deterministic=True)[
+        :, 0
+    ]
     assert a[0] > 0.3 and a[1] < -0.3
 
 
@@ -161,7 +182,11 @@ def test_reset_parameters_redraws_networks_and_clears_optimisers() -> None:
     assert agent.actor_optimizers[0].state and not torch.all(agent.log_alpha["e"] == 0)
     agent.reset_parameters()
     assert all(not torch.equal(a, b) for a, b in zip(before, agent.actor.parameters(), strict=True))
-    assert not agent.actor_optimizers[0].state and not agent.critic_optimizers[0].state and not agent.alpha_optimizer.state
+    assert (
+        not agent.actor_optimizers[0].state
+        and not agent.critic_optimizers[0].state
+        and not agent.alpha_optimizer.state
+    )
     assert torch.all(agent.log_alpha["e"] == 0)
     for p, q in zip(agent.critic.parameters(), agent.critic_target.parameters(), strict=True):
         assert torch.equal(p, q)
@@ -180,7 +205,9 @@ def test_set_lr_factor_scales_actor_and_critic_only() -> None:
         agent.set_lr_factor(0.0)
 
 
-def test_transfer_mt1_to_mt10_keeps_all_but_the_policy_head_and_zeroes_new_one_hot_columns() -> None:
+def test_transfer_mt1_to_mt10_keeps_all_but_the_policy_head_and_zeroes_new_one_hot_columns() -> (
+    None
+):
     source = Agent([EnvSpec("mt1", 39, 4, 1)], AgentConfig(**SMALL), seed=0)
     for _ in range(2):
         source.update({"mt1": _random_batch(source.specs["mt1"], 8)})
@@ -197,36 +224,62 @@ def test_transfer_mt1_to_mt10_keeps_all_but_the_policy_head_and_zeroes_new_one_h
             torch.testing.assert_close(w_new[:, 49:53], w_old[:, 40:44], rtol=0, atol=0)
         for a, b in zip(old.weights[1:], new.weights[1:], strict=True):
             assert torch.equal(a, b)
-    assert torch.equal(target.actor.heads["mt10"].weight, fresh_head)  # policy last layer re-initialised
+    assert torch.equal(
+        target.actor.heads["mt10"].weight, fresh_head
+    )  # policy last layer re-initialised
     assert torch.equal(target.critic.heads["mt10"].weight, source.critic.heads["mt1"].weight)
     for p, q in zip(target.critic.parameters(), target.critic_target.parameters(), strict=True):
         assert torch.equal(p, q)
-    assert target.log_alpha["mt10"][0] == source.log_alpha["mt1"][0] and target.log_alpha["mt10"][1] == 0
+    assert (
+        target.log_alpha["mt10"][0] == source.log_alpha["mt1"][0]
+        and target.log_alpha["mt10"][1] == 0
+    )
     # on the tasks it knew, the transferred critic computes what the source did
     obs = torch.randn(5, 39)
     act = torch.rand(5, 4)
     ids = torch.zeros(5, dtype=torch.long)
     with torch.no_grad():
-        q_src = source.critic("mt1", source._critic_input("mt1", source._actor_input("mt1", obs, ids), act), ids)
-        q_new = target.critic("mt10", target._critic_input("mt10", target._actor_input("mt10", obs, ids), act), ids)
+        q_src = source.critic(
+            "mt1", source._critic_input("mt1", source._actor_input("mt1", obs, ids), act), ids
+        )
+        q_new = target.critic(
+            "mt10", target._critic_input("mt10", target._actor_input("mt10", obs, ids), act), ids
+        )
     torch.testing.assert_close(q_src, q_new)
     target.update({"mt10": _random_batch(target.specs["mt10"], 8)})
 
 
 def test_transfer_between_padded_pseudo_envs_with_different_action_sizes() -> None:
     # Aligned obs already carry the one-hot; the critic's action input is fixed at 9 for both phases.
-    kitchen = Agent([EnvSpec("aligned-kitchen", 40, 9, 12, act_pad_to=9)], AgentConfig(one_hot=False, **SMALL), seed=0)
-    metaworld = Agent([EnvSpec("aligned-metaworld", 40, 4, 12, act_pad_to=9)], AgentConfig(one_hot=False, **SMALL), seed=1)
-    assert metaworld.critic.trunk.weights[0].shape[1] == 49 and metaworld.actor.heads["aligned-metaworld"].weight.shape[-1] == 12 * 8
+    kitchen = Agent(
+        [EnvSpec("aligned-kitchen", 40, 9, 12, act_pad_to=9)],
+        AgentConfig(one_hot=False, **SMALL),
+        seed=0,
+    )
+    metaworld = Agent(
+        [EnvSpec("aligned-metaworld", 40, 4, 12, act_pad_to=9)],
+        AgentConfig(one_hot=False, **SMALL),
+        seed=1,
+    )
+    assert (
+        metaworld.critic.trunk.weights[0].shape[1] == 49
+        and metaworld.actor.heads["aligned-metaworld"].weight.shape[-1] == 12 * 8
+    )
     metaworld.transfer_from(kitchen.state_dict())
     for a, b in zip(kitchen.critic.parameters(), metaworld.critic.parameters(), strict=True):
         assert torch.equal(a, b)
-    reinit = Agent([EnvSpec("aligned-metaworld", 40, 4, 12, act_pad_to=9)], AgentConfig(one_hot=False, reinit_critic_on_transfer=True, **SMALL), seed=1)
+    reinit = Agent(
+        [EnvSpec("aligned-metaworld", 40, 4, 12, act_pad_to=9)],
+        AgentConfig(one_hot=False, reinit_critic_on_transfer=True, **SMALL),
+        seed=1,
+    )
     before = [p.detach().clone() for p in reinit.critic.parameters()]
     reinit.transfer_from(kitchen.state_dict())
     assert all(torch.equal(a, b) for a, b in zip(before, reinit.critic.parameters(), strict=True))
     assert torch.equal(reinit.actor.trunk.weights[1], kitchen.actor.trunk.weights[1])
-    m = metaworld.update({"aligned-metaworld": _random_batch(metaworld.specs["aligned-metaworld"], 8)})
+    m = metaworld.update(
+        {"aligned-metaworld": _random_batch(metaworld.specs["aligned-metaworld"], 8)}
+    )
     assert math.isfinite(m["losses/aligned-metaworld/critic"])
 
 
@@ -236,8 +289,13 @@ def test_seal_update_steps_only_the_envs_in_the_batches() -> None:
     fk_translator = [p.detach().clone() for p in agent.actor.translators["fk"].parameters()]
     trunk = [p.detach().clone() for p in agent.actor.trunk.parameters()]
     metrics = agent.update({"mw": _random_batch(specs[0], 12)})
-    assert all(torch.equal(a, b) for a, b in zip(fk_translator, agent.actor.translators["fk"].parameters(), strict=True))
-    assert not any(torch.equal(a, b) for a, b in zip(trunk, agent.actor.trunk.parameters(), strict=True))
+    assert all(
+        torch.equal(a, b)
+        for a, b in zip(fk_translator, agent.actor.translators["fk"].parameters(), strict=True)
+    )
+    assert not any(
+        torch.equal(a, b) for a, b in zip(trunk, agent.actor.trunk.parameters(), strict=True)
+    )
     assert "losses/mw/critic" in metrics and not any("/fk/" in k for k in metrics)
     metrics = agent.update({"mw": _random_batch(specs[0], 12), "fk": _random_batch(specs[1], 8)})
     assert {"losses/mw/actor", "losses/fk/actor", "charts/fk/alpha/1"} <= set(metrics)
@@ -254,5 +312,28 @@ def test_config_errors_name_the_key_and_valid_values() -> None:
         AgentConfig(tau=0.0)
     with pytest.raises(SealError, match="mtmhsac.*trains one environment"):
         Agent([EnvSpec("a", 2, 1, 1), EnvSpec("b", 2, 1, 1)], AgentConfig(**SMALL), seed=0)
-    assert AgentConfig().critic_multi_head is False and AgentConfig(architecture="seal").critic_multi_head is True
-    assert "zero-padded" not in AgentConfig.field_help()["hidden"] and AgentConfig.field_help()["gamma"] == "Discount factor."
+    assert (
+        AgentConfig().critic_multi_head is False
+        and AgentConfig(architecture="seal").critic_multi_head is True
+    )
+    assert (
+        "zero-padded" not in AgentConfig.field_help()["hidden"]
+        and AgentConfig.field_help()["gamma"] == "Discount factor."
+    )
+
+
+def test_seal_transfer_keeps_translators_and_trunk_and_redraws_action_heads() -> None:
+    specs = [EnvSpec("mw", 6, 2, 3), EnvSpec("fk", 8, 3, 2)]
+    source = Agent(specs, AgentConfig(architecture="seal", **SMALL), seed=0)
+    target = Agent(specs, AgentConfig(architecture="seal", **SMALL), seed=1)
+    fresh = {n: p.detach().clone() for n, p in target.actor.named_parameters() if n.startswith("heads.")}
+    target.transfer_from(source.state_dict())
+    for name, p in target.actor.named_parameters():
+        if name.startswith("heads."):
+            assert torch.equal(p, fresh[name])  # each env's action head keeps its fresh init
+        else:
+            assert torch.equal(p, source.actor.get_parameter(name)), name
+    for (name, p), q in zip(target.critic.named_parameters(), source.critic.parameters(), strict=True):
+        assert torch.equal(p, q), name
+    with pytest.raises(SealError, match="cannot transfer a 'mtmhsac' agent"):
+        target.transfer_from(Agent([specs[0]], AgentConfig(**SMALL), seed=0).state_dict())

@@ -20,7 +20,9 @@ class _Wide(gym.Wrapper):
     def __init__(self, env: gym.Env) -> None:
         super().__init__(env)
         low, high = env.observation_space.low, env.observation_space.high
-        self.observation_space = gym.spaces.Box(np.append(low, 0.0), np.append(high, 1.0), dtype=np.float64)
+        self.observation_space = gym.spaces.Box(
+            np.append(low, 0.0), np.append(high, 1.0), dtype=np.float64
+        )
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
 
     def reset(self, **kwargs):  # noqa: ANN003, ANN201

@@ -63,8 +63,16 @@ def test_defaults_are_issue_4_paper_scale(tmp_path: Path) -> None:
     # issue 4's table: 10,000 epochs, eval every 100 epochs with 50 episodes, threshold 0.9, 2 seeds;
     # issue 3's: warm-up 4,000 env steps per env, 128 transitions per task, replay 1e6 per env.
     assert (config.protocol.epochs, config.protocol.seeds) == (10_000, 2)
-    assert (config.evaluation.interval, config.evaluation.episodes, config.evaluation.threshold) == (100, 50, 0.9)
-    assert (config.training.warmup_steps, config.training.batch_per_task, config.training.grad_steps_per_epoch) == (4000, 128, -1)
+    assert (
+        config.evaluation.interval,
+        config.evaluation.episodes,
+        config.evaluation.threshold,
+    ) == (100, 50, 0.9)
+    assert (
+        config.training.warmup_steps,
+        config.training.batch_per_task,
+        config.training.grad_steps_per_epoch,
+    ) == (4000, 128, -1)
     assert config.replay.capacity_per_env == 1_000_000
     assert config.name == "proto"  # the file's stem
     assert config.envs["pt"].episode_length == 50  # resolved from the point adapter's default
@@ -75,14 +83,31 @@ def test_defaults_are_issue_4_paper_scale(tmp_path: Path) -> None:
 def test_joint_defaults_to_seal_networks_and_task_sets_expand(tmp_path: Path) -> None:
     config = load_protocol(write(tmp_path, JOINT))
     assert config.agent.architecture == "seal"
-    mt = load_protocol(write(tmp_path, FINETUNE.replace('tasks = ["reach-v3", "drawer-close-v3"]', 'tasks = "mt3"'), "ft.toml"))
+    mt = load_protocol(
+        write(
+            tmp_path,
+            FINETUNE.replace('tasks = ["reach-v3", "drawer-close-v3"]', 'tasks = "mt3"'),
+            "ft.toml",
+        )
+    )
     assert mt.envs["mw"].tasks == ("reach-v3", "push-v3", "pick-place-v3")
-    assert mt.finetune.pretrain_epochs == 10_000 and mt.finetune.finetune_epochs == 10_000  # 0 -> [protocol].epochs
+    assert (
+        mt.finetune.pretrain_epochs == 10_000 and mt.finetune.finetune_epochs == 10_000
+    )  # 0 -> [protocol].epochs
 
 
 def test_set_overrides_parse_values_as_toml(tmp_path: Path) -> None:
     path = write(tmp_path, BASELINE)
-    config = load_protocol(path, ["protocol.epochs=7", "envs.pt.tasks=['south']", "protocol.device=cpu", "agent.hidden=[8, 8]", "evaluation.threshold=0.5"])
+    config = load_protocol(
+        path,
+        [
+            "protocol.epochs=7",
+            "envs.pt.tasks=['south']",
+            "protocol.device=cpu",
+            "agent.hidden=[8, 8]",
+            "evaluation.threshold=0.5",
+        ],
+    )
     assert config.protocol.epochs == 7
     assert config.envs["pt"].tasks == ("south",)
     assert config.protocol.device == "cpu"  # not valid TOML: taken as a string
@@ -94,7 +119,11 @@ def test_set_overrides_parse_values_as_toml(tmp_path: Path) -> None:
 
 
 def test_scale_multiplies_durations_only(tmp_path: Path) -> None:
-    config = load_protocol(write(tmp_path, JOINT), ["evaluation.interval=100", "logging.train_interval=10", "checkpoint.interval=100"], scale=0.01)
+    config = load_protocol(
+        write(tmp_path, JOINT),
+        ["evaluation.interval=100", "logging.train_interval=10", "checkpoint.interval=100"],
+        scale=0.01,
+    )
     # 5000 x 0.01 = 50 epochs; 100 x 0.01 = 1; 10 x 0.01 = 0.1 -> floor 1; 1000 x 0.01 = 10.
     assert config.protocol.epochs == 50
     assert config.evaluation.interval == 1
@@ -112,11 +141,15 @@ def test_scale_multiplies_durations_only(tmp_path: Path) -> None:
 def test_resolved_config_round_trips_through_toml(tmp_path: Path) -> None:
     for text in (BASELINE, JOINT, FINETUNE):
         config = load_protocol(write(tmp_path, text))
-        again = config_from_dict(tomllib.loads(dumps_toml(config_to_dict(config))), str(tmp_path / "proto.toml"))
+        again = config_from_dict(
+            tomllib.loads(dumps_toml(config_to_dict(config))), str(tmp_path / "proto.toml")
+        )
         assert again == config
 
 
-def test_explain_prints_values_with_docs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_explain_prints_values_with_docs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     text = explain(load_protocol(write(tmp_path, JOINT)))
     assert "epochs = 5000    # Epochs per phase" in text
     assert "[scheduler]" in text and 'kind = "stepped"' in text
@@ -125,7 +158,16 @@ def test_explain_prints_values_with_docs(tmp_path: Path, capsys: pytest.CaptureF
 
 
 def test_every_shipped_protocol_is_valid_and_paper_scale() -> None:
-    expected = {"baseline_mw", "baseline_fk", "finetune_fk_to_mw", "finetune_mw_to_fk", "joint_50_50", "high_fk", "high_mw", "quickstart"}
+    expected = {
+        "baseline_mw",
+        "baseline_fk",
+        "finetune_fk_to_mw",
+        "finetune_mw_to_fk",
+        "joint_50_50",
+        "high_fk",
+        "high_mw",
+        "quickstart",
+    }
     found = {p.stem for p in PROTOCOLS.glob("*.toml")}
     assert expected <= found
     for name in expected - {"quickstart"}:
@@ -142,10 +184,18 @@ BAD_CASES = [
     # (kind's base protocol, a change, the text the error must contain)
     (BASELINE, ("[protocol]", "[protocol]\nepoch = 3"), "protocol.epoch is not a valid key"),
     (BASELINE, ('kind = "baseline"', 'kind = "baseline"\nseeds = "two"'), "protocol.seeds"),
-    (BASELINE, ('kind = "baseline"', 'kind = "baseline"\nepochs = 0'), "protocol.epochs = 0 is out of range"),
+    (
+        BASELINE,
+        ('kind = "baseline"', 'kind = "baseline"\nepochs = 0'),
+        "protocol.epochs = 0 is out of range",
+    ),
     (BASELINE, ('tasks = ["east", "north"]', 'tasks = ["east", "up"]'), "envs.pt.tasks"),
     (BASELINE, ('adapter = "point"', 'adapter = "pointy"'), "envs.pt.adapter"),
-    (BASELINE, ("[protocol]", "[evaluation]\nthreshold = 1.5\n[protocol]"), "evaluation.threshold = 1.5 is out of range"),
+    (
+        BASELINE,
+        ("[protocol]", "[evaluation]\nthreshold = 1.5\n[protocol]"),
+        "evaluation.threshold = 1.5 is out of range",
+    ),
     (BASELINE, ("[protocol]", "[agent]\nhidden = [400, -1]\n[protocol]"), "agent"),
     (BASELINE, ("[protocol]", "[traning]\nx = 1\n[protocol]"), "[traning] is not a valid table"),
     (JOINT, ('kind = "stepped"', 'kind = "steped"'), "scheduler.kind"),
@@ -153,12 +203,22 @@ BAD_CASES = [
     (JOINT, ('tasks = ["east"]\n[envs.b]', 'tasks = ["east"]\n[envs.bb]'), "scheduler"),
     (FINETUNE, ('target = "pt"', 'target = "kitchen"'), "finetune.target"),
     (FINETUNE, ("[finetune]", "[finetune]\nlr_factor = -1.0"), "finetune.lr_factor"),
-    (FINETUNE, ('tasks = ["reach-v3", "drawer-close-v3"]', 'tasks = ["reach-v9"]'), "envs.mw.tasks"),
+    (
+        FINETUNE,
+        ('tasks = ["reach-v3", "drawer-close-v3"]', 'tasks = ["reach-v9"]'),
+        "envs.mw.tasks",
+    ),
 ]
 
 
 @pytest.mark.parametrize(("base", "change", "message"), BAD_CASES)
-def test_bad_protocol_is_rejected_naming_key_and_file_and_nothing_is_written(tmp_path: Path, capsys: pytest.CaptureFixture[str], base: str, change: tuple[str, str], message: str) -> None:
+def test_bad_protocol_is_rejected_naming_key_and_file_and_nothing_is_written(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    base: str,
+    change: tuple[str, str],
+    message: str,
+) -> None:
     assert change[0] in base
     path = write(tmp_path, base.replace(change[0], change[1], 1), "bad.toml")
     with pytest.raises(ConfigError) as info:

@@ -71,7 +71,12 @@ def test_sigkill_then_resume_matches_uninterrupted_run(tmp_path: Path) -> None:
     # The same protocol in a child process, killed with SIGKILL at a random point after its
     # second checkpoint (epoch 6) and well before its end (epoch 24).
     out = tmp_path / "out"
-    child = subprocess.Popen(_cli("run", str(path), "--out", str(out), "--quiet", "--no-report"), env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    child = subprocess.Popen(
+        _cli("run", str(path), "--out", str(out), "--quiet", "--no-report"),
+        env=_env(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     deadline = time.monotonic() + 240
     run_dir = None
     while time.monotonic() < deadline and child.poll() is None:
@@ -80,16 +85,26 @@ def test_sigkill_then_resume_matches_uninterrupted_run(tmp_path: Path) -> None:
             run_dir = found[0].parents[1]
             break
         time.sleep(0.05)
-    assert run_dir is not None, f"child never reached its second checkpoint: {child.stderr.read().decode() if child.poll() is not None else 'timeout'}"
+    assert run_dir is not None, (
+        f"child never reached its second checkpoint: {child.stderr.read().decode() if child.poll() is not None else 'timeout'}"
+    )
     time.sleep(random.uniform(0.0, 0.4))
     child.send_signal(signal.SIGKILL)
     child.wait(timeout=30)
     assert child.returncode == -signal.SIGKILL
-    assert json.loads((run_dir / "provenance.json").read_text())["end_time"] is None  # really cut short
+    assert (
+        json.loads((run_dir / "provenance.json").read_text())["end_time"] is None
+    )  # really cut short
     killed_rows = len(pd.read_csv(run_dir / "metrics.csv"))
     assert killed_rows < 24 * 3
 
-    resumed = subprocess.run(_cli("run", str(path), "--resume", str(run_dir), "--quiet", "--no-report", "--json"), env=_env(), capture_output=True, text=True, timeout=300)
+    resumed = subprocess.run(
+        _cli("run", str(path), "--resume", str(run_dir), "--quiet", "--no-report", "--json"),
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert resumed.returncode == 0, resumed.stderr
     assert json.loads(resumed.stdout.strip().splitlines()[-1])["run_dir"] == str(run_dir)
 
@@ -101,12 +116,20 @@ def test_sigkill_then_resume_matches_uninterrupted_run(tmp_path: Path) -> None:
     # On CPU with the same seed, every row equals the uninterrupted run's (wall time aside), so
     # training continued from the saved step with the saved replay, RNG and scheduler states.
     pd.testing.assert_frame_equal(got.drop(columns="wall_s"), want.drop(columns="wall_s"))
-    pd.testing.assert_frame_equal(pd.read_csv(run_dir / "train.csv"), pd.read_csv(reference / "train.csv"))
+    pd.testing.assert_frame_equal(
+        pd.read_csv(run_dir / "train.csv"), pd.read_csv(reference / "train.csv")
+    )
     assert json.loads((run_dir / "provenance.json").read_text())["end_time"]
 
 
 def test_resume_refuses_a_directory_that_is_not_a_run(tmp_path: Path) -> None:
     path = tmp_path / "killme.toml"
     path.write_text(PROTOCOL)
-    bad = subprocess.run(_cli("run", str(path), "--resume", str(tmp_path)), env=_env(), capture_output=True, text=True, timeout=120)
+    bad = subprocess.run(
+        _cli("run", str(path), "--resume", str(tmp_path)),
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert bad.returncode == 2 and "--resume" in bad.stderr and "Traceback" not in bad.stderr

@@ -37,7 +37,16 @@ train_interval = 1
 """
 
 
-def protocol(tmp_path: Path, body: str, *, kind: str, epochs: int = 3, warmup: int = 0, batch: int = 4, name: str = "tiny") -> Path:
+def protocol(
+    tmp_path: Path,
+    body: str,
+    *,
+    kind: str,
+    epochs: int = 3,
+    warmup: int = 0,
+    batch: int = 4,
+    name: str = "tiny",
+) -> Path:
     path = tmp_path / f"{name}.toml"
     path.write_text(TINY.format(kind=kind, epochs=epochs, warmup=warmup, batch=batch) + body)
     return path
@@ -54,7 +63,9 @@ hidden = [8, 8]
 
 
 def test_baseline_run_directory_and_hand_computed_counters(tmp_path: Path) -> None:
-    config = load_protocol(protocol(tmp_path, BASELINE_ENVS, kind="baseline", epochs=3, warmup=20, batch=4))
+    config = load_protocol(
+        protocol(tmp_path, BASELINE_ENVS, kind="baseline", epochs=3, warmup=20, batch=4)
+    )
     result = run_seed(config, 0, tmp_path / "reports" / "tiny" / "g1")
     run = result.run_dir
     assert run == tmp_path / "reports" / "tiny" / "g1" / "seed-0"
@@ -76,11 +87,31 @@ def test_baseline_run_directory_and_hand_computed_counters(tmp_path: Path) -> No
     assert {"critic_loss", "actor_loss", "mean_q", "alpha/east", "alpha/north"} <= set(train["key"])
     assert set(train["env"]) == {"pt"}
     provenance = json.loads((run / "provenance.json").read_text())
-    assert {"git_sha", "packages", "command", "device", "seed", "start_time", "end_time", "protocol", "kind", "group", "phase_names"} <= set(provenance)
-    assert provenance["phase_names"] == ["train"] and provenance["group"] == "g1" and provenance["end_time"]
+    assert {
+        "git_sha",
+        "packages",
+        "command",
+        "device",
+        "seed",
+        "start_time",
+        "end_time",
+        "protocol",
+        "kind",
+        "group",
+        "phase_names",
+    } <= set(provenance)
+    assert (
+        provenance["phase_names"] == ["train"]
+        and provenance["group"] == "g1"
+        and provenance["end_time"]
+    )
     assert provenance["packages"]["torch"].startswith("2.13")
     # Checkpoints every 2 epochs and at the end (2, 3), the last 2 kept, and the best.
-    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["best.pt", "ckpt-0000002.pt", "ckpt-0000003.pt"]
+    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == [
+        "best.pt",
+        "ckpt-0000002.pt",
+        "ckpt-0000003.pt",
+    ]
     assert (run / "config.toml").is_file() and any((run / "tb").iterdir())
     assert load_protocol(run / "config.toml") == config.replace(path=str(run / "config.toml"))
     assert set(result.update_counts["pt"]) == {"east", "north"}
@@ -112,8 +143,12 @@ def test_joint_stepped_ratio_counts_and_mixed_episode_lengths(tmp_path: Path) ->
     run = run_seed(config, 0, tmp_path / "g").run_dir
     m = pd.read_csv(run / "metrics.csv").set_index(["epoch", "env", "task"])
     # grad_steps_per_epoch = -1 with episodes of 10 (a) and 6 (b) steps: the longest, 10 per epoch.
-    assert m.loc[(1, "a", "east"), "grad_steps"] == 10 and m.loc[(2, "b", "west"), "grad_steps"] == 20
-    assert m.loc[(2, "a", "east"), "env_steps"] == 20 and m.loc[(2, "b", "south"), "env_steps"] == 12
+    assert (
+        m.loc[(1, "a", "east"), "grad_steps"] == 10 and m.loc[(2, "b", "west"), "grad_steps"] == 20
+    )
+    assert (
+        m.loc[(2, "a", "east"), "env_steps"] == 20 and m.loc[(2, "b", "south"), "env_steps"] == 12
+    )
     # Batch = 10 per task x 3 tasks = 30. Epoch 1 at 90/10: a's task 27; b's 3 split 1.5/1.5 ->
     # largest remainder, ties to the first: west 2, south 1. Epoch 2 at 80/20: a 24, b 3/3.
     # Consumed after epoch 1 = 10 steps x those counts; after epoch 2 add 10 x the new counts.
@@ -147,29 +182,52 @@ finetune_epochs = 2
 """
 
 
-def test_finetune_runs_both_phases_and_restarts_counters(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_finetune_runs_both_phases_and_restarts_counters(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.syspath_prepend(str(HERE))  # the second adapter lives beside this test
     config = load_protocol(protocol(tmp_path, FINETUNE_ENVS, kind="finetune", batch=4))
     result = run_seed(config, 0, tmp_path / "g")
     run = result.run_dir
     m = pd.read_csv(run / "metrics.csv")
     assert m.groupby("phase").size().to_dict() == {"pretrain": 3 * 2, "finetune": 2 * 1}
-    assert set(m[m.phase == "pretrain"]["env"]) == {"a"} and set(m[m.phase == "finetune"]["env"]) == {"b"}
+    assert set(m[m.phase == "pretrain"]["env"]) == {"a"} and set(
+        m[m.phase == "finetune"]["env"]
+    ) == {"b"}
     first = m[m.phase == "finetune"].iloc[0]
     # Counters restart: after fine-tuning epoch 1, 8 env steps, 8 grad steps, 4 x 8 transitions.
     assert (first["epoch"], first["env_steps"], first["grad_steps"]) == (1, 8, 8)
     assert first["updates"] == pytest.approx(32e-6)
     names = {p.name for p in (run / "checkpoints").iterdir()}
     assert {"best-pretrain.pt", "best-finetune.pt", "ckpt-finetune-0000002.pt"} <= names
-    assert json.loads((run / "provenance.json").read_text())["phase_names"] == ["pretrain", "finetune"]
+    assert json.loads((run / "provenance.json").read_text())["phase_names"] == [
+        "pretrain",
+        "finetune",
+    ]
     assert set(result.update_counts) == {"a", "b"}
     # The fine-tuned policy evaluates through the CLI with the saved config.
-    assert main(["eval", str(run / "checkpoints" / "best-finetune.pt"), "--episodes", "1", "--json"]) == 0
+    assert (
+        main(["eval", str(run / "checkpoints" / "best-finetune.pt"), "--episodes", "1", "--json"])
+        == 0
+    )
 
 
 def test_cli_json_line_for_two_seeds(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = protocol(tmp_path, BASELINE_ENVS, kind="baseline", epochs=2)
-    code = main(["run", str(path), "--out", str(tmp_path / "out"), "--seeds", "0-1", "--quiet", "--json", "--set", "evaluation.interval=2"])
+    code = main(
+        [
+            "run",
+            str(path),
+            "--out",
+            str(tmp_path / "out"),
+            "--seeds",
+            "0-1",
+            "--quiet",
+            "--json",
+            "--set",
+            "evaluation.interval=2",
+        ]
+    )
     assert code == 0
     line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert set(line) == {"run_dir", "update_counts", "final_success", "run_dirs"}
@@ -177,7 +235,9 @@ def test_cli_json_line_for_two_seeds(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert Path(line["run_dirs"][0]).parent == Path(line["run_dirs"][1]).parent  # one group
     assert set(line["final_success"]["pt"]) == {"east", "north"}
     for run in line["run_dirs"]:
-        assert len(pd.read_csv(Path(run) / "metrics.csv")) == 2  # one evaluation (epoch 2) x 2 tasks
+        assert (
+            len(pd.read_csv(Path(run) / "metrics.csv")) == 2
+        )  # one evaluation (epoch 2) x 2 tasks
 
 
 def test_eval_video_says_why_it_cannot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -187,3 +247,37 @@ def test_eval_video_says_why_it_cannot(tmp_path: Path, capsys: pytest.CaptureFix
     assert main(["eval", str(run / "checkpoints" / "best.pt"), "--video", str(tmp_path / "v")]) == 2
     assert "--video" in capsys.readouterr().err
     assert main(["eval", str(tmp_path / "nope.pt")]) == 2
+
+
+SMT_ENVS = """
+[envs.pt]
+adapter = "point"
+episode_length = 10
+[agent]
+hidden = [8, 8]
+[scheduler]
+kind = "smt"
+budget_stage1 = 300
+budget_stage2 = 60
+slots = 2
+reset_interval = 100
+score_interval = 100
+score_episodes = 2
+solved_return = { pt = -3.0 }
+unsolvable_return = { pt = -8.0 }
+"""
+
+
+def test_scheduler_that_ends_early_stops_the_run_with_a_final_evaluation(tmp_path: Path) -> None:
+    config = load_protocol(protocol(tmp_path, SMT_ENVS, kind="baseline", epochs=500))
+    run = run_seed(config, 0, tmp_path / "g").run_dir
+    metrics = pd.read_csv(run / "metrics.csv")
+    timeline = pd.read_csv(run / "scheduler.csv")
+    # SMT spends B1 + B2 = 360 env steps: with 10-step episodes and at most 2 tasks collecting per
+    # epoch that is over within 500 epochs, and the run stops there instead of idling on.
+    last = int(metrics["epoch"].max())
+    assert last < 500
+    assert int(metrics[metrics["epoch"] == last]["env_steps"].sum()) >= 360
+    assert {"epoch", "env", "task", "status"} <= set(timeline.columns)
+    assert set(timeline["status"]) & {"main", "training"}
+    assert (run / "checkpoints" / f"ckpt-{last:07d}.pt").is_file()

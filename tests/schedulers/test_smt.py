@@ -231,3 +231,33 @@ def test_bad_values_name_the_key() -> None:
         build_scheduler(
             SMTConfig(solved_return={"kitchen": 1.0}), {"mw": ("a",)}, adapters={"mw": "metaworld"}
         )
+
+
+def test_early_end_of_stage_1_hands_the_leftover_budget_to_stage_2() -> None:
+    # Both tasks return 1 < m = 2. Budgets 0.1 * 1000 / 2 = 50 env steps = 5 episodes of 10.
+    config = SMTConfig(
+        budget_stage1=1000,
+        budget_stage2=60,
+        kappa=0.1,
+        slots=2,
+        solved_return={"mw": 8.0},
+        unsolvable_return={"mw": 2.0},
+        score_interval=10_000,
+        reset_interval=10_000,
+    )
+    sched = build_scheduler(config, {"mw": ("a", "b")})
+    epoch = 0
+    while not sched.done:
+        plan = sched.plan(Progress(epoch=epoch))
+        names = [t for t, c in zip(("a", "b"), plan.collect["mw"], strict=True) if c]
+        if names:
+            sched.observe_episodes(
+                "mw", names, [1.0] * len(names), [0.0] * len(names), [L] * len(names)
+            )
+        epoch += 1
+    # Epochs 0-4 spend 100 env steps and make both unsolvable; with main and training empty,
+    # stage 2 starts at epoch 5 with B2 + (B1 - 100) = 960 env steps: 48 epochs of 20. The
+    # epoch-53 plan finds them spent and ends the run.
+    assert sched.stage_used == {1: 100, 2: 960} and sched.stage2_budget == 960
+    assert epoch == 54
+    assert sched.budget_used == config.budget_stage1 + config.budget_stage2
