@@ -550,7 +550,8 @@ class RaySession:
             "logging_level": "warning",
         }
         if self.address is None:
-            kwargs.update(address="local", num_cpus=self.num_cpus or os.cpu_count() or 1)
+            # Ray counts the machine's CPUs itself (cgroup limits included) unless told otherwise.
+            kwargs.update(address="local", **({"num_cpus": self.num_cpus} if self.num_cpus else {}))
         else:
             kwargs["address"] = self.address
         try:
@@ -777,7 +778,7 @@ def sweep(
                 run_dir=str(seed_dir(groups[c.name], s)),
             )
             for c in loaded
-            for s in (list(seeds) if seeds is not None else c.seeds)
+            for s in dict.fromkeys(seeds if seeds is not None else c.seeds)
         ]
         sweep_dir.mkdir(parents=True, exist_ok=True)
         for group in groups.values():
@@ -1118,6 +1119,10 @@ def search(
     _write_manifest(search_dir, "search", records, extra)
     say(f"search directory: {search_dir} ({len(records)} samples)")
 
+    for record in records:
+        # A finished run is only replayed through Tune when ASHA needs its results for its rungs.
+        if record.status == "pending" and spec.scheduler != "asha" and is_finished(record.run_dir):
+            record.start, record.status = "kept", "finished"
     runnable = [i for i, r in enumerate(records) if r.status == "pending"]
     res = parse_resources(base)
     if runnable:

@@ -49,8 +49,9 @@ def test_collection_bench_on_point_ends_on_identical_observations() -> None:
     )
     assert result["env_steps"] == 4 * 10  # 4 point tasks x 10 steps
     assert all(b["same_final_obs"] for b in result["backends"].values())
-    assert result["auto_backend"] == "subproc-batched"
-    assert result["speedup"] == result["backends"]["subproc-batched"]["speedup"] > 0
+    # A point step costs ~10 us of CPU, far below auto's 1 ms threshold for worker processes.
+    assert result["auto_backend"] == "sync"
+    assert result["speedup"] == result["backends"]["sync"]["speedup"] > 0
 
 
 def test_table_lists_each_key_with_its_goal() -> None:

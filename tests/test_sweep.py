@@ -258,6 +258,30 @@ def test_seal_run_and_protocols_never_import_ray() -> None:
     assert out.stdout.strip() == "False"
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--samples", "3"], "--samples is only used with --search"),
+        (["--search", "--seeds", "0-1"], "a search runs one seed per sample"),
+        (["--resume", "somewhere"], "give either protocol FILEs or --resume"),
+        (["--address", "nohost"], "expected auto or HOST:PORT"),
+        (["--address", "127.0.0.1:1"], "no Ray cluster answers there"),
+    ],
+)
+def test_cli_mistakes_are_one_line_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
+    from seal.cli.main import main
+
+    assert (
+        main(["sweep", str(write_protocol(tmp_path)), "--out", str(tmp_path / "reports"), *args])
+        == 2
+    )
+    err = capsys.readouterr().err
+    assert err.startswith("seal sweep: error: ") and message in err
+    assert not (tmp_path / "reports").exists()  # nothing written before the mistake was caught
+
+
 def test_search_sample_the_schema_rejects_fails_alone_without_ray(tmp_path: Path) -> None:
     from seal.sweep import search
 
@@ -270,6 +294,7 @@ def test_search_sample_the_schema_rejects_fails_alone_without_ray(tmp_path: Path
     assert "agent.actor_lr" in trial.error and "expected a finite number > 0" in trial.error
     assert result.best_config is None
     assert "sample-000" in result.trials_table.read_text()
+    assert not (result.sweep_dir / "tune").exists()  # Ray Tune never ran
 
 
 # ---------------------------------------------------------------- on a local Ray
@@ -280,6 +305,9 @@ def ray_session():  # noqa: ANN201 - yields the ray module
     """One local Ray for every test below (startup costs seconds); sweeps reuse an initialised Ray."""
     import ray  # the dev extra installs it; a missing Ray fails these tests rather than skipping them
 
+    if ray.is_initialized():  # another module's session: use it, leave it to its owner
+        yield ray
+        return
     ray.init(
         address="local",
         num_cpus=2,
@@ -343,6 +371,14 @@ def test_search_ranks_the_config_that_cannot_learn_last(ray_session, tmp_path: P
     best = load_protocol(result.best_config)
     assert best.agent.lr_factor == 1.0 and best.search == {}
     assert best.agent.tau == result.trials[0].sample["agent.tau"]
+
+    # Resuming a finished search runs nothing again: every trial is kept, the ranking unchanged.
+    metrics = Path(result.trials[0].run_dir) / "metrics.csv"
+    before = metrics.stat().st_mtime_ns
+    again = search(resume=result.sweep_dir)
+    assert [t.start for t in again.trials] == ["kept"] * 4
+    assert [t.trial for t in again.trials] == [t.trial for t in result.trials]
+    assert metrics.stat().st_mtime_ns == before
 
 
 def test_failing_trial_is_reported_others_complete_and_resume_keeps_finished(

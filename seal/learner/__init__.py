@@ -1,7 +1,26 @@
 """Layer 2: the learner. Networks, multi-task SAC, replay, checkpoints and collection."""
 
+from typing import Any
+
 from seal.learner.config import AgentConfig, Batch, EnvSpec
 from seal.learner.replay import MultiTaskReplay, counts_from_ratio
 from seal.learner.sac import Agent
 
-__all__ = ["Agent", "AgentConfig", "Batch", "EnvSpec", "MultiTaskReplay", "counts_from_ratio"]
+__all__ = [
+    "Agent",
+    "AgentConfig",
+    "Batch",
+    "Collector",
+    "EnvSpec",
+    "MultiTaskReplay",
+    "counts_from_ratio",
+]
+
+
+def __getattr__(name: str) -> Any:
+    """`seal.learner.Collector`, imported on first use (collection pulls in env processes)."""
+    if name == "Collector":
+        from seal.learner.collection import Collector
+
+        return Collector
+    raise AttributeError(f"module 'seal.learner' has no attribute {name!r}")

@@ -13,9 +13,10 @@ Backends (same seed -> identical transitions on every backend; `tests/learner/te
   instances of every environment per message (one pipe round trip per worker per step).
 - ``gym-async``: the reference design, gymnasium's `AsyncVectorEnv` (one process per env
   instance) per environment; it can only step all instances of an environment together.
-- ``auto``: ``subproc-batched`` with one worker per CPU when there are >= 2 CPUs and >= 2
-  instances, else ``sync``. Chosen by `seal bench` (collect_mt10_speedup / collect_fk_speedup):
-  on 2 cores it beat both the sync loop and one-process-per-env (see the README's table).
+- ``auto``: ``subproc-batched`` with one worker per CPU when there are >= 2 CPUs, >= 2
+  instances and a step of all instances costs >= 1 ms of CPU (probed on a throwaway env at
+  start), else ``sync``. `seal bench` (collect_mt10_speedup / collect_fk_speedup) measures every
+  backend against a plain loop.
 """
 
 from __future__ import annotations
@@ -23,9 +24,10 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import os
+import time
 import traceback
 import zlib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import Any, Protocol
@@ -395,6 +397,53 @@ class _GymAsyncBackend(_Backend):
         self.vec = {}
 
 
+# auto uses worker processes only when one step of all instances costs at least this much CPU:
+# a pipe round trip costs ~0.2 ms, so cheaper envs (e.g. `point`, ~10 us a step) run faster in
+# one process, while MT10 (~3 ms a step of all 10) and the kitchens (~30 ms) gain from workers.
+AUTO_PARALLEL_MIN_STEP_S = 1e-3
+
+
+def _probe_step_seconds(instance: _Instance, steps: int = 10) -> float:
+    """Median CPU seconds of one random-action step of a throwaway env of `instance`'s task."""
+    env = instance.make()
+    try:
+        env.reset(seed=instance.seed)
+        rng = np.random.default_rng(instance.seed)
+        space = env.action_space
+        costs = []
+        for _ in range(steps):
+            action = rng.uniform(space.low, space.high).astype(space.dtype)
+            start = time.process_time()  # CPU time: a busy machine does not inflate it
+            _, _, terminated, truncated, _ = env.step(action)
+            costs.append(time.process_time() - start)
+            if terminated or truncated:
+                env.reset()
+    finally:
+        env.close()
+    return float(np.median(costs))
+
+
+def _auto_backend(
+    groups: Mapping[str, Sequence[_Instance]], workers: int
+) -> tuple[str, float | None]:
+    """("subproc-batched" or "sync", probed step cost or None): see AUTO_PARALLEL_MIN_STEP_S."""
+    if workers < 2 or sum(len(g) for g in groups.values()) < 2:
+        return "sync", None
+    cost = sum(_probe_step_seconds(g[0]) * len(g) for g in groups.values() if g)
+    return ("subproc-batched" if cost >= AUTO_PARALLEL_MIN_STEP_S else "sync"), cost
+
+
+def auto_backend(
+    adapters: Mapping[str, EnvAdapter], seed: int = 0, num_workers: int | None = None
+) -> str:
+    """The backend `Collector(..., backend="auto")` would pick for all tasks of `adapters`."""
+    groups = {
+        env: [_Instance(env, t, instance_seed(seed, env, t), a) for t in a.tasks]
+        for env, a in adapters.items()
+    }
+    return _auto_backend(groups, _cpu_count() if num_workers is None else num_workers)[0]
+
+
 def _cpu_count() -> int:
     try:
         return len(os.sched_getaffinity(0))
@@ -458,12 +507,13 @@ class Collector:
             )
             for env in self.tasks
         }
-        n = sum(len(ts) for ts in self.tasks.values())
         workers = _cpu_count() if num_workers is None else int(num_workers)
         if workers < 1:
             raise SealError(f"Collector num_workers must be >= 1, got {num_workers}")
+        self.step_cost_s: float | None = None
+        """auto only: probed CPU seconds of one step of every instance, in one process."""
         if backend == "auto":
-            backend = "subproc-batched" if workers >= 2 and n >= 2 else "sync"
+            backend, self.step_cost_s = _auto_backend(groups, workers)
         # fork: workers start in ~0.1 s and need nothing pickled; they never touch torch, so
         # forking a process that has started torch threads is safe here.
         method = start_method or ("fork" if "fork" in mp.get_all_start_methods() else "spawn")
@@ -625,6 +675,3 @@ class Collector:
     def __del__(self) -> None:
         with contextlib.suppress(Exception):  # interpreter shutdown may have torn down modules
             self.close()
-
-
-PolicyFn = Callable[[str, np.ndarray, np.ndarray], np.ndarray]

@@ -37,7 +37,7 @@ from torch import nn
 from seal.device import resolve_device
 from seal.errors import SealError, TrainingDivergedError, UnknownNameError
 from seal.learner.config import AgentConfig, Batch, EnvSpec
-from seal.learner.networks import Segments, TaskNetwork, tanh_gaussian
+from seal.learner.networks import LOG_STD_MAX, LOG_STD_MIN, Segments, TaskNetwork, tanh_gaussian
 
 STATE_FORMAT = 1
 # Per-env scalars returned by update(), in the order they are stacked before the single .tolist().
@@ -274,16 +274,7 @@ class Agent:
     ) -> np.ndarray:
         """Actions (N, act_dim) float32 in [-1, 1] for raw observations (N, obs_dim) of `env_name`."""
         spec = self._spec(env_name)
-        obs = np.asarray(obs, dtype=np.float32)
-        task_ids = np.asarray(task_ids, dtype=np.int64)
-        if obs.ndim != 2 or obs.shape[1] != spec.obs_dim or task_ids.shape != (obs.shape[0],):
-            raise SealError(
-                f"act({env_name!r}): expected obs (N, {spec.obs_dim}) and task_ids (N,), got {obs.shape} and {task_ids.shape}"
-            )
-        if task_ids.size and (task_ids.min() < 0 or task_ids.max() >= spec.num_tasks):
-            raise SealError(
-                f"act({env_name!r}): task ids must be in [0, {spec.num_tasks}), got {sorted(set(task_ids.tolist()))}"
-            )
+        obs, task_ids = self._check_inputs(env_name, spec, obs, task_ids)
         with torch.inference_mode():
             obs_t = torch.from_numpy(obs).to(self.device)
             ids_t = torch.from_numpy(task_ids).to(self.device)
@@ -295,6 +286,50 @@ class Agent:
                 deterministic,
             )
             return actions.cpu().numpy()
+
+    def log_prob(
+        self, env_name: str, obs: np.ndarray, actions: np.ndarray, task_ids: np.ndarray
+    ) -> np.ndarray:
+        """Log-density (N,) of the stochastic policy at given actions in [-1, 1] (SMT's entropy term).
+
+        Same density as the update's: the pre-tanh value is atanh(action) (actions clipped to
+        +-(1 - 1e-6) so that atanh stays finite), then `tanh_gaussian`'s formula.
+        """
+        spec = self._spec(env_name)
+        actions = np.asarray(actions, dtype=np.float32)
+        if actions.ndim != 2 or actions.shape[1] != spec.act_dim:
+            raise SealError(
+                f"log_prob({env_name!r}): expected actions (N, {spec.act_dim}), got {actions.shape}"
+            )
+        obs, task_ids = self._check_inputs(env_name, spec, obs, task_ids)
+        with torch.inference_mode():
+            obs_t = torch.from_numpy(obs).to(self.device)
+            ids_t = torch.from_numpy(task_ids).to(self.device)
+            mean_log_std = self.actor(
+                self._keys[env_name], self._actor_input(env_name, obs_t, ids_t), ids_t
+            )
+            mean, log_std = mean_log_std.chunk(2, dim=-1)
+            pre_tanh = torch.from_numpy(actions).to(self.device).clamp(-1 + 1e-6, 1 - 1e-6).atanh()
+            noise = (pre_tanh - mean) / log_std.clamp(LOG_STD_MIN, LOG_STD_MAX).exp()
+            _, log_prob = tanh_gaussian(mean_log_std, noise)
+            return log_prob.cpu().numpy()
+
+    @staticmethod
+    def _check_inputs(
+        env_name: str, spec: EnvSpec, obs: np.ndarray, task_ids: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """obs as float32 (N, obs_dim) and task ids as int64 (N,) in range, else SealError."""
+        obs = np.asarray(obs, dtype=np.float32)
+        task_ids = np.asarray(task_ids, dtype=np.int64)
+        if obs.ndim != 2 or obs.shape[1] != spec.obs_dim or task_ids.shape != (obs.shape[0],):
+            raise SealError(
+                f"{env_name!r}: expected obs (N, {spec.obs_dim}) and task_ids (N,), got {obs.shape} and {task_ids.shape}"
+            )
+        if task_ids.size and (task_ids.min() < 0 or task_ids.max() >= spec.num_tasks):
+            raise SealError(
+                f"{env_name!r}: task ids must be in [0, {spec.num_tasks}), got {sorted(set(task_ids.tolist()))}"
+            )
+        return obs, task_ids
 
     def _spec(self, env_name: str) -> EnvSpec:
         if env_name not in self.specs:
@@ -368,7 +403,8 @@ class Agent:
         order: list[str] = []
         alpha_loss = None
         for group, members in enumerate(self._groups):
-            names = [n for n in members if n in batches]
+            # An env with an empty batch (a ratio of 0) takes no step this update.
+            names = [n for n in members if n in batches and batches[n].obs.shape[0] > 0]
             if not names:
                 continue
             inputs = {}

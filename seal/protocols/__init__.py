@@ -25,7 +25,14 @@ __all__ = [
 
 
 def __getattr__(name: str):  # noqa: ANN202 - lazy: the runner imports torch and the learner
-    if name in ("RunResult", "run_seed", "run_protocol", "new_group_dir"):
+    if name in (
+        "RunResult",
+        "run_seed",
+        "run_protocol",
+        "new_group_dir",
+        "resume_run",
+        "load_policy",
+    ):
         from seal.protocols import runner
 
         return getattr(runner, name)

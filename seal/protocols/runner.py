@@ -313,11 +313,17 @@ class Run:
     def run(self) -> RunResult:
         """Run (or resume) every phase; returns the run's headline numbers."""
         start_phase, resume_payload = 0, None
+        for torn in self.rundir.checkpoints.glob(".*.tmp-*"):
+            torn.unlink(missing_ok=True)  # a save cut short by a kill (the rename never happened)
         latest = self.rundir.latest_checkpoint()
         if latest is not None:
             resume_payload = load_checkpoint(latest)
             start_phase = int(resume_payload["runner"]["phase_index"])
             self.rundir.truncate_to(resume_payload["runner"]["rows"])
+            resumes = self.rundir.read_provenance().get("resumes", [])
+            self.rundir.update_provenance(
+                resumes=[*resumes, {"time": provenance.utc_now(), "from": latest.name}]
+            )
             for name, state in resume_payload["runner"].get("finished_phases", {}).items():
                 self.results[name] = PhaseState(**state)
         elif (self.rundir.path / "metrics.csv").exists():

@@ -50,8 +50,9 @@ def plot_budget_usage(
         raise ValueError("budget usage needs SMT timeline records (a 'used' column)")
     total = float(total_budget or df["env_steps"].max() or 1)
     fig, ax = plt.subplots(figsize=(7, 4))
-    for label, rows in df.groupby("label", sort=False):
-        ax.plot(rows["env_steps"], rows["used"] / total, label=label)
+    styles = ("-", "--", ":", "-.")  # tasks with equal usage would otherwise hide each other
+    for i, (label, rows) in enumerate(df.groupby("label", sort=False)):
+        ax.plot(rows["env_steps"], rows["used"] / total, linestyle=styles[i % len(styles)], label=label)
     ax.set_xlabel("env steps spent (B)")
     ax.set_ylabel("budget usage S_i / B")
     ax.set_title("Budget usage per task")
@@ -96,7 +97,7 @@ def plot_membership(
     ax.set_yticks(range(len(labels)), labels, fontsize=7)
     ax.invert_yaxis()
     ax.set_xlabel(x.replace("_", " "))
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

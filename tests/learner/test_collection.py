@@ -255,3 +255,10 @@ def test_gym_async_refuses_partial_masks() -> None:
         pytest.raises(SealError, match="all instances of environment 'toy'"),
     ):
         col.collect_episodes(None, random_actions=True, active={"toy": [True, False, True]})
+
+
+def test_auto_keeps_cheap_envs_in_process() -> None:
+    # A toy step costs microseconds: below AUTO_PARALLEL_MIN_STEP_S, so no worker processes.
+    with Collector(adapters(), seed=0, backend="auto", num_workers=2) as col:
+        assert col.backend_name == "sync"
+        assert col.step_cost_s is not None and col.step_cost_s < 1e-3

@@ -326,14 +326,39 @@ def test_seal_transfer_keeps_translators_and_trunk_and_redraws_action_heads() ->
     specs = [EnvSpec("mw", 6, 2, 3), EnvSpec("fk", 8, 3, 2)]
     source = Agent(specs, AgentConfig(architecture="seal", **SMALL), seed=0)
     target = Agent(specs, AgentConfig(architecture="seal", **SMALL), seed=1)
-    fresh = {n: p.detach().clone() for n, p in target.actor.named_parameters() if n.startswith("heads.")}
+    fresh = {
+        n: p.detach().clone() for n, p in target.actor.named_parameters() if n.startswith("heads.")
+    }
     target.transfer_from(source.state_dict())
     for name, p in target.actor.named_parameters():
         if name.startswith("heads."):
             assert torch.equal(p, fresh[name])  # each env's action head keeps its fresh init
         else:
             assert torch.equal(p, source.actor.get_parameter(name)), name
-    for (name, p), q in zip(target.critic.named_parameters(), source.critic.parameters(), strict=True):
+    for (name, p), q in zip(
+        target.critic.named_parameters(), source.critic.parameters(), strict=True
+    ):
         assert torch.equal(p, q), name
     with pytest.raises(SealError, match="cannot transfer a 'mtmhsac' agent"):
         target.transfer_from(Agent([specs[0]], AgentConfig(**SMALL), seed=0).state_dict())
+
+
+def test_log_prob_of_given_actions_matches_the_sampling_density() -> None:
+    spec = EnvSpec("e", 4, 3, 2)
+    agent = Agent([spec], AgentConfig(**SMALL), seed=0)
+    obs = np.random.default_rng(0).normal(size=(5, 4)).astype(np.float32)
+    ids = np.array([0, 1, 1, 0, 1])
+    with torch.no_grad():
+        obs_t, ids_t = torch.from_numpy(obs), torch.from_numpy(ids)
+        actions, log_pi = agent._policy(
+            "e",
+            agent._actor_input("e", obs_t, ids_t),
+            ids_t,
+            torch.Generator().manual_seed(3),
+            False,
+        )
+    got = agent.log_prob("e", obs, actions.numpy(), ids)
+    assert got.shape == (5,)
+    np.testing.assert_allclose(got, log_pi.numpy(), rtol=1e-4, atol=1e-4)
+    with pytest.raises(SealError, match=r"expected actions \(N, 3\)"):
+        agent.log_prob("e", obs, actions.numpy()[:, :2], ids)
