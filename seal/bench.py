@@ -785,6 +785,7 @@ POINT_LEARN = {
     "warmup_steps": 2_000,
     "batch_per_task": 64,
     "updates_per_round": 50,
+    "lr": 3e-4,
 }
 
 
@@ -798,7 +799,8 @@ def learn_point(one_hot: bool = True, seed: int = 0, **overrides: Any) -> dict[s
     from seal.learner import AgentConfig
 
     settings = {**POINT_LEARN, **overrides}
-    config = AgentConfig(hidden=settings.pop("hidden"), one_hot=one_hot, device="cpu")
+    lr = settings.pop("lr")
+    config = AgentConfig(hidden=settings.pop("hidden"), actor_lr=lr, critic_lr=lr, one_hot=one_hot, device="cpu")
     # Point steps cost microseconds and the nets are tiny: worker processes would only add pipe
     # latency, and a second torch thread only synchronisation (8 ms per addmm on a loaded machine).
     with torch_threads(1):
@@ -806,7 +808,8 @@ def learn_point(one_hot: bool = True, seed: int = 0, **overrides: Any) -> dict[s
             PointAdapter(),
             config,
             seed=seed,
-            eval_every_rounds=10,
+            eval_every_rounds=5,
+            eval_episodes=5,
             stop_at_success=1.0 if one_hot else None,
             backend="sync",
             **settings,

@@ -219,15 +219,30 @@ class Agent:
                 group["lr"] = self.config.critic_lr * self._lr_factor
 
     def _try_compile(self) -> None:
-        """torch.compile the per-env loss functions; on any failure keep eager and say so."""
-        import warnings
+        """torch.compile the per-env loss functions (compilation itself happens at the first call)."""
+        self._compiled["critic"] = torch.compile(self._critic_loss, dynamic=False)
+        self._compiled["actor"] = torch.compile(self._actor_loss, dynamic=False)
 
-        try:
-            self._compiled["critic"] = torch.compile(self._critic_loss, dynamic=False)
-            self._compiled["actor"] = torch.compile(self._actor_loss, dynamic=False)
-        except Exception as exc:  # pragma: no cover - depends on the machine's toolchain
-            warnings.warn(f"torch.compile unavailable ({exc}); running eager", stacklevel=2)
-            self._compiled.clear()
+    def _loss(self, kind: str, *args: Any) -> Any:
+        """The compiled loss `kind` when compile is on and works, else the eager one.
+
+        torch.compile fails lazily (no C++ compiler, unsupported op): the first failure warns
+        once and switches this agent to eager for good; a real error then re-raises from eager.
+        """
+        eager = self._critic_loss if kind == "critic" else self._actor_loss
+        compiled = self._compiled.get(kind)
+        if compiled is not None:
+            try:
+                return compiled(*args)
+            except Exception as exc:  # any compiler failure means: run eager
+                import warnings
+
+                warnings.warn(
+                    f"torch.compile failed ({type(exc).__name__}: {exc}); running eager",
+                    stacklevel=3,
+                )
+                self._compiled.clear()
+        return eager(*args)
 
     # ------------------------------------------------------------------ forward passes
     def _actor_input(self, name: str, obs: torch.Tensor, task_ids: torch.Tensor) -> torch.Tensor:
@@ -397,8 +412,6 @@ class Agent:
         """
         for name in batches:
             self._spec(name)
-        critic_loss_fn = self._compiled.get("critic", self._critic_loss)
-        actor_loss_fn = self._compiled.get("actor", self._actor_loss)
         scalars: list[torch.Tensor] = []
         order: list[str] = []
         alpha_loss = None
@@ -422,7 +435,7 @@ class Agent:
 
             # ---- critic: one step of this group's critic optimiser over its envs' summed losses
             critic_terms = {
-                name: critic_loss_fn(name, obs_in, next_obs_in, batch, alpha)
+                name: self._loss("critic", name, obs_in, next_obs_in, batch, alpha)
                 for name, (batch, alpha, obs_in, next_obs_in) in inputs.items()
             }
             qf_loss = sum(qf1 + qf2 for qf1, qf2, _ in critic_terms.values())
@@ -430,7 +443,7 @@ class Agent:
 
             # ---- actor: with the critic just updated, as in cleanrl
             actor_terms = {
-                name: actor_loss_fn(name, obs_in, batch.task_ids, alpha)
+                name: self._loss("actor", name, obs_in, batch.task_ids, alpha)
                 for name, (batch, alpha, obs_in, _) in inputs.items()
             }
             actor_loss = sum(loss for loss, _ in actor_terms.values())

@@ -362,3 +362,27 @@ def test_log_prob_of_given_actions_matches_the_sampling_density() -> None:
     np.testing.assert_allclose(got, log_pi.numpy(), rtol=1e-4, atol=1e-4)
     with pytest.raises(SealError, match=r"expected actions \(N, 3\)"):
         agent.log_prob("e", obs, actions.numpy()[:, :2], ids)
+
+
+def test_compile_failure_falls_back_to_eager_with_a_warning(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    def broken_compile(fn: object, **_: object) -> object:
+        def run(*args: object) -> object:
+            raise RuntimeError("no C++ compiler")
+
+        return run
+
+    monkeypatch.setattr(torch, "compile", broken_compile)
+    spec = EnvSpec("e", 3, 2, 2)
+    eager = Agent([spec], AgentConfig(**SMALL), seed=0)
+    compiled = Agent([spec], AgentConfig(compile=True, **SMALL), seed=0)
+    batch = _random_batch(spec, 8)
+    with pytest.warns(
+        UserWarning, match="torch.compile failed .*no C\\+\\+ compiler.*running eager"
+    ):
+        got = compiled.update({"e": batch})
+    assert got == eager.update({"e": batch})
+    assert compiled.update({"e": batch}) == eager.update(
+        {"e": batch}
+    )  # stays eager, no new warning
