@@ -266,6 +266,10 @@ class PhaseState:
     """env -> task -> updates (millions) at the first evaluation at or above the threshold."""
     timeline_rows: int = 0
     """Scheduler timeline records already written to scheduler.csv."""
+    log_sums: dict[str, float] = field(default_factory=dict)
+    """Sums of the agent's log values over the updates since the last train.csv row."""
+    log_updates: int = 0
+    """Updates since the last train.csv row (a checkpoint between two rows keeps both)."""
 
 
 class Run:
@@ -437,8 +441,6 @@ class Run:
         total_tasks = sum(len(t) for t in model.env_tasks.values())
         train_policy = model.policy(agent, deterministic=False)
         eval_policy = model.policy(agent, deterministic=True)
-        sums: dict[str, float] = {}
-        n_updates = 0
         bar = None if self.quiet else _progress_bar(phase, state.epoch)
         tick_time, tick_env, tick_grad = (
             time.monotonic(),
@@ -530,24 +532,24 @@ class Run:
                                 f"{self.rundir.path}: training diverged in phase {phase.name!r} at gradient step {state.grad_steps + 1} ({exc}); last good checkpoint: {last or 'none yet'}"
                             ) from None
                         state.grad_steps += 1
-                        n_updates += 1
+                        state.log_updates += 1
                         for k, v in losses.items():
-                            sums[k] = sums.get(k, 0.0) + float(v)
+                            state.log_sums[k] = state.log_sums.get(k, 0.0) + float(v)
                 state.epoch += 1
                 epoch = state.epoch
                 last_epoch = epoch >= phase.epochs or scheduler.done
                 # ---- training curves: the mean of every logged value over the interval's updates
-                if n_updates and (epoch % cfg.logging.train_interval == 0 or last_epoch):
+                if state.log_updates and (epoch % cfg.logging.train_interval == 0 or last_epoch):
                     self.rundir.log_train(
                         self._train_rows(
                             phase,
                             model,
                             epoch,
                             state.grad_steps,
-                            {k: v / n_updates for k, v in sums.items()},
+                            {k: v / state.log_updates for k, v in state.log_sums.items()},
                         )
                     )
-                    sums, n_updates = {}, 0
+                    state.log_sums, state.log_updates = {}, 0
                 # ---- evaluation (Appendix B)
                 if epoch % cfg.evaluation.interval == 0 or last_epoch:
                     self._evaluate(

@@ -46,7 +46,9 @@ episodes = 2
 interval = 3
 keep_last = 2
 [logging]
-train_interval = 2
+# Logged every 4 epochs, checkpointed every 3: most checkpoints fall between two train.csv rows,
+# so resuming must restore the partial sums of the agent's logs too.
+train_interval = 4
 [scheduler]
 kind = "stepped"
 start = { a = 0.9, b = 0.1 }
