@@ -8,6 +8,7 @@ inference is batched across tasks.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from collections.abc import Callable, Mapping, Sequence
@@ -171,6 +172,24 @@ def _mp4_writer() -> Any:
     return imageio
 
 
+def _enable_rgb_rendering(env: Any, depth: int = 0) -> None:
+    """Switch an env built without a render mode, and the MuJoCo envs it wraps, to "rgb_array".
+
+    Adapters build envs for training (no render mode); a kitchen env renders through an inner
+    robot env, so the attribute is set on every gym.Env reachable through a few attributes.
+    """
+    import gymnasium as gym
+
+    if depth > 3 or not isinstance(env, gym.Env):
+        return
+    for target in {id(env): env, id(env.unwrapped): env.unwrapped}.values():
+        with contextlib.suppress(AttributeError):
+            target.render_mode = "rgb_array"
+        for value in list(vars(target).values()):
+            if isinstance(value, gym.Env) and value is not env:
+                _enable_rgb_rendering(value, depth + 1)
+
+
 def record_videos(
     policy: PolicyFn,
     adapters: Mapping[str, EnvAdapter],
@@ -192,7 +211,7 @@ def record_videos(
         for task in chosen:
             task_id = np.array([adapter.tasks.index(task)])
             env = adapter.make(task, seed)
-            env.unwrapped.render_mode = "rgb_array"
+            _enable_rgb_rendering(env)
             for episode in range(episodes):
                 obs, _ = env.reset(seed=seed + episode)
                 frames = []
@@ -201,6 +220,10 @@ def record_videos(
                         frame = env.render()
                     except NotImplementedError:
                         frame = None
+                    except Exception as exc:  # noqa: BLE001 - any renderer failure is the same to the user
+                        raise SealError(
+                            f"--video: adapter {adapter.name!r} (task {task!r}) failed to render: {type(exc).__name__}: {exc}"
+                        ) from None
                     if frame is None:
                         raise SealError(
                             f"--video: adapter {adapter.name!r} (task {task!r}) does not render rgb_array frames"
