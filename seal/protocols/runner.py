@@ -26,7 +26,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import random
 import sys
 import time
@@ -44,6 +43,7 @@ from seal.envs import make_adapter
 from seal.envs.base import EnvAdapter
 from seal.errors import SealError, TrainingDivergedError
 from seal.evaluation import AgentPolicy, evaluate, mean_success
+from seal.learner.checkpoint import atomic_save
 from seal.protocols import scheduling
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
@@ -223,14 +223,17 @@ class PhaseModel:
 # ---------------------------------------------------------------- checkpoint files
 
 
-def save_checkpoint(path: Path, payload: Mapping[str, Any]) -> None:
-    """torch.save `payload` atomically (temp file, fsync, rename): a kill never leaves half a file."""
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "wb") as fh:
-        torch.save(dict(payload), fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+def save_checkpoint(path: Path, payload: Mapping[str, Any], agent: Any) -> None:
+    """Write a run checkpoint atomically, refusing an agent with NaN/inf parameters.
+
+    The refusal means a diverged run can never overwrite its last good checkpoint.
+    """
+    if not agent.parameters_finite():
+        raise TrainingDivergedError(
+            f"refusing to write checkpoint {path}: the agent has NaN/inf parameters; "
+            f"last good checkpoint: {agent.last_checkpoint or 'none saved yet'}"
+        )
+    atomic_save(dict(payload), path)
 
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
@@ -696,6 +699,7 @@ class Run:
             save_checkpoint(
                 self.rundir.best_path(phase.name if len(self.phases) > 1 else None),
                 self._payload(phase, agent, None, None, state, None, best=True),
+                agent,
             )
 
     def _scores(
@@ -791,7 +795,7 @@ class Run:
         path = self.rundir.checkpoint_path(
             state.epoch, phase.name if len(self.phases) > 1 else None
         )
-        save_checkpoint(path, self._payload(phase, agent, replay, scheduler, state, np_rng))
+        save_checkpoint(path, self._payload(phase, agent, replay, scheduler, state, np_rng), agent)
         agent.last_checkpoint = str(path)  # named by TrainingDivergedError
         self.rundir.prune(self.config.checkpoint.keep_last)
 
