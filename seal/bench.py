@@ -613,7 +613,7 @@ def bench_collection(
     adapter_name: str,
     episodes: int = 2,
     episode_length: int | None = None,
-    backends: Sequence[str] = ("sync", "subproc-batched", "gym-async"),
+    backends: Sequence[str] = ("sync", "subproc-batched", "inline-batched", "gym-async"),
     num_workers: int | None = None,
     seed: int = 0,
     repeats: int = 1,

@@ -52,7 +52,9 @@ def plot_budget_usage(
     fig, ax = plt.subplots(figsize=(7, 4))
     styles = ("-", "--", ":", "-.")  # tasks with equal usage would otherwise hide each other
     for i, (label, rows) in enumerate(df.groupby("label", sort=False)):
-        ax.plot(rows["env_steps"], rows["used"] / total, linestyle=styles[i % len(styles)], label=label)
+        ax.plot(
+            rows["env_steps"], rows["used"] / total, linestyle=styles[i % len(styles)], label=label
+        )
     ax.set_xlabel("env steps spent (B)")
     ax.set_ylabel("budget usage S_i / B")
     ax.set_title("Budget usage per task")

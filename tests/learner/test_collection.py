@@ -162,7 +162,7 @@ def transitions(
     return out
 
 
-@pytest.mark.parametrize("backend", ["subproc-batched", "gym-async"])
+@pytest.mark.parametrize("backend", ["subproc-batched", "inline-batched", "gym-async"])
 def test_backends_give_identical_transitions(backend: str) -> None:
     envs: dict[str, EnvAdapter] = {"toy": ToyAdapter(), "toy2": Toy2Adapter(tasks=["a"])}
     reference = transitions("sync", 7, envs)
@@ -174,9 +174,10 @@ def test_backends_give_identical_transitions(backend: str) -> None:
     assert not np.array_equal(reference[1], different[1])  # another seed: other noise in obs
 
 
-def test_subproc_handles_early_termination_like_sync() -> None:
+@pytest.mark.parametrize("backend", ["subproc-batched", "inline-batched"])
+def test_batched_backends_handle_early_termination_like_sync(backend: str) -> None:
     ref = transitions("sync", 1, {"toy2": Toy2Adapter()}, episodes=1)
-    got = transitions("subproc-batched", 1, {"toy2": Toy2Adapter()}, episodes=1)
+    got = transitions(backend, 1, {"toy2": Toy2Adapter()}, episodes=1)
     for a, b in zip(ref, got, strict=True):
         np.testing.assert_array_equal(a, b)
 
