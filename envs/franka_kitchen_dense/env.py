@@ -21,13 +21,19 @@ Observation (62 float64):
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 from typing import Any
 
 import gymnasium as gym
 import mujoco
 import numpy as np
-from gymnasium_robotics.envs.franka_kitchen.kitchen_env import KitchenEnv
+
+# gymnasium-robotics prints a notice about its Adroit envs' rewards on import; it does not concern
+# the kitchen, so keep it out of every seal command's output.
+with contextlib.redirect_stderr(io.StringIO()):
+    from gymnasium_robotics.envs.franka_kitchen.kitchen_env import KitchenEnv
 
 from franka_kitchen_dense.rewards import (
     FINGER_MAX_OPENING,

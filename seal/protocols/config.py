@@ -2,7 +2,7 @@
 
 A protocol file has one table per dataclass below (`[protocol]`, `[envs.<name>]`, `[agent]`,
 `[replay]`, `[training]`, `[evaluation]`, `[scheduler]`, `[finetune]`, `[checkpoint]`,
-`[logging]`, and the pass-through tables `[search]` and `[resources]`). Loading validates every
+`[transfer]`, `[logging]`, and the pass-through tables `[search]` and `[resources]`). Loading validates every
 key and value and raises `ConfigError` naming the file, `table.key`, the bad value and what is
 valid, before anything is written. Defaults are the paper-scale values of issue 4.
 
@@ -113,6 +113,22 @@ class FinetuneConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class TransferConfig:
+    """[transfer]: start a baseline or joint run from another run's checkpoint (issue 5, e.g. MT1 -> MT3).
+
+    The new agent is built as usual, then takes every parameter of the checkpoint's agent except
+    the policy's last layer; one-hot columns of tasks the source did not have start at zero.
+    """
+
+    checkpoint: str = ""
+    """A checkpoint written by `seal run` (e.g. reports/<protocol>/<group>/seed-0/checkpoints/best.pt), relative to the working directory."""
+    lr_factor: float = 0.1
+    """Actor and critic learning rates are multiplied by this after the transfer (issue 5: 0.1)."""
+    reinit_critic: bool = False
+    """Keep the fresh critic instead of the transferred one."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class CheckpointConfig:
     """[checkpoint]: what is saved for resume and for `seal eval`."""
 
@@ -150,6 +166,8 @@ class ProtocolConfig:
     scheduler: dict[str, Any] = field(default_factory=dict)
     """The [scheduler] table as given, validated by seal.schedulers (empty: every task collects, uniform batch)."""
     finetune: FinetuneConfig | None = None
+    transfer: TransferConfig | None = None
+    """[transfer] if given (baseline and joint only)."""
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
     search: dict[str, Any] = field(default_factory=dict)
@@ -194,6 +212,7 @@ BOUNDS: dict[tuple[type, str], tuple[float | None, float | None]] = {
     (FinetuneConfig, "pretrain_epochs"): (0, None),
     (FinetuneConfig, "finetune_epochs"): (0, None),
     (FinetuneConfig, "lr_factor"): (0.0, None),
+    (TransferConfig, "lr_factor"): (0.0, None),
     (CheckpointConfig, "interval"): (1, None),
     (CheckpointConfig, "keep_last"): (1, None),
     (LoggingConfig, "train_interval"): (1, None),
@@ -218,6 +237,7 @@ ALL_TABLES: tuple[str, ...] = (
     "evaluation",
     "scheduler",
     "finetune",
+    "transfer",
     "checkpoint",
     "logging",
     "search",

@@ -32,6 +32,7 @@ from seal.protocols.config import (
     FinetuneConfig,
     ProtocolConfig,
     ProtocolTable,
+    TransferConfig,
 )
 
 # ---------------------------------------------------------------- reading and overrides
@@ -405,6 +406,11 @@ def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolCon
         for name, cls in SIMPLE_TABLES.items()
         if name not in ("protocol", "finetune")
     }
+    transfer = (
+        build_dataclass(TransferConfig, raw["transfer"], f"{file}: transfer")
+        if "transfer" in raw
+        else None
+    )
     finetune = (
         build_dataclass(FinetuneConfig, raw["finetune"], f"{file}: finetune")
         if "finetune" in raw
@@ -417,6 +423,7 @@ def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolCon
         envs=envs,
         agent=_build_agent(raw.get("agent"), protocol.kind, protocol.device, file),
         finetune=finetune,
+        transfer=transfer,
         scheduler=scheduling.resolve_table(raw.get("scheduler", {}), file),
         search=dict(raw.get("search", {})),
         resources=dict(raw.get("resources", {})),
@@ -428,6 +435,15 @@ def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolCon
             f'{file}: scheduler is not used by kind = "finetune" (each phase trains on one env with uniform batches); remove [scheduler]'
         )
     _validate_scheduler(config.scheduler, envs, file)
+    if transfer is not None:
+        if config.kind == "finetune":
+            raise ConfigError(
+                f'{file}: transfer is not used by kind = "finetune" (its [finetune] table transfers between phases); remove [transfer]'
+            )
+        if not transfer.lr_factor > 0:
+            raise ConfigError(
+                f"{file}: transfer.lr_factor = {transfer.lr_factor!r} must be > 0 (issue 5's default: 0.1)"
+            )
     if finetune is not None:
         config = config.replace(
             finetune=dataclasses.replace(
@@ -471,6 +487,8 @@ def config_to_dict(config: ProtocolConfig) -> dict[str, Any]:
         out["scheduler"] = plain(config.scheduler)
     if config.finetune is not None:
         out["finetune"] = plain(config.finetune)
+    if config.transfer is not None:
+        out["transfer"] = plain(config.transfer)
     out["checkpoint"] = plain(config.checkpoint)
     out["logging"] = plain(config.logging)
     if config.search:
@@ -571,6 +589,8 @@ def explain(config: ProtocolConfig) -> str:
         section("scheduler", config.scheduler, None)
     if config.finetune is not None:
         section("finetune", config.finetune, FinetuneConfig)
+    if config.transfer is not None:
+        section("transfer", config.transfer, TransferConfig)
     section("checkpoint", config.checkpoint, type(config.checkpoint))
     section("logging", config.logging, type(config.logging))
     for name in ("search", "resources"):

@@ -41,7 +41,7 @@ import torch
 from seal import provenance
 from seal.envs import make_adapter
 from seal.envs.base import EnvAdapter
-from seal.errors import SealError, TrainingDivergedError
+from seal.errors import ConfigError, SealError, TrainingDivergedError
 from seal.evaluation import AgentPolicy, evaluate, mean_success
 from seal.learner.checkpoint import atomic_save
 from seal.protocols import scheduling
@@ -250,6 +250,28 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     return data
 
 
+def transfer_source(config: ProtocolConfig) -> dict[str, Any] | None:
+    """The agent state named by [transfer] checkpoint (None without [transfer]).
+
+    ConfigError naming `transfer.checkpoint` and the path if it is empty, missing or not a
+    `seal run` checkpoint.
+    """
+    transfer = config.transfer
+    if transfer is None:
+        return None
+    where = f"{config.path}: transfer.checkpoint"
+    if not transfer.checkpoint:
+        raise ConfigError(
+            f"{where} is empty; give a checkpoint written by `seal run`, e.g. "
+            "--set transfer.checkpoint=reports/<protocol>/<group>/seed-0/checkpoints/best.pt"
+        )
+    try:
+        data = load_checkpoint(transfer.checkpoint)
+    except SealError as exc:
+        raise ConfigError(f"{where} = {transfer.checkpoint!r}: {exc}") from None
+    return data["agent"]
+
+
 # ---------------------------------------------------------------- one phase
 
 
@@ -300,6 +322,9 @@ class Run:
             build_alignment(config, self.adapters) if config.kind == "finetune" else None
         )
         self.agent_cfg = run_agent_config(config, self.device)
+        # [transfer]: read the source checkpoint now, so a bad path fails before anything is written
+        # (a resumed run restores its own agent and does not need the source any more).
+        self.transfer_state = None if resume else transfer_source(config)
         if resume:
             self.rundir = RunDir.open(path)
         else:
@@ -393,8 +418,24 @@ class Run:
             backend=self.config.training.collector,
         )
 
-    def _initial_agent(self, phase: Phase, model: PhaseModel) -> Any:
+    def _initial_agent(
+        self, phase: Phase, model: PhaseModel, resuming: bool = False
+    ) -> Any:
         agent = self._new_agent(model)
+        if resuming:
+            return agent  # the checkpoint's agent state replaces everything (lr factor included)
+        transfer = self.config.transfer
+        if transfer is not None and phase.name == "train":
+            state = self.transfer_state
+            if state is None:
+                state = transfer_source(self.config)
+            try:
+                agent.transfer_from(state, reinit_critic=transfer.reinit_critic)
+            except SealError as exc:
+                raise ConfigError(
+                    f"{self.config.path}: transfer.checkpoint = {transfer.checkpoint!r}: {exc}"
+                ) from None
+            agent.set_lr_factor(transfer.lr_factor)
         if phase.name == "finetune":
             ft = self.config.finetune
             assert ft is not None
@@ -412,7 +453,7 @@ class Run:
     def _run_phase(self, phase: Phase, payload: Mapping[str, Any] | None) -> PhaseState:
         cfg = self.config
         model = PhaseModel(cfg, phase, self.adapters, self.alignment)
-        agent = self._initial_agent(phase, model)
+        agent = self._initial_agent(phase, model, resuming=payload is not None)
         replay = self._new_replay(model)
         scheduler = scheduling.build(
             cfg.scheduler,
