@@ -26,7 +26,23 @@ SHIPPED = [
     "high_fk",
     "high_mw",
     "quickstart",
+    # issue 5: schedulers, curricula and transfer
+    "mt1_pick_place",
+    "mt10_smt",
+    "mt3_curriculum_v1",
+    "mt10_curriculum_v1",
+    "mt10_progressive_sequential",
+    "mt3_transfer",
+    "joint_smt",
 ]
+# Per-protocol shrinks of per-epoch work the common list does not cover.
+EXTRA: dict[str, list[str]] = {
+    "mt3_transfer": ["training.grad_steps_per_epoch=-1"],
+    "mt10_curriculum_v1": ["scheduler.grad_steps=-1"],
+    # Eq. 5 scores build their own env instances: at most once in the smoke run (T_eval past it).
+    "mt10_smt": ["scheduler.score_episodes=1", "scheduler.score_interval=100000000"],
+    "joint_smt": ["scheduler.score_episodes=1", "scheduler.score_interval=100000000"],
+}
 SHRINK = [
     "evaluation.episodes=1",
     "training.warmup_steps=0",
@@ -62,7 +78,23 @@ def test_shipped_protocol_smoke(
         seeds,
     ]
     config = load_protocol(path)
-    for item in [*SHRINK, *(f"envs.{env}.episode_length=5" for env in config.envs)]:
+    shrink = [
+        *SHRINK,
+        *(f"envs.{env}.episode_length=5" for env in config.envs),
+        *EXTRA.get(name, []),
+    ]
+    if config.transfer is not None:
+        # The two commands of mt3_transfer.toml's header: pre-train its MT1 source, then transfer.
+        source = [
+            "run",
+            str(PROTOCOLS / "mt1_pick_place.toml"),
+            *args[2:],
+            *(x for item in [*SHRINK, "envs.mw.episode_length=5"] for x in ("--set", item)),
+        ]
+        assert main(source) == 0
+        best = Path(json.loads(capsys.readouterr().out.strip().splitlines()[-1])["run_dir"])
+        shrink.append(f"transfer.checkpoint={best / 'checkpoints' / 'best.pt'}")
+    for item in shrink:
         args += ["--set", item]
     assert main(args) == 0
     line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
