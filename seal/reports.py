@@ -760,6 +760,31 @@ def _plot_critic_loss(
     return _save(fig, plots / "critic_loss.png")
 
 
+def _plot_schedulers(groups: Sequence[_Group], plots: Path, skipped: list[str]) -> list[Path]:
+    """plots/scheduler_membership.png (and scheduler_budget.png for SMT) of runs with a scheduler.csv.
+
+    One run: those names; several: `scheduler_<protocol>_<group>_seed-<n>_<kind>.png`. A timeline
+    of one snapshot with every task alike (the default uniform scheduler) is not drawn; one
+    that cannot be plotted (empty, or written by an older runner) is reported in `skipped`.
+    """
+    from seal.schedulers.plots import plot_budget_usage, plot_membership
+
+    runs = [r for g in groups for r in g.runs if (r.path / "scheduler.csv").is_file()]
+    out: list[Path] = []
+    for run in runs:
+        tag = "" if len(runs) == 1 else "_" + _safe(f"{run.protocol}_{run.group}_seed-{run.seed}")
+        try:
+            timeline = pd.read_csv(run.path / "scheduler.csv")
+            if timeline["status"].nunique() <= 1 and timeline["epoch"].nunique() <= 1:
+                continue  # one snapshot, every task alike (the default uniform scheduler): nothing to draw
+            out.append(plot_membership(timeline, plots / f"scheduler{tag}_membership.png"))
+            if "used" in timeline:  # SMT's budget usage (Fig. 6); curricula have no budgets
+                out.append(plot_budget_usage(timeline, plots / f"scheduler{tag}_budget.png"))
+        except (ValueError, KeyError, pd.errors.EmptyDataError) as exc:
+            skipped.append(f"scheduler{tag}_*.png: {run.path / 'scheduler.csv'}: {exc}")
+    return out
+
+
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.+-]+", "_", name)
 
@@ -892,6 +917,7 @@ def report(
         skipped.append("critic_loss.png: no critic_loss rows in the runs' train.csv")
     else:
         plots.append(loss_plot)
+    plots.extend(_plot_schedulers(groups, plots_dir, skipped))
 
     return ReportResult(
         out_dir=out_dir,

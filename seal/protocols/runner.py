@@ -3,7 +3,9 @@
 One seed of a protocol is one `Run` writing one run directory (`seal.protocols.rundir`). A run
 has one or more phases: baseline and joint have the phase "train"; finetune has "pretrain" (on
 the source env) then "finetune" (on the target env, starting from the best pre-trained
-checkpoint with the policy's last layer re-initialised, SEAL Appendix D).
+checkpoint with the policy's last layer re-initialised, SEAL Appendix D). A baseline or joint
+run with a [transfer] table starts its "train" phase the same way from any `seal run` checkpoint
+(issue 5: MT1 -> MT3, MT1 -> MT10), with the learning rates x transfer.lr_factor.
 
 The epoch (garage MTSAC convention, issue 4's table)::
 
@@ -418,9 +420,7 @@ class Run:
             backend=self.config.training.collector,
         )
 
-    def _initial_agent(
-        self, phase: Phase, model: PhaseModel, resuming: bool = False
-    ) -> Any:
+    def _initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Any:
         agent = self._new_agent(model)
         if resuming:
             return agent  # the checkpoint's agent state replaces everything (lr factor included)
