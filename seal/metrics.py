@@ -32,22 +32,8 @@ NEVER_REACHED = "—"
 # may come out a rounding error below it, and must still count as reaching it.
 SUCCESS_TOLERANCE = 1e-9
 
-METRICS_COLUMNS = (
-    "seed",
-    "phase",
-    "epoch",
-    "env",
-    "task",
-    "success",
-    "return",
-    "grad_steps",
-    "env_steps",
-    "updates",
-    "wall_s",
-)
-"""Columns of a run directory's `metrics.csv`, one row per evaluation and task."""
-
-_FIRST_REACH_NEEDS = (
+# metrics.csv columns without which no update count can be made; `return` and `wall_s` are only shown.
+REQUIRED_METRICS_COLUMNS = (
     "seed",
     "phase",
     "epoch",
@@ -77,7 +63,7 @@ def first_reach(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> 
     threshold has `reached=False` and 0 in the numeric columns (Tables 4-7 write 0 for it).
     Phases are kept apart: update counts restart at each phase (pre-train / fine-tune).
     """
-    _require_columns(metrics, _FIRST_REACH_NEEDS, "metrics table")
+    _require_columns(metrics, REQUIRED_METRICS_COLUMNS, "metrics table")
     keys = ["seed", "phase", "env", "task"]
     values = ["epoch", "updates", "grad_steps", "env_steps"]
     # Evaluations in training order; "first" is the earliest epoch of the phase.

@@ -30,8 +30,8 @@ from matplotlib.ticker import MaxNLocator
 from seal.errors import SealError
 from seal.metrics import (
     DEFAULT_THRESHOLD,
-    METRICS_COLUMNS,
     NEVER_REACHED,
+    REQUIRED_METRICS_COLUMNS,
     add_percent_change,
     aggregate_seeds,
     env_totals,
@@ -39,22 +39,7 @@ from seal.metrics import (
     format_count,
     format_number,
 )
-
-TRAIN_COLUMNS = ("seed", "phase", "epoch", "grad_steps", "env", "key", "value")
-"""Columns of a run directory's `train.csv` (long format: one row per logged value)."""
-
-# metrics.csv columns without which no table can be made; `return` and `wall_s` are only shown.
-_REQUIRED_METRICS = (
-    "seed",
-    "phase",
-    "epoch",
-    "env",
-    "task",
-    "success",
-    "grad_steps",
-    "env_steps",
-    "updates",
-)
+from seal.protocols.rundir import METRICS_COLUMNS, TRAIN_COLUMNS  # defined once, by the writer
 
 BASELINE_COLUMN = "Single Env"
 """The column every other column's percent change is measured against (Table 1)."""
@@ -106,7 +91,7 @@ class RunData:
     path: Path
     """The run directory (`.../<protocol>/<group-id>/seed-<n>`)."""
     metrics: pd.DataFrame
-    """metrics.csv: one row per evaluation and task (columns `seal.metrics.METRICS_COLUMNS`)."""
+    """metrics.csv: one row per evaluation and task (columns `seal.protocols.rundir.METRICS_COLUMNS`)."""
     train: pd.DataFrame
     """train.csv: seed, phase, epoch, grad_steps, env, key, value (empty if the file is absent)."""
     config: dict[str, Any]
@@ -192,7 +177,9 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
     for needed in (metrics_path, config_path):
         if not needed.is_file():
             raise SealError(f"{run}: no {needed.name}; {_EXPECTED}")
-    metrics = _read_csv(metrics_path, _REQUIRED_METRICS, text_columns=("phase", "env", "task"))
+    metrics = _read_csv(
+        metrics_path, REQUIRED_METRICS_COLUMNS, text_columns=("phase", "env", "task")
+    )
     train_path = run / "train.csv"
     if train_path.is_file():
         train = _read_csv(train_path, TRAIN_COLUMNS, text_columns=("phase", "env", "key"))
