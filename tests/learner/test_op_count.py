@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Iterator
 
 import pytest
 import torch
@@ -12,15 +11,6 @@ from torch.profiler import ProfilerActivity, profile
 from seal.learner import Agent, AgentConfig, Batch, EnvSpec
 
 SMALL = {"hidden": (16, 16), "translator_hidden": (16,), "latent_dim": 16, "trunk_hidden": (16, 16)}
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Iterator[None]:
-    """Tiny networks: one thread is faster, and two OpenMP threads crawl on a busy 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 def _batch(spec: EnvSpec, per_task: int) -> Batch:
