@@ -16,7 +16,9 @@ class UnknownNameError(SealError):
 
     def __init__(self, kind: str, name: str, valid: list[str] | tuple[str, ...]) -> None:
         self.kind, self.name, self.valid = kind, name, list(valid)
-        shown = ", ".join(self.valid) if len(self.valid) <= 60 else ", ".join(self.valid[:60]) + ", ..."
+        shown = (
+            ", ".join(self.valid) if len(self.valid) <= 60 else ", ".join(self.valid[:60]) + ", ..."
+        )
         super().__init__(f"unknown {kind} {name!r}; valid: {shown}")
 
 

@@ -21,7 +21,9 @@ SUBCOMMAND_MODULES = (
 
 def build_parser() -> argparse.ArgumentParser:
     """The full `seal` argument parser."""
-    parser = argparse.ArgumentParser(prog="seal", description="SEAL: cross-environment multi-task RL.")
+    parser = argparse.ArgumentParser(
+        prog="seal", description="SEAL: cross-environment multi-task RL."
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in SUBCOMMAND_MODULES:
         try:

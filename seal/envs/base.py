@@ -35,7 +35,9 @@ class ObsLayout:
         return self.robot + self.objects
 
     @classmethod
-    def from_slices(cls, robot: Sequence[slice], objects: Sequence[slice], goal: Sequence[slice]) -> ObsLayout:
+    def from_slices(
+        cls, robot: Sequence[slice], objects: Sequence[slice], goal: Sequence[slice]
+    ) -> ObsLayout:
         """Build a layout from lists of slices (convenient for observations made of blocks)."""
 
         def idx(slices: Sequence[slice]) -> tuple[int, ...]:
@@ -58,15 +60,24 @@ class EnvAdapter(abc.ABC):
     task_sets: ClassVar[dict[str, tuple[str, ...]]] = {}
     default_episode_length: ClassVar[int]
 
-    def __init__(self, tasks: Sequence[str] | str | None = None, episode_length: int | None = None, **options: Any) -> None:
+    def __init__(
+        self,
+        tasks: Sequence[str] | str | None = None,
+        episode_length: int | None = None,
+        **options: Any,
+    ) -> None:
         from seal.errors import SealError, UnknownNameError
 
         if options:
-            raise SealError(f"adapter {self.name!r} takes no option(s) {sorted(options)}; it takes tasks, episode_length")
+            raise SealError(
+                f"adapter {self.name!r} takes no option(s) {sorted(options)}; it takes tasks, episode_length"
+            )
         self.tasks: tuple[str, ...] = self.resolve_tasks(tasks)
         for task in self.tasks:
             if task not in self.all_tasks:
-                raise UnknownNameError(f"{self.name} task", task, list(self.all_tasks) + sorted(self.task_sets))
+                raise UnknownNameError(
+                    f"{self.name} task", task, list(self.all_tasks) + sorted(self.task_sets)
+                )
         if len(set(self.tasks)) != len(self.tasks):
             raise SealError(f"adapter {self.name!r}: task list {list(self.tasks)} repeats a task")
         length = self.default_episode_length if episode_length is None else int(episode_length)

@@ -38,6 +38,8 @@ def adapter_class(name_or_path: str) -> type[EnvAdapter]:
     return cls
 
 
-def make_adapter(name_or_path: str, tasks: Sequence[str] | str | None = None, **options: Any) -> EnvAdapter:
+def make_adapter(
+    name_or_path: str, tasks: Sequence[str] | str | None = None, **options: Any
+) -> EnvAdapter:
     """Build an adapter by name or import path, with its task list and options."""
     return adapter_class(name_or_path)(tasks=tasks, **options)
