@@ -13,6 +13,9 @@ BUILTIN_ADAPTERS: dict[str, str] = {
     "metaworld": "seal.envs.metaworld:MetaWorldAdapter",
     "franka_kitchen_dense": "franka_kitchen_dense.adapter:FrankaKitchenDenseAdapter",
     "point": "seal.envs.point:PointAdapter",
+    # The transfer testbed (docs/transfer_testbed.md): point behind other spaces, point on diagonals.
+    "point_view": "seal.envs.testbed:PointViewAdapter",
+    "point_diagonal": "seal.envs.testbed:PointDiagonalAdapter",
 }
 
 

@@ -102,6 +102,9 @@ class Plan:
     """Gradient steps after this epoch's collection; None = the runner's default; -1 = GRAD_STEPS_COLLECTED."""
     phase: str = ""
     """A short label for logs (e.g. "ratio 0.8/0.2", "stage1", "P3")."""
+    batch_scale: float = 1.0
+    """Multiplies the runner's update batch total: 1 draws all of it; a run that stands in for
+    one environment of a joint run draws that environment's share of the joint batch."""
 
     def env_fraction(self, env: str) -> float:
         """The fraction of the update batch drawn from `env`."""
@@ -110,7 +113,7 @@ class Plan:
     def batch_counts(
         self, total: int, rng: np.random.Generator | None = None
     ) -> dict[str, np.ndarray]:
-        """Integer per-task sample counts summing to `total`, proportional to `batch_weights`.
+        """Integer per-task sample counts summing to round(`total` x `batch_scale`), proportional to `batch_weights`.
 
         Largest-remainder rounding over all (env, task) pairs together. Equal remainders (e.g.
         1152 samples over 10 equally weighted tasks) go to the earlier tasks, or, with `rng`, to
@@ -121,6 +124,7 @@ class Plan:
         flat = np.concatenate([np.asarray(self.batch_weights[e], dtype=np.float64) for e in envs])
         if total < 0:
             raise ValueError(f"batch total must be >= 0, got {total}")
+        total = int(round(total * self.batch_scale))
         if flat.size == 0 or flat.sum() <= 0:
             counts = np.zeros(flat.size, dtype=np.int64)
         else:

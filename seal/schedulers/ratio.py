@@ -50,6 +50,8 @@ class ConstantRatioConfig(SchedulerConfig):
     """Env name -> fraction of the update batch (fractions sum to 1); empty = equal shares."""
     collect: CollectMode = "all"
     """"all": every task collects every epoch (issue 4 default); "ratio": envs collect in proportion to their fraction."""
+    absent: dict[str, int] = field(default_factory=dict)
+    """Envs of a joint run that this run stands in for but does not have, with their task counts: their share of the batch is not drawn, so each task here gets the per-step batch it gets in that joint run (a target-alone arm)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -72,6 +74,8 @@ class SteppedRatioConfig(SchedulerConfig):
     """With a preset: the starting fraction of the preset's high environment (§4.3: 0.9)."""
     collect: CollectMode = "all"
     """"all": every task collects every epoch (issue 4 default); "ratio": envs collect in proportion to their fraction."""
+    absent: dict[str, int] = field(default_factory=dict)
+    """Envs of a joint run that this run stands in for but does not have, with their task counts: their share of the batch is not drawn, so each task here gets the per-step batch it gets in that joint run (a target-alone arm)."""
 
 
 def _check_fractions(
@@ -93,6 +97,18 @@ def _check_fractions(
     if abs(total - 1.0) > 1e-6:
         raise ConfigError(f"{key} = {dict(values)}: fractions must sum to 1, they sum to {total:g}")
     return {e: float(values[e]) for e in envs}
+
+
+def _check_absent(absent: Mapping[str, int], envs: Sequence[str]) -> dict[str, int]:
+    """Validate `scheduler.absent` (env name -> task count) against the protocol's envs."""
+    for env, tasks in absent.items():
+        if env in envs:
+            raise ConfigError(
+                f"scheduler.absent.{env}: {env!r} is one of the protocol's envs {list(envs)}; absent envs must not be"
+            )
+        if not isinstance(tasks, int) or tasks < 1:
+            raise ConfigError(f"scheduler.absent.{env} = {tasks!r}: expected a task count >= 1")
+    return dict(absent)
 
 
 def resolve_preset(config: SteppedRatioConfig, adapters: Mapping[str, str]) -> dict[str, float]:
@@ -125,9 +141,13 @@ class RatioScheduler(Scheduler):
         fractions_at: Any,
         collect: CollectMode = "all",
         label: str = "ratio",
+        absent: Mapping[str, int] | None = None,
     ) -> None:
         super().__init__(env_tasks)
         self._fractions_at = fractions_at
+        present = sum(len(ts) for ts in self.env_tasks.values())
+        # The runner's batch is batch_per_task x this run's tasks; the joint run's counts them all.
+        self._task_scale = (present + sum((absent or {}).values())) / present
         self.collect_mode: CollectMode = collect
         self.label = label
         # Credits for collect = "ratio": starting at 1 makes every env collect in epoch 0, so
@@ -148,7 +168,8 @@ class RatioScheduler(Scheduler):
         else:
             biggest = max(fractions.values())
             collecting = {}
-            for e, f in fractions.items():
+            for e in self.env_tasks:
+                f = fractions[e]
                 # An env collects whenever its credit reaches 1, then gains f / biggest per epoch.
                 collecting[e] = self._credit[e] >= 1.0 - 1e-9
                 if collecting[e]:
@@ -162,6 +183,9 @@ class RatioScheduler(Scheduler):
         }
         total = sum(float(w.sum()) for w in raw.values())
         weights = {e: w / total if total > 0 else w for e, w in raw.items()}
+        # Absent envs' shares are not drawn: this run's envs get exactly their joint-run batch.
+        share = sum(fractions[e] for e in self.env_tasks if self._has_data[e])
+        scale = share * self._task_scale if self._task_scale != 1.0 else 1.0
         collect = {
             e: np.full(len(ts), collecting[e], dtype=bool) for e, ts in self.env_tasks.items()
         }
@@ -170,7 +194,7 @@ class RatioScheduler(Scheduler):
             status: dict[TaskKey, str] = {(e, t): f"{fractions[e]:.4g}" for e, t in self.task_keys}
             self._record(progress.epoch, progress.env_steps, status)
         label = f"{self.label} " + "/".join(f"{fractions[e]:.4g}" for e in self.env_tasks)
-        return Plan(collect=collect, batch_weights=weights, phase=label)
+        return Plan(collect=collect, batch_weights=weights, phase=label, batch_scale=scale)
 
     def state_dict(self) -> dict[str, Any]:
         """Collection credits, which envs have data, and the timeline."""
@@ -214,6 +238,8 @@ def build_ratio_scheduler(
 ) -> RatioScheduler:
     """A RatioScheduler for a uniform, constant or stepped config, validated against the protocol's envs."""
     envs = list(env_tasks)
+    absent = _check_absent(getattr(config, "absent", {}), envs)
+    envs_all = [*envs, *absent]
     if isinstance(config, UniformConfig):
         sizes = {e: len(ts) for e, ts in env_tasks.items()}
         n = sum(sizes.values())
@@ -221,14 +247,20 @@ def build_ratio_scheduler(
         fixed = {e: sizes[e] / n for e in envs}
         return RatioScheduler(env_tasks, lambda epoch: fixed, "all", label="uniform")
     if isinstance(config, ConstantRatioConfig):
-        fixed = _check_fractions(config.ratios, envs, "scheduler.ratios")
-        return RatioScheduler(env_tasks, lambda epoch: fixed, config.collect, label="constant")
+        fixed = _check_fractions(config.ratios, envs_all, "scheduler.ratios")
+        return RatioScheduler(
+            env_tasks, lambda epoch: fixed, config.collect, label="constant", absent=absent
+        )
     if isinstance(config, SteppedRatioConfig):
         if config.interval < 1:
             raise ConfigError(f"scheduler.interval = {config.interval!r}: must be >= 1 epoch")
         if not 0.0 < config.step <= 1.0:
             raise ConfigError(f"scheduler.step = {config.step!r}: must be in (0, 1]")
         if config.preset:
+            if absent:
+                raise ConfigError(
+                    "scheduler.absent: a preset names both of its envs; give scheduler.start instead"
+                )
             if config.start:
                 raise ConfigError(
                     "scheduler: give either scheduler.preset or scheduler.start, not both"
@@ -242,13 +274,14 @@ def build_ratio_scheduler(
                     f"scheduler.start: a stepped schedule needs start fractions per env {envs} or a preset ({', '.join(RATIO_PRESETS)})"
                 )
             start_raw = config.start
-        start = _check_fractions(start_raw, envs, "scheduler.start")
-        end = _check_fractions(config.end, envs, "scheduler.end")
+        start = _check_fractions(start_raw, envs_all, "scheduler.start")
+        end = _check_fractions(config.end, envs_all, "scheduler.end")
         label = config.preset or "stepped"
         return RatioScheduler(
             env_tasks,
             lambda epoch: stepped_fractions(start, end, config.step, config.interval, epoch),
             config.collect,
             label=label,
+            absent=absent,
         )
     raise ValueError(f"not a ratio config: {type(config).__name__}")
