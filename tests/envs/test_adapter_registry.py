@@ -11,7 +11,13 @@ from seal.errors import SealError, UnknownNameError
 
 
 def test_builtin_names_resolve() -> None:
-    assert list(BUILTIN_ADAPTERS) == ["metaworld", "franka_kitchen_dense", "point"]
+    assert list(BUILTIN_ADAPTERS) == [
+        "metaworld",
+        "franka_kitchen_dense",
+        "point",
+        "point_view",
+        "point_diagonal",
+    ]
     assert adapter_class("metaworld") is MetaWorldAdapter
     assert adapter_class("point") is PointAdapter
     assert adapter_class("seal.envs.point:PointAdapter") is PointAdapter  # the same, by import path
@@ -28,7 +34,7 @@ def test_unknown_adapter_lists_the_valid_ones() -> None:
         adapter_class("pointt")
     assert (
         str(info.value)
-        == "unknown adapter 'pointt'; valid: metaworld, franka_kitchen_dense, point, package.module:Class"
+        == "unknown adapter 'pointt'; valid: metaworld, franka_kitchen_dense, point, point_view, point_diagonal, package.module:Class"
     )
 
 

@@ -218,7 +218,7 @@ def test_cli_lists_adapters(capsys: pytest.CaptureFixture[str]) -> None:
     [
         (
             ["envs", "check", "nope"],
-            "seal envs: error: unknown adapter 'nope'; valid: metaworld, franka_kitchen_dense, point, package.module:Class",
+            "seal envs: error: unknown adapter 'nope'; valid: metaworld, franka_kitchen_dense, point, point_view, point_diagonal, package.module:Class",
         ),
         (
             ["envs", "check", "point", "--tasks", "up"],
