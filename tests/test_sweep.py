@@ -160,9 +160,8 @@ def test_sample_becomes_overrides_of_the_resolved_config(tmp_path: Path) -> None
 def test_bad_search_entries_name_the_key_and_what_is_valid(
     tmp_path: Path, entry: str, message: str
 ) -> None:
-    config = load_protocol(write_protocol(tmp_path, extra=f"[search]\n{entry}\n"))
     with pytest.raises(ConfigError, match="search") as info:
-        parse_search(config)
+        load_protocol(write_protocol(tmp_path, extra=f"[search]\n{entry}\n"))
     assert message in str(info.value)
     assert str(tmp_path / "tiny.toml") in str(info.value)
 
@@ -282,19 +281,17 @@ def test_cli_mistakes_are_one_line_errors(
     assert not (tmp_path / "reports").exists()  # nothing written before the mistake was caught
 
 
-def test_search_sample_the_schema_rejects_fails_alone_without_ray(tmp_path: Path) -> None:
+def test_a_search_space_the_schema_rejects_fails_at_load_without_ray(tmp_path: Path) -> None:
     from seal.sweep import search
 
-    # A learning rate of exactly 0 is not a valid Adam rate: that sample is recorded as failed
-    # before any Ray work, and with no valid sample left Ray is never started.
+    # A learning rate of exactly 0 is not a valid Adam rate. The whole search space is checked
+    # when the protocol loads (each searched value at the ends of its distribution), so the
+    # search stops before any directory or Ray work; trials that fail while running (a NaN) are
+    # still recorded without stopping the others (test_failing_trial_is_reported_...).
     extra = '[search]\nnum_samples = 1\n"agent.actor_lr" = {dist = "choice", values = [0.0]}\n'
-    result = search(write_protocol(tmp_path, extra=extra), out=tmp_path / "reports")
-    (trial,) = result.trials
-    assert trial.status == "failed"
-    assert "agent.actor_lr" in trial.error and "expected a finite number > 0" in trial.error
-    assert result.best_config is None
-    assert "sample-000" in result.trials_table.read_text()
-    assert not (result.sweep_dir / "tune").exists()  # Ray Tune never ran
+    with pytest.raises(ConfigError, match=r"search\.agent\.actor_lr = 0\.0\).*agent\.actor_lr"):
+        search(write_protocol(tmp_path, extra=extra), out=tmp_path / "reports")
+    assert not (tmp_path / "reports").exists()
 
 
 # ---------------------------------------------------------------- on a local Ray

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from typing import NoReturn
 
 # Each module defines `register(subparsers)`, which adds its parser with `set_defaults(func=...)`.
 # A module that does not exist yet is skipped, so the CLI grows with the package.
@@ -19,11 +20,16 @@ SUBCOMMAND_MODULES = (
 )
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse with a one-line error (no usage block), like every other `seal` error; exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The full `seal` argument parser."""
-    parser = argparse.ArgumentParser(
-        prog="seal", description="SEAL: cross-environment multi-task RL."
-    )
+    parser = _OneLineParser(prog="seal", description="SEAL: cross-environment multi-task RL.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in SUBCOMMAND_MODULES:
         try:

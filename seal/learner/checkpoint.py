@@ -1,16 +1,27 @@
-"""Atomic checkpoints of an agent, its replay and any extra state of the caller.
+"""The one checkpoint format: an atomic `torch.save` of plain data, read as data only.
 
-A checkpoint is one `torch.save` file written to a temporary file in the same directory, fsynced,
-then renamed over the destination (`os.replace`), so a crash leaves either the old or the new file,
-never a torn one. An agent with a NaN/inf parameter is never saved, so a diverged run cannot
-overwrite its last good checkpoint. Files are read with `torch.load(weights_only=True)`: `extra`
-must be made of tensors, containers and plain Python values (numpy arrays: convert to tensors).
+A checkpoint is a dict of tensors, containers and plain Python values (str, int, float, bool,
+None), written to a temporary file in the same directory, fsynced, then renamed over the
+destination (`os.replace`), so a crash leaves either the old or the new file, never a torn one.
+An agent with a NaN/inf parameter is never saved, so a diverged run cannot overwrite its last good
+checkpoint.
+
+Checkpoints are files researchers share, so they are data: every reader goes through
+`read_checkpoint`, which uses `torch.load(weights_only=True)` (no code runs while loading) and
+refuses, with one message, a file of another format version or not made by seal.
+
+Fields: `seal_checkpoint` (the format version), `agent` (`Agent.state_dict()`), `replay`
+(`MultiTaskReplay.state_dict()` or None) and any fields of the caller (the runner adds its
+counters, config and RNG states). Readers take optional fields with `.get`, so a new field (new
+agent state, a device-resident replay) needs no new loader; the version changes only when an
+existing field changes meaning.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import pickle
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -22,7 +33,15 @@ from seal.errors import SealError, TrainingDivergedError
 from seal.learner.replay import MultiTaskReplay
 from seal.learner.sac import Agent
 
-CHECKPOINT_FORMAT = 1
+FORMAT_KEY = "seal_checkpoint"
+FORMAT_VERSION = 2
+"""Version 2: one container for `seal run`, `--resume`, `[transfer]` and `seal eval` (version 1
+was two formats, one of them read with pickle)."""
+RESERVED = (FORMAT_KEY, "agent", "replay")
+
+
+class NotACheckpointError(SealError):
+    """A file that is not a seal checkpoint of this version (or not readable as data only)."""
 
 
 def atomic_save(obj: Any, path: str | os.PathLike[str]) -> Path:
@@ -54,11 +73,9 @@ def save_checkpoint(
     path: str | os.PathLike[str],
     agent: Agent,
     replay: MultiTaskReplay | None = None,
-    extra: Mapping[str, Any] | None = None,
-    *,
-    include_replay: bool = True,
+    fields: Mapping[str, Any] | None = None,
 ) -> Path:
-    """Write agent (+ replay unless include_replay=False, e.g. for export) + extra to `path` atomically.
+    """Write `agent` (+ `replay`, + the caller's `fields`) to `path` atomically.
 
     Raises TrainingDivergedError, writing nothing, if any agent parameter is NaN/inf. On success
     sets `agent.last_checkpoint`, which divergence errors name.
@@ -69,47 +86,48 @@ def save_checkpoint(
             f"refusing to write checkpoint {path}: the agent has NaN/inf parameters at update {agent.num_updates}; "
             f"last good checkpoint: {agent.last_checkpoint or 'none saved yet'}"
         )
+    clash = sorted(set(fields or {}) & set(RESERVED))
+    if clash:
+        raise ValueError(f"checkpoint field {clash[0]!r} is reserved")
     state = {
-        "format": CHECKPOINT_FORMAT,
+        FORMAT_KEY: FORMAT_VERSION,
         "agent": agent.state_dict(),
-        "replay": replay.state_dict() if replay is not None and include_replay else None,
-        "extra": dict(extra or {}),
+        "replay": replay.state_dict() if replay is not None else None,
+        **dict(fields or {}),
     }
     atomic_save(state, path)
     agent.last_checkpoint = str(path)
     return path
 
 
-def read_checkpoint(
-    path: str | os.PathLike[str], map_location: str | torch.device = "cpu"
-) -> dict[str, Any]:
-    """The raw checkpoint dict (format, agent, replay, extra); SealError if missing or unreadable."""
+def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The checkpoint's fields, loaded on the CPU as data only (no code runs).
+
+    SealError if the file is missing; NotACheckpointError if it is not a seal checkpoint of
+    FORMAT_VERSION (another version, a torn file, or a pickle that would run code).
+    """
     path = Path(path)
     if not path.is_file():
-        raise SealError(f"checkpoint {path} does not exist")
+        raise SealError(f"checkpoint {path}: no such file")
+
+    def refuse(found: object, why: str) -> NotACheckpointError:
+        return NotACheckpointError(
+            f"checkpoint {path}: not a seal checkpoint (format {found}, expected {FORMAT_VERSION}): {why}"
+        )
+
     try:
-        state = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as exc:
-        raise SealError(f"checkpoint {path} cannot be read: {exc}") from exc
-    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
-        raise SealError(f"checkpoint {path} is not a seal checkpoint of format {CHECKPOINT_FORMAT}")
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise refuse(
+            "unknown", f"it cannot be read as plain data ({first[:200]}); nothing in it was run"
+        ) from None
+    if not isinstance(state, dict) or FORMAT_KEY not in state:
+        raise refuse("unknown", f"no {FORMAT_KEY!r} field; it was not written by seal")
+    if state[FORMAT_KEY] != FORMAT_VERSION:
+        raise refuse(
+            state[FORMAT_KEY], "written by another seal version; rerun the run that made it"
+        )
+    if not isinstance(state.get("agent"), dict):
+        raise refuse(FORMAT_VERSION, "it holds no agent state")
     return state
-
-
-def load_checkpoint(
-    path: str | os.PathLike[str], agent: Agent, replay: MultiTaskReplay | None = None
-) -> dict[str, Any]:
-    """Restore `agent` (and `replay` when given) from `path`; returns the caller's extra state.
-
-    Asking for the replay of a checkpoint saved without one (an export) raises SealError.
-    """
-    state = read_checkpoint(path, map_location=agent.device)
-    agent.load_state_dict(state["agent"])
-    if replay is not None:
-        if state["replay"] is None:
-            raise SealError(
-                f"checkpoint {path} was saved without its replay (export); resuming a run needs a checkpoint with replay"
-            )
-        replay.load_state_dict(state["replay"])
-    agent.last_checkpoint = str(path)
-    return state["extra"]

@@ -499,7 +499,12 @@ def _auto_backend(
     if workers < 2 or sum(len(g) for g in groups.values()) < 2:
         return "sync", None
     cost = sum(_probe_step_seconds(g[0]) * len(g) for g in groups.values() if g)
-    return ("inline-batched" if cost >= AUTO_PARALLEL_MIN_STEP_S else "sync"), cost
+    return choose_backend(cost), cost
+
+
+def choose_backend(step_cost_s: float) -> str:
+    """What "auto" picks for a measured cost of one step of all instances (>= 2 workers)."""
+    return "inline-batched" if step_cost_s >= AUTO_PARALLEL_MIN_STEP_S else "sync"
 
 
 def auto_backend(

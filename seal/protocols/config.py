@@ -76,8 +76,8 @@ class TrainingConfig:
     environments that collected this epoch (e.g. 500 when Meta-World and the kitchen both
     collect), so no environment's episode contributes more env steps than there are updates.
     """
-    collector: Literal["auto", "sync", "subproc-batched", "gym-async"] = "auto"
-    """Collection backend (seal.learner.collection): "auto" uses worker processes when there are >= 2 CPUs."""
+    collector: Literal["auto", "sync", "subproc-batched", "inline-batched", "gym-async"] = "auto"
+    """Collection backend (seal.learner.collection.BACKENDS): "auto" measures one step and picks "inline-batched" or "sync"."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -211,11 +211,15 @@ BOUNDS: dict[tuple[type, str], tuple[float | None, float | None]] = {
     (EvaluationConfig, "threshold"): (0.0, 1.0),
     (FinetuneConfig, "pretrain_epochs"): (0, None),
     (FinetuneConfig, "finetune_epochs"): (0, None),
-    (FinetuneConfig, "lr_factor"): (0.0, None),
-    (TransferConfig, "lr_factor"): (0.0, None),
     (CheckpointConfig, "interval"): (1, None),
     (CheckpointConfig, "keep_last"): (1, None),
     (LoggingConfig, "train_interval"): (1, None),
+}
+
+# Fields that must be strictly above a bound (checked at load time, like BOUNDS).
+ABOVE: dict[tuple[type, str], float] = {
+    (FinetuneConfig, "lr_factor"): 0.0,  # 0 would freeze fine-tuning; fails only after pre-training
+    (TransferConfig, "lr_factor"): 0.0,
 }
 
 # Tables that map one-to-one onto a dataclass.

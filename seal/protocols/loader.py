@@ -10,6 +10,7 @@ Every user mistake raises `ConfigError` naming the file, `table.key`, the value 
 from __future__ import annotations
 
 import ast
+import copy
 import dataclasses
 import functools
 import inspect
@@ -23,8 +24,9 @@ from pathlib import Path
 from typing import Any
 
 from seal.errors import ConfigError, SealError
-from seal.protocols import scheduling
+from seal.protocols import scheduling, sweep_tables
 from seal.protocols.config import (
+    ABOVE,
     ALL_TABLES,
     BOUNDS,
     SIMPLE_TABLES,
@@ -76,7 +78,16 @@ def read_toml(path: str | Path) -> dict[str, Any]:
     if not p.is_file():
         raise ConfigError(f"{p}: no such protocol file")
     try:
-        return tomllib.loads(p.read_text())
+        text = p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = p.read_bytes()[: exc.start].count(b"\n") + 1
+        raise ConfigError(
+            f"{p}: not UTF-8 text (byte {exc.object[exc.start]:#04x} on line {line}); TOML files must be UTF-8"
+        ) from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot be read ({exc.strerror})") from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
 
@@ -160,6 +171,8 @@ def coerce(value: Any, tp: Any, where: str) -> Any:
         raise bad
     if tp is float:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
+            if not math.isfinite(value):
+                raise ConfigError(f"{where} = {value!r} is not valid; expected a finite number")
             return float(value)
         raise bad
     if tp is str:
@@ -229,6 +242,9 @@ def build_dataclass(
         if (lo is not None and kwargs[key] < lo) or (hi is not None and kwargs[key] > hi):
             span = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
             raise ConfigError(f"{where}.{key} = {value!r} is out of range; valid: {span}")
+        above = ABOVE.get((cls, key))
+        if above is not None and not (math.isfinite(kwargs[key]) and kwargs[key] > above):
+            raise ConfigError(f"{where}.{key} = {value!r} is out of range; valid: > {above:g}")
     kwargs = {k: v for k, v in kwargs.items() if k in fields}
     try:
         return cls(**kwargs)
@@ -383,6 +399,19 @@ def _validate_scheduler(table: dict[str, Any], envs: dict[str, EnvConfig], file:
         )
 
 
+def _validate_search(raw: dict[str, Any], spec: sweep_tables.SearchSpec, file: str) -> None:
+    """Every searched `table.key` names a config value, valid at each end of its distribution."""
+    base = {k: v for k, v in raw.items() if k != "search"}
+    for param in spec.params:
+        values = param.values if param.dist in ("choice", "grid") else (param.low, param.high)
+        if param.dist == "int":
+            values = tuple(int(v) for v in values)  # type: ignore[arg-type]
+        for value in values:
+            override = f"{param.key}={_toml_value(value)}"
+            trial = apply_overrides(copy.deepcopy(base), [override], f"{file}: search")
+            config_from_dict(trial, f"{file} (search.{param.key} = {value!r})")
+
+
 def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolConfig:
     """Validate a parsed protocol (tables as dicts) into a ProtocolConfig; `path` names it in errors."""
     file = str(path)
@@ -435,15 +464,13 @@ def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolCon
             f'{file}: scheduler is not used by kind = "finetune" (each phase trains on one env with uniform batches); remove [scheduler]'
         )
     _validate_scheduler(config.scheduler, envs, file)
-    if transfer is not None:
-        if config.kind == "finetune":
-            raise ConfigError(
-                f'{file}: transfer is not used by kind = "finetune" (its [finetune] table transfers between phases); remove [transfer]'
-            )
-        if not transfer.lr_factor > 0:
-            raise ConfigError(
-                f"{file}: transfer.lr_factor = {transfer.lr_factor!r} must be > 0 (issue 5's default: 0.1)"
-            )
+    sweep_tables.parse_resources(config.resources, file)
+    if config.search:
+        _validate_search(raw, sweep_tables.parse_search(config.search, file), file)
+    if transfer is not None and config.kind == "finetune":
+        raise ConfigError(
+            f'{file}: transfer is not used by kind = "finetune" (its [finetune] table transfers between phases); remove [transfer]'
+        )
     if finetune is not None:
         config = config.replace(
             finetune=dataclasses.replace(

@@ -45,7 +45,7 @@ from seal.envs import make_adapter
 from seal.envs.base import EnvAdapter
 from seal.errors import ConfigError, SealError, TrainingDivergedError
 from seal.evaluation import AgentPolicy, evaluate, mean_success
-from seal.learner.checkpoint import atomic_save
+from seal.learner.checkpoint import read_checkpoint, save_checkpoint
 from seal.protocols import scheduling
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
@@ -225,33 +225,6 @@ class PhaseModel:
 # ---------------------------------------------------------------- checkpoint files
 
 
-def save_checkpoint(path: Path, payload: Mapping[str, Any], agent: Any) -> None:
-    """Write a run checkpoint atomically, refusing an agent with NaN/inf parameters.
-
-    The refusal means a diverged run can never overwrite its last good checkpoint.
-    """
-    if not agent.parameters_finite():
-        raise TrainingDivergedError(
-            f"refusing to write checkpoint {path}: the agent has NaN/inf parameters; "
-            f"last good checkpoint: {agent.last_checkpoint or 'none saved yet'}"
-        )
-    atomic_save(dict(payload), path)
-
-
-def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    """A checkpoint written by `save_checkpoint` (SealError if it is not one)."""
-    p = Path(path)
-    if not p.is_file():
-        raise SealError(f"checkpoint {p}: no such file")
-    try:
-        data = torch.load(p, map_location="cpu", weights_only=False)
-    except Exception as exc:  # noqa: BLE001 - a torn or foreign file
-        raise SealError(f"checkpoint {p}: cannot be read ({type(exc).__name__}: {exc})") from None
-    if not isinstance(data, dict) or "seal_checkpoint" not in data:
-        raise SealError(f"checkpoint {p}: not a seal run checkpoint (made by `seal run`)")
-    return data
-
-
 def transfer_source(config: ProtocolConfig) -> dict[str, Any] | None:
     """The agent state named by [transfer] checkpoint (None without [transfer]).
 
@@ -268,7 +241,7 @@ def transfer_source(config: ProtocolConfig) -> dict[str, Any] | None:
             "--set transfer.checkpoint=reports/<protocol>/<group>/seed-0/checkpoints/best.pt"
         )
     try:
-        data = load_checkpoint(transfer.checkpoint)
+        data = read_checkpoint(transfer.checkpoint)
     except SealError as exc:
         raise ConfigError(f"{where} = {transfer.checkpoint!r}: {exc}") from None
     return data["agent"]
@@ -351,7 +324,7 @@ class Run:
             torn.unlink(missing_ok=True)  # a save cut short by a kill (the rename never happened)
         latest = self.rundir.latest_checkpoint()
         if latest is not None:
-            resume_payload = load_checkpoint(latest)
+            resume_payload = read_checkpoint(latest)
             start_phase = int(resume_payload["runner"]["phase_index"])
             self.rundir.truncate_to(resume_payload["runner"]["rows"])
             resumes = self.rundir.read_provenance().get("resumes", [])
@@ -444,7 +417,7 @@ class Run:
                 raise SealError(
                     f"{self.rundir.path}: fine-tuning needs the pre-training's best checkpoint {best}, which is missing"
                 )
-            source = load_checkpoint(best)
+            source = read_checkpoint(best)
             agent.transfer_from(source["agent"], reinit_critic=ft.reinit_critic)
             agent.set_lr_factor(ft.lr_factor)
         return agent
@@ -739,8 +712,8 @@ class Run:
             state.best_mean_success = mean
             save_checkpoint(
                 self.rundir.best_path(phase.name if len(self.phases) > 1 else None),
-                self._payload(phase, agent, None, None, state, None, best=True),
                 agent,
+                fields=self._fields(phase, None, state, None, best=True),
             )
 
     def _scores(
@@ -792,18 +765,16 @@ class Run:
                 col.collect_episodes(policy, sink=sink)
         return totals
 
-    def _payload(
+    def _fields(
         self,
         phase: Phase,
-        agent: Any,
-        replay: Any,
         scheduler: Any,
         state: PhaseState,
         np_rng: Any,
         best: bool = False,
     ) -> dict[str, Any]:
+        """The runner's checkpoint fields beside the agent and replay (seal.learner.checkpoint)."""
         return {
-            "seal_checkpoint": 1,
             "config_toml": dumps_toml(config_to_dict(self.config)),
             "seed": self.seed,
             "phase": phase.name,
@@ -811,10 +782,6 @@ class Run:
             "epoch": state.epoch,
             "best": best,
             "mean_success": state.best_mean_success,
-            "agent": agent.state_dict(),
-            "replay": replay.state_dict()
-            if replay is not None and self.config.checkpoint.save_replay
-            else None,
             "scheduler": scheduler.state_dict() if scheduler is not None else None,
             "runner": None
             if best
@@ -836,8 +803,12 @@ class Run:
         path = self.rundir.checkpoint_path(
             state.epoch, phase.name if len(self.phases) > 1 else None
         )
-        save_checkpoint(path, self._payload(phase, agent, replay, scheduler, state, np_rng), agent)
-        agent.last_checkpoint = str(path)  # named by TrainingDivergedError
+        save_checkpoint(
+            path,
+            agent,
+            replay if self.config.checkpoint.save_replay else None,
+            self._fields(phase, scheduler, state, np_rng),
+        )
         self.rundir.prune(self.config.checkpoint.keep_last)
 
 
@@ -988,7 +959,7 @@ def load_policy(
     """(config, phase model, agent with the saved weights, raw checkpoint) of a run checkpoint."""
     import tomllib
 
-    data = load_checkpoint(checkpoint)
+    data = read_checkpoint(checkpoint)
     config = config_from_dict(tomllib.loads(data["config_toml"]), f"{checkpoint} (saved config)")
     phases = {p.name: p for p in plan_phases(config)}
     phase = phases[data["phase"]]

@@ -12,7 +12,7 @@ import torch
 from seal.errors import SealError, TrainingDivergedError
 from seal.learner import Agent, AgentConfig, EnvSpec, MultiTaskReplay, counts_from_ratio
 from seal.learner import checkpoint as checkpoint_module
-from seal.learner.checkpoint import load_checkpoint, save_checkpoint
+from seal.learner.checkpoint import NotACheckpointError, read_checkpoint, save_checkpoint
 
 SMALL = {"hidden": (32, 32), "translator_hidden": (32,), "latent_dim": 16, "trunk_hidden": (32, 32)}
 SPECS = [EnvSpec("mw", 5, 2, 3), EnvSpec("fk", 7, 3, 2)]
@@ -62,7 +62,7 @@ def test_resume_then_update_is_bitwise_identical_to_updating_without_the_round_t
         tmp_path / "ckpt.pt",
         agent,
         replay,
-        extra={"rng": rng.bit_generator.state, "env_steps": 123},
+        {"rng": rng.bit_generator.state, "env_steps": 123},
     )
     assert agent.last_checkpoint == str(path)
     expected = agent.update(replay.sample(counts, rng))
@@ -72,7 +72,9 @@ def test_resume_then_update_is_bitwise_identical_to_updating_without_the_round_t
         Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=99),
         MultiTaskReplay(SPECS, capacity=60),
     )
-    extra = load_checkpoint(path, resumed, resumed_replay)
+    extra = read_checkpoint(path)
+    resumed.load_state_dict(extra["agent"])
+    resumed_replay.load_state_dict(extra["replay"])
     assert extra["env_steps"] == 123 and resumed.num_updates == 3
     resumed_rng = np.random.default_rng()
     resumed_rng.bit_generator.state = extra["rng"]
@@ -141,24 +143,59 @@ def test_nan_loss_stops_training_naming_the_update_and_last_checkpoint(tmp_path:
 def test_export_without_replay(tmp_path: Path) -> None:
     agent, replay = _filled()
     full = save_checkpoint(tmp_path / "full.pt", agent, replay)
-    export = save_checkpoint(tmp_path / "export.pt", agent, replay, include_replay=False)
+    export = save_checkpoint(tmp_path / "export.pt", agent)
     assert export.stat().st_size < full.stat().st_size
     other = Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=5)
-    load_checkpoint(export, other)  # the agent alone loads
+    state = read_checkpoint(export)
+    assert state["replay"] is None
+    other.load_state_dict(state["agent"])  # the agent alone loads
     for a, b in zip(_params(agent), _params(other), strict=True):
         assert torch.equal(a, b)
-    with pytest.raises(SealError, match="saved without its replay"):
-        load_checkpoint(export, other, MultiTaskReplay(SPECS, capacity=60))
+
+
+def test_caller_fields_cannot_replace_the_agent_or_replay(tmp_path: Path) -> None:
+    agent, replay = _filled()
+    with pytest.raises(ValueError, match="'agent' is reserved"):
+        save_checkpoint(tmp_path / "x.pt", agent, replay, {"agent": {}})
+    assert not (tmp_path / "x.pt").exists()
 
 
 def test_unreadable_or_mismatched_checkpoints_raise_seal_errors(tmp_path: Path) -> None:
-    with pytest.raises(SealError, match="does not exist"):
-        load_checkpoint(tmp_path / "missing.pt", _filled()[0])
+    with pytest.raises(SealError, match="no such file"):
+        read_checkpoint(tmp_path / "missing.pt")
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
-    with pytest.raises(SealError, match="cannot be read"):
-        load_checkpoint(tmp_path / "junk.pt", _filled()[0])
+    with pytest.raises(
+        NotACheckpointError, match=r"not a seal checkpoint \(format unknown, expected 2\)"
+    ):
+        read_checkpoint(tmp_path / "junk.pt")
+    torch.save({"weights": torch.zeros(2)}, tmp_path / "other.pt")  # readable, but not ours
+    with pytest.raises(
+        NotACheckpointError, match="format unknown, expected 2.*not written by seal"
+    ):
+        read_checkpoint(tmp_path / "other.pt")
+    torch.save({"seal_checkpoint": 1, "agent": {}}, tmp_path / "old.pt")
+    with pytest.raises(NotACheckpointError, match="format 1, expected 2"):
+        read_checkpoint(tmp_path / "old.pt")
     agent, replay = _filled()
     path = save_checkpoint(tmp_path / "seal.pt", agent, replay)
     other = Agent([EnvSpec("mw", 5, 2, 3)], AgentConfig(**SMALL), seed=0)
     with pytest.raises(SealError, match="is for environments"):
-        load_checkpoint(path, other)
+        other.load_state_dict(read_checkpoint(path)["agent"])
+
+
+class _RunsCode:
+    """Unpickling this calls Path.touch: the shape of a checkpoint that would run a command."""
+
+    def __init__(self, target: Path) -> None:
+        self.target = target
+
+    def __reduce__(self) -> tuple[object, tuple[object, ...]]:
+        return (Path.touch, (self.target,))
+
+
+def test_a_checkpoint_that_would_run_code_is_refused_and_runs_nothing(tmp_path: Path) -> None:
+    target = tmp_path / "pwned"
+    torch.save({"seal_checkpoint": 2, "agent": {"x": _RunsCode(target)}}, tmp_path / "evil.pt")
+    with pytest.raises(NotACheckpointError, match="cannot be read as plain data"):
+        read_checkpoint(tmp_path / "evil.pt")
+    assert not target.exists()

@@ -10,6 +10,7 @@ import pytest
 
 from seal.envs.base import EnvAdapter, ObsLayout
 from seal.errors import SealError, UnknownNameError
+from seal.learner import collection
 from seal.learner.collection import Collector, instance_seed
 
 # Per task: the step at which info["success"] is 1 (only that step), and the step that terminates.
@@ -258,8 +259,22 @@ def test_gym_async_refuses_partial_masks() -> None:
         col.collect_episodes(None, random_actions=True, active={"toy": [True, False, True]})
 
 
-def test_auto_keeps_cheap_envs_in_process() -> None:
-    # A toy step costs microseconds: below AUTO_PARALLEL_MIN_STEP_S, so no worker processes.
+def test_auto_chooses_from_the_measured_step_cost(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The measurement is injected, so the choice does not depend on this machine's speed. The
+    # toy envs have 3 + 2 tasks; the probe's cost of one instance is multiplied by the number
+    # of instances of its env: 3 x 100 us + 2 x 100 us = 0.5 ms < 1 ms -> one process.
+    assert collection.AUTO_PARALLEL_MIN_STEP_S == 1e-3
+    monkeypatch.setattr(collection, "_probe_step_seconds", lambda instance, steps=10: 1e-4)
     with Collector(adapters(), seed=0, backend="auto", num_workers=2) as col:
         assert col.backend_name == "sync"
-        assert col.step_cost_s is not None and col.step_cost_s < 1e-3
+        assert col.step_cost_s == pytest.approx(5 * 1e-4)
+    # 5 x 300 us = 1.5 ms >= 1 ms -> the main process steps one share, a worker the other.
+    monkeypatch.setattr(collection, "_probe_step_seconds", lambda instance, steps=10: 3e-4)
+    with Collector(adapters(), seed=0, backend="auto", num_workers=2) as col:
+        assert col.backend_name == "inline-batched"
+        assert col.step_cost_s == pytest.approx(5 * 3e-4)
+    # One worker: never parallel, and nothing is probed.
+    with Collector(adapters(), seed=0, backend="auto", num_workers=1) as col:
+        assert col.backend_name == "sync" and col.step_cost_s is None
+    assert collection.choose_backend(0.999e-3) == "sync"
+    assert collection.choose_backend(1e-3) == "inline-batched"

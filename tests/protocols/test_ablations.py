@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from seal.learner.checkpoint import read_checkpoint
 from seal.protocols import load_protocol, run_seed
-from seal.protocols.runner import load_checkpoint
 
 PROTOCOLS = sorted((Path(__file__).resolve().parents[2] / "protocols").glob("*.toml"))
 SWITCHES = ("one_hot", "multi_head_policy", "multi_head_critic")
@@ -66,7 +66,7 @@ def test_switches_from_the_agent_table_shape_the_trained_networks(
     low = {True: "true", False: "false"}
     path.write_text(TINY.format(one_hot=low[one_hot], mhp=low[mhp], mhc=low[mhc]))
     run = run_seed(load_protocol(path), 0, tmp_path / "r").run_dir
-    agent = load_checkpoint(run / "checkpoints" / "best.pt")["agent"]
+    agent = read_checkpoint(run / "checkpoints" / "best.pt")["agent"]
     # Point: 4 obs floats, 2 actions, 2 tasks. Actor input = obs (+ 2 one-hot columns); its head
     # outputs mean and log-std per action (4), per task when multi-head (2 x 4 = 8). Critic input
     # = obs (+ one-hot) + action; its head gives one Q, or one per task when multi-head.

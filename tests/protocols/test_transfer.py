@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from seal.errors import ConfigError
+from seal.learner.checkpoint import read_checkpoint
 from seal.protocols import load_protocol, run_seed
-from seal.protocols.runner import load_checkpoint
 
 BODY = """
 [protocol]
@@ -51,7 +51,7 @@ def test_transfer_one_task_to_four_keeps_weights_and_scales_lr(tmp_path: Path) -
     source_cfg = load_protocol(write(tmp_path, "mt1", '["east"]', epochs=2, warmup=0))
     source_run = run_seed(source_cfg, 0, tmp_path / "r" / "mt1" / "g").run_dir
     best = source_run / "checkpoints" / "best.pt"
-    source = load_checkpoint(best)["agent"]
+    source = read_checkpoint(best)["agent"]
     # Transfer to the four tasks, "east" first so its one-hot id (0) is the source's. A warm-up
     # longer than the one epoch (4 tasks x 10 steps = 40 < 1000) means no gradient step happens,
     # so the run's checkpoint holds the agent exactly as the transfer left it.
@@ -59,7 +59,7 @@ def test_transfer_one_task_to_four_keeps_weights_and_scales_lr(tmp_path: Path) -
     config = load_protocol(path, [f"transfer.checkpoint={best}"])
     assert config.transfer is not None and config.transfer.lr_factor == 0.1  # the default
     run = run_seed(config, 0, tmp_path / "r" / "mt4" / "g").run_dir
-    target = load_checkpoint(run / "checkpoints" / "ckpt-0000001.pt")["agent"]
+    target = read_checkpoint(run / "checkpoints" / "ckpt-0000001.pt")["agent"]
 
     # Actor input rows: obs (4) then one-hot (source 1, target 4).
     w_src, w_new = source["actor"]["trunk.weights.0"], target["actor"]["trunk.weights.0"]

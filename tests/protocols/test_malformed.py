@@ -1,0 +1,252 @@
+"""Every malformed protocol is rejected at load: exit 2, one line naming the key, nothing written.
+
+One defect at a time on a valid base file (which itself runs, first test), given to `seal run`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import get_args, get_type_hints
+
+import pytest
+
+from seal.cli.main import main
+from seal.learner.collection import BACKENDS
+from seal.protocols.config import TrainingConfig
+
+BASE = """\
+[protocol]
+kind = "baseline"
+epochs = 1
+seeds = 1
+device = "cpu"
+threads = 1
+[envs.pt]
+adapter = "point"
+tasks = ["east", "north"]
+episode_length = 10
+[agent]
+hidden = [8, 8]
+[replay]
+capacity_per_env = 1000
+[training]
+warmup_steps = 0
+batch_per_task = 4
+collector = "sync"
+[evaluation]
+interval = 1
+episodes = 1
+threshold = 0.9
+[checkpoint]
+interval = 1
+keep_last = 1
+[logging]
+tensorboard = false
+[resources]
+cpus = 1
+[search]
+num_samples = 2
+"agent.actor_lr" = {dist = "loguniform", low = 1e-4, high = 1e-3}
+"""
+
+
+def _edit(old: str, new: str) -> str:
+    assert old in BASE, old
+    return BASE.replace(old, new, 1)
+
+
+# (id, protocol text or bytes, extra CLI args, text the one-line error must contain)
+CASES: list[tuple[str, str | bytes, list[str], str]] = [
+    (
+        "not-utf8",
+        BASE.encode() + b"# caf\xe9\n",
+        [],
+        f"not UTF-8 text (byte 0xe9 on line {BASE.count(chr(10)) + 1})",
+    ),
+    ("bad-toml", BASE + "[protocol\n", [], "not valid TOML"),
+    (
+        "unknown-table",
+        BASE + "[trainning]\nwarmup_steps = 1\n",
+        [],
+        "[trainning] is not a valid table",
+    ),
+    ("protocol-key", _edit("epochs = 1", "epocs = 1"), [], "protocol.epocs is not a valid key"),
+    (
+        "protocol-kind",
+        _edit('kind = "baseline"', 'kind = "solo"'),
+        [],
+        "protocol.kind = 'solo' is not valid",
+    ),
+    ("seeds-zero", _edit("seeds = 1", "seeds = 0"), [], "protocol.seeds = 0 is out of range"),
+    (
+        "env-key",
+        _edit("episode_length = 10", "episode_len = 10"),
+        [],
+        "envs.pt.episode_len is not a valid key",
+    ),
+    ("env-adapter", _edit('adapter = "point"', 'adapter = "pointt"'), [], "envs.pt.adapter"),
+    ("env-task", _edit('"north"]', '"nort"]'), [], "'nort'"),
+    (
+        "joint-one-env",
+        _edit('kind = "baseline"', 'kind = "joint"'),
+        [],
+        'kind = "joint" needs at least two',
+    ),
+    ("agent-key", _edit("hidden = [8, 8]", "hiden = [8, 8]"), [], "agent.hiden is not a valid key"),
+    ("agent-type", _edit("hidden = [8, 8]", 'hidden = "wide"'), [], "agent.hidden"),
+    ("agent-lr", _edit("hidden = [8, 8]", "hidden = [8, 8]\nactor_lr = 0"), [], "agent.actor_lr"),
+    (
+        "replay-zero",
+        _edit("capacity_per_env = 1000", "capacity_per_env = 0"),
+        [],
+        "replay.capacity_per_env = 0 is out of range",
+    ),
+    (
+        "collector",
+        _edit('collector = "sync"', 'collector = "threads"'),
+        [],
+        "training.collector = 'threads' is not valid",
+    ),
+    (
+        "int-as-float",
+        _edit("batch_per_task = 4", "batch_per_task = 4.5"),
+        [],
+        "training.batch_per_task = 4.5 has the wrong type",
+    ),
+    (
+        "threshold",
+        _edit("threshold = 0.9", "threshold = 1.5"),
+        [],
+        "evaluation.threshold = 1.5 is out of range",
+    ),
+    (
+        "threshold-nan",
+        _edit("threshold = 0.9", "threshold = nan"),
+        [],
+        "evaluation.threshold = nan is not valid; expected a finite number",
+    ),
+    (
+        "keep-last",
+        _edit("keep_last = 1", "keep_last = 0"),
+        [],
+        "checkpoint.keep_last = 0 is out of range",
+    ),
+    (
+        "logging-type",
+        _edit("tensorboard = false", 'tensorboard = "no"'),
+        [],
+        "logging.tensorboard = 'no' has the wrong type",
+    ),
+    ("scheduler-kind", BASE + '[scheduler]\nkind = "smtt"\n', [], "scheduler.kind"),
+    (
+        "transfer-lr",
+        BASE + '[transfer]\ncheckpoint = "x.pt"\nlr_factor = 0\n',
+        [],
+        "transfer.lr_factor = 0 is out of range; valid: > 0",
+    ),
+    (
+        "transfer-missing",
+        BASE + '[transfer]\ncheckpoint = "missing.pt"\n',
+        [],
+        "transfer.checkpoint = 'missing.pt'",
+    ),
+    # Would fail only when fine-tuning starts, after the whole pre-training:
+    (
+        "finetune-lr",
+        BASE + "[finetune]\nlr_factor = 0.0\n",
+        [],
+        "finetune.lr_factor = 0.0 is out of range; valid: > 0",
+    ),
+    (
+        "resources-key",
+        _edit("cpus = 1", "cpuz = 2"),
+        [],
+        "resources.cpuz is not a valid key; valid keys: cpus, gpus",
+    ),
+    ("resources-value", _edit("cpus = 1", "cpus = 0"), [], "resources.cpus = 0 is not valid"),
+    ("search-option", _edit("num_samples = 2", "num_sample = 2"), [], "search.num_sample"),
+    (
+        "search-key",
+        _edit('"agent.actor_lr"', '"agent.actor_lrr"'),
+        [],
+        "agent.actor_lrr is not a valid key",
+    ),
+    (
+        "search-table",
+        _edit('"agent.actor_lr"', '"agnt.actor_lr"'),
+        [],
+        "[agnt] is not a valid table",
+    ),
+    (
+        "search-range",
+        _edit(
+            '{dist = "loguniform", low = 1e-4, high = 1e-3}',
+            '{dist = "uniform", low = -1.0, high = 1e-3}',
+        ),
+        [],
+        "agent.actor_lr",
+    ),
+    (
+        "search-dist",
+        _edit('dist = "loguniform"', 'dist = "normal"'),
+        [],
+        "search.agent.actor_lr.dist = 'normal' is not valid",
+    ),
+    ("set-syntax", BASE, ["--set", "epochs=3"], "must look like table.key=value"),
+    ("set-key", BASE, ["--set", "protocol.epoch=3"], "protocol.epoch is not a valid key"),
+    (
+        "set-type",
+        BASE,
+        ["--set", "protocol.epochs=many"],
+        "protocol.epochs = 'many' has the wrong type",
+    ),
+    ("seeds-flag", BASE, ["--seeds", "one"], "--seeds 'one'"),
+    ("seeds-range", BASE, ["--seeds", "3-1"], "--seeds '3-1'"),
+    ("scale-zero", BASE, ["--scale", "0"], "--scale 0"),
+    ("scale-nan", BASE, ["--scale", "nan"], "--scale nan"),
+    ("scale-word", BASE, ["--scale", "half"], "--scale"),
+]
+
+
+def _run(
+    tmp_path: Path, text: str | bytes, args: list[str], capsys: pytest.CaptureFixture[str]
+) -> tuple[int, list[str], Path]:
+    path = tmp_path / "p.toml"
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    out = tmp_path / "reports"
+    capsys.readouterr()
+    try:
+        code = main(["run", str(path), "--out", str(out), "--quiet", "--no-report", *args])
+    except SystemExit as exc:  # argparse rejects a flag's type itself
+        code = int(exc.code or 0)
+    return code, capsys.readouterr().err.strip().splitlines(), out
+
+
+def test_the_base_file_runs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, err, out = _run(tmp_path, BASE, [], capsys)
+    assert code == 0, err
+    assert len(list(out.glob("p/*/seed-0/metrics.csv"))) == 1
+
+
+@pytest.mark.parametrize(
+    ("text", "args", "expected"), [c[1:] for c in CASES], ids=[c[0] for c in CASES]
+)
+def test_each_defect_is_one_line_exit_2_and_nothing_written(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    text: str | bytes,
+    args: list[str],
+    expected: str,
+) -> None:
+    code, err, out = _run(tmp_path, text, args, capsys)
+    assert code == 2
+    assert len(err) == 1, err
+    assert expected in err[0], err[0]
+    assert "Traceback" not in err[0]
+    if not args or args[0] == "--set":
+        assert str(tmp_path / "p.toml") in err[0]  # the file is named
+    assert not out.exists()
+
+
+def test_every_collection_backend_is_a_valid_collector() -> None:
+    assert set(get_args(get_type_hints(TrainingConfig)["collector"])) == set(BACKENDS)
