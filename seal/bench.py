@@ -119,8 +119,16 @@ def _twin_sacs(seed: int, batch_size: int, buffer_size: int) -> tuple[Any, Any]:
 
     from seal.learner import Agent, AgentConfig, EnvSpec
 
-    # One task, no one-hot: the plain single-task SAC that SB3 implements.
-    config = AgentConfig(hidden=SB3_WIDTHS, one_hot=False, multi_head_policy=False, device="cpu")
+    # One task, no one-hot: the plain single-task SAC that SB3 implements (no gradient clipping,
+    # torch's Adam eps).
+    config = AgentConfig(
+        hidden=SB3_WIDTHS,
+        one_hot=False,
+        multi_head_policy=False,
+        max_grad_norm=0.0,
+        adam_eps=1e-8,
+        device="cpu",
+    )
     ours = Agent([EnvSpec("bench", SB3_OBS_DIM, SB3_ACT_DIM, 1)], config, seed)
     sb3 = SAC(
         "MlpPolicy",
@@ -452,7 +460,7 @@ def flop_formula_check(
 ) -> dict[str, Any]:
     """FlopCounterMode's count of one real update vs the formula set to what our update computes.
 
-    Our update computes every policy head (then gathers) and the critic's input gradient over
+    Our update computes every policy and Q head (then gathers) and the critic's input gradient over
     all its input columns; the formula with actor_heads=num_tasks and critic_input_grad = the
     critic's input width must then equal the counter exactly. The ideal count is also returned.
     """
@@ -468,6 +476,7 @@ def flop_formula_check(
         hidden=hidden,
         batch=num_tasks * per_task,
         actor_heads=num_tasks,
+        critic_heads=num_tasks,
         critic_input_grad=39 + num_tasks + 4,
     )
     ideal = UpdateShape(num_tasks=num_tasks, hidden=hidden, batch=num_tasks * per_task)
@@ -520,7 +529,7 @@ def bench_mt10_flops(updates: int = 50, repeats: int = 3, seed: int = 0) -> dict
     t_mm = _time_gemms(gemms, repeats)
     return {
         "ideal_flops_per_update": flops,
-        # What our update really multiplies (all 10 policy heads, the critic's full input
+        # What our update really multiplies (all 10 policy and Q heads, the critic's full input
         # gradient): the excess over ideal is work an ideal implementation would not do.
         "flop_counter_per_update": int(counter.get_total_flops()),
         "update_s": t_update,
@@ -793,16 +802,26 @@ POINT_LEARN = {
 def learn_point(one_hot: bool = True, seed: int = 0, **overrides: Any) -> dict[str, Any]:
     """MTMHSAC on `point` (4 tasks) with small nets, stopping once every task succeeds.
 
-    With one_hot=False the policy cannot tell the tasks apart (the observation hides the goal),
-    and the run goes on to its full step budget.
+    With one_hot=False neither the one-hot nor per-task heads are used, so the agent cannot tell
+    the tasks apart (the observation hides the goal), and the run goes on to its full step
+    budget. `agent={...}` passes further AgentConfig fields (e.g. init, adam_eps).
     """
     from seal.envs.point import PointAdapter
     from seal.learner import AgentConfig
 
     settings = {**POINT_LEARN, **overrides}
     lr = settings.pop("lr")
+    # Without the one-hot the control must also lose the per-task heads: task-indexed policy and
+    # Q heads alone tell the tasks apart (measured: all four point tasks at 100% with heads on).
     config = AgentConfig(
-        hidden=settings.pop("hidden"), actor_lr=lr, critic_lr=lr, one_hot=one_hot, device="cpu"
+        hidden=settings.pop("hidden"),
+        actor_lr=lr,
+        critic_lr=lr,
+        one_hot=one_hot,
+        multi_head_policy=one_hot,
+        multi_head_critic=one_hot,
+        device="cpu",
+        **settings.pop("agent", {}),
     )
     # Point steps cost microseconds and the nets are tiny: worker processes would only add pipe
     # latency, and a second torch thread only synchronisation (8 ms per addmm on a loaded machine).

@@ -11,7 +11,13 @@ import torch
 from seal.errors import ConfigError
 
 ARCHITECTURES = ("mtmhsac", "seal")
-OPTIMIZERS = ("per_env", "shared")
+SHARED_UPDATES = ("weighted", "sequential", "per_env")
+CRITIC_SHARINGS = ("per_env", "shared")
+INITS = ("torch", "metaworld_algorithms")
+# Keys that no longer exist, with what replaced them (the protocol loader names the new key).
+RENAMED_KEYS = {
+    "optimizer": 'agent.shared_update ("weighted", "sequential" or "per_env"; the old "per_env" is "per_env")',
+}
 
 
 @dataclass(frozen=True)
@@ -83,10 +89,24 @@ class AgentConfig:
     """Append the one-hot task id (width num_tasks) to the observation inside the agent."""
     multi_head_policy: bool = True
     """One policy output head per task (False: one head shared by all tasks; ablation)."""
-    multi_head_critic: bool | None = None
-    """One Q head per task; None means the architecture's default: False for mtmhsac, True for seal."""
-    optimizer: Literal["per_env", "shared"] = "per_env"
-    """"per_env": one actor and one critic Adam per env over its translator, its head and the shared trunk (SEAL §3.3); "shared": one of each over everything."""
+    multi_head_critic: bool = True
+    """One Q output per task (both references' MTMHSAC critics have per-task outputs); False: one Q head shared by all tasks (ablation)."""
+    critic_sharing: Literal["per_env", "shared"] = "per_env"
+    """SEAL critics: "per_env" = each env its own twin critic (critic_hidden, per-task outputs) on its own obs, one-hot and action, as the authors' prototype; "shared" = per-env critic translators into a shared critic trunk (ablation). MTMHSAC has one env, so one critic either way."""
+    critic_hidden: tuple[int, ...] = (400, 400, 400)
+    """Hidden widths of each env's critic under critic_sharing = "per_env" (the prototype: 3 x 400)."""
+    # Default "weighted": the only mode whose data ratio moves the shared trunk in proportion
+    # (`seal bench --only ratio_lever`); the transfer testbed's measurements are to confirm or overturn it.
+    shared_update: Literal["weighted", "sequential", "per_env"] = "weighted"
+    """How the envs of one update step the shared parameters (policy trunk; critic trunk when critic_sharing = "shared"): "weighted" = one step of one Adam on sum_i (n_i / N) L_i, so an env's share of the batch is its share of the trunk's signal; "sequential" = one step per env on its own mean loss through one shared Adam (the authors' prototype); "per_env" = one Adam per env over its translator, the trunk and its head, stepped in turn (SEAL §3.3 read literally; the ratio then changes only gradient noise, since Adam ignores a loss's scale)."""
+    max_grad_norm: float = 1.0
+    """Clip the global gradient norm of every actor and critic optimiser step to this (metaworld-algorithms' MT10 MTMHSAC and the prototype: 1.0); 0 turns clipping off. Temperatures are never clipped."""
+    init: Literal["torch", "metaworld_algorithms"] = "torch"
+    """Weight init: "torch" = nn.Linear's default U(+-1/sqrt(fan_in)) everywhere; "metaworld_algorithms" = He-uniform kernels and zero biases in hidden layers, policy head U(+-1e-3), Q head U(+-3e-3)."""
+    adam_eps: float = 1e-5
+    """Adam epsilon of every optimiser (metaworld-algorithms: 1e-5; torch's default is 1e-8)."""
+    ratio_lever_interval: int = 1000
+    """Every this many updates with >= 2 envs, measure the ratio lever on the update's batches (three extra updates on copies of the agent) and log it as charts/ratio_lever until the next measurement; 0 = never."""
     lr_factor: float = 1.0
     """Multiplier of actor_lr and critic_lr, e.g. below 1 when fine-tuning a transferred agent."""
     reinit_critic_on_transfer: bool = False
@@ -97,7 +117,7 @@ class AgentConfig:
     """torch.compile the loss computations (eager fallback if compilation fails); off: no gain measured at MT10 defaults on CPU, ~90 s to compile."""
 
     def __post_init__(self) -> None:
-        for key in ("hidden", "translator_hidden", "trunk_hidden"):
+        for key in ("hidden", "translator_hidden", "trunk_hidden", "critic_hidden"):
             value = getattr(self, key)
             try:
                 widths = tuple(int(w) for w in value)
@@ -116,13 +136,28 @@ class AgentConfig:
             raise ConfigError(
                 f"agent.architecture: unknown value {self.architecture!r}; valid: {', '.join(ARCHITECTURES)}"
             )
-        if self.optimizer not in OPTIMIZERS:
+        for key, valid in (
+            ("shared_update", SHARED_UPDATES),
+            ("critic_sharing", CRITIC_SHARINGS),
+            ("init", INITS),
+        ):
+            if getattr(self, key) not in valid:
+                raise ConfigError(
+                    f"agent.{key}: unknown value {getattr(self, key)!r}; valid: {', '.join(valid)}"
+                )
+        if not isinstance(self.max_grad_norm, int | float) or not (
+            math.isfinite(self.max_grad_norm) and self.max_grad_norm >= 0
+        ):
             raise ConfigError(
-                f"agent.optimizer: unknown value {self.optimizer!r}; valid: {', '.join(OPTIMIZERS)}"
+                f"agent.max_grad_norm: expected a finite number >= 0 (0 = no clipping), got {self.max_grad_norm!r}"
+            )
+        if not isinstance(self.ratio_lever_interval, int) or self.ratio_lever_interval < 0:
+            raise ConfigError(
+                f"agent.ratio_lever_interval: expected an int >= 0 (0 = never), got {self.ratio_lever_interval!r}"
             )
         if not isinstance(self.latent_dim, int) or self.latent_dim < 1:
             raise ConfigError(f"agent.latent_dim: expected a positive int, got {self.latent_dim!r}")
-        for key in ("actor_lr", "critic_lr", "alpha_lr", "init_alpha", "lr_factor"):
+        for key in ("actor_lr", "critic_lr", "alpha_lr", "init_alpha", "lr_factor", "adam_eps"):
             value = getattr(self, key)
             if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
                 raise ConfigError(f"agent.{key}: expected a finite number > 0, got {value!r}")
@@ -137,9 +172,7 @@ class AgentConfig:
 
     @property
     def critic_multi_head(self) -> bool:
-        """Whether critics have one Q head per task, after resolving the architecture default."""
-        if self.multi_head_critic is None:
-            return self.architecture == "seal"
+        """Whether critics have one Q head per task."""
         return self.multi_head_critic
 
     @classmethod

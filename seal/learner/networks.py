@@ -10,15 +10,13 @@ Two architectures share one building block, `TaskNetwork`, which for environment
   translator f_theta_i (input: obs_i and the one-hot over env i's tasks; 400 hidden, then the
   400-wide latent, ReLU after both: the prototype's "2 x 400"), the shared latent trunk pi_eta
   (3 x 400, ReLU) and a per-env action head g_phi_i with one linear output per task of env i,
-  each 2 * act_dim_i wide (tanh-Gaussian mean and log std). The critics follow the same pattern:
-  a per-env translator over (obs_i, one-hot, action_i), a shared critic trunk, and per-env,
-  per-task Q heads; the twin Qs are two independent copies of all of that, and the target critics
-  are deep copies that share no tensor with the online ones. Optimisers (see `seal.learner.sac`):
-  with optimizer="per_env", env i has one actor Adam over {f_theta_i, pi_eta, g_phi_i} and one
-  critic Adam over {critic translator_i, critic trunk, critic heads_i} (twin Qs included), as
-  SEAL §3.3 says ("optimizer i is operating on f_theta_i, g_phi_i and pi_eta"); the shared trunk's
-  Adam moments are therefore kept per env. With optimizer="shared", one actor Adam and one critic
-  Adam own every parameter. The per-task log temperatures have their own Adam.
+  each 2 * act_dim_i wide (tanh-Gaussian mean and log std). The critics (`critic_sharing`): by
+  default ("per_env", the authors' prototype) each env has its own twin critic, a plain MLP over
+  (obs_i, one-hot, action_i) with one Q output per task of env i (`PerEnvCritic`); "shared" follows
+  the policy's pattern instead (per-env critic translators, a shared critic trunk, per-env per-task
+  Q heads). The twin Qs are two independent copies, and the target critics are deep copies that
+  share no tensor with the online ones. Which Adam owns which parameters follows
+  `shared_update` (see `seal.learner.sac`); the per-task log temperatures have their own Adam.
 
 Speed: an ensemble of G identical MLPs (the twin Q, G=2) is one `baddbmm` per layer over stacked
 weights of shape (G, in, out); all heads of a layer are one matmul whose output is reshaped to
@@ -49,9 +47,20 @@ Segments = tuple[tuple[str, int], ...]
 
 def _uniform_(tensor: torch.Tensor, fan_in: int, generator: torch.Generator) -> None:
     """torch.nn.Linear's default init, U(-1/sqrt(fan_in), 1/sqrt(fan_in)), from our own generator."""
-    bound = 1.0 / math.sqrt(fan_in)
+    _bounded_(tensor, 1.0 / math.sqrt(fan_in), generator)
+
+
+def _bounded_(tensor: torch.Tensor, bound: float, generator: torch.Generator) -> None:
+    """U(-bound, bound) in place from our own generator."""
     with torch.no_grad():
         tensor.uniform_(-bound, bound, generator=generator)
+
+
+# Init schemes (AgentConfig.init). "metaworld_algorithms": hidden kernels He-uniform,
+# U(+-sqrt(6 / fan_in)) (flax's he_uniform), hidden biases zero; output heads U(+-head_bound)
+# for kernel and bias, head_bound 1e-3 for the policy and 3e-3 for Q (metaworld-algorithms'
+# rl/networks.py). "torch": nn.Linear's default everywhere, head_bound unused.
+HEAD_BOUND = {"actor": 1e-3, "critic": 3e-3}
 
 
 class StackedMLP(nn.Module):
@@ -77,11 +86,16 @@ class StackedMLP(nn.Module):
         """Width of the last layer."""
         return self.widths[-1]
 
-    def reset_parameters(self, generator: torch.Generator) -> None:
-        """Re-draw every weight and bias with nn.Linear's default init."""
+    def reset_parameters(self, generator: torch.Generator, init: str = "torch") -> None:
+        """Re-draw every weight and bias: nn.Linear's default, or He-uniform kernels and zero biases."""
         for weight, bias in zip(self.weights, self.biases, strict=True):
-            _uniform_(weight, weight.shape[1], generator)
-            _uniform_(bias, weight.shape[1], generator)
+            if init == "metaworld_algorithms":
+                _bounded_(weight, math.sqrt(6.0 / weight.shape[1]), generator)
+                with torch.no_grad():
+                    bias.zero_()
+            else:
+                _uniform_(weight, weight.shape[1], generator)
+                _uniform_(bias, weight.shape[1], generator)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Apply all layers; see the class docstring for shapes."""
@@ -116,10 +130,14 @@ class MultiHeadLinear(nn.Module):
         self.weight = nn.Parameter(torch.empty(ensemble, in_dim, num_heads * out_dim))
         self.bias = nn.Parameter(torch.empty(ensemble, 1, num_heads * out_dim))
 
-    def reset_parameters(self, generator: torch.Generator) -> None:
-        """Re-draw with nn.Linear's default init (each head as its own Linear(in_dim, out_dim))."""
-        _uniform_(self.weight, self.in_dim, generator)
-        _uniform_(self.bias, self.in_dim, generator)
+    def reset_parameters(self, generator: torch.Generator, bound: float | None = None) -> None:
+        """Re-draw with nn.Linear's default init (each head as its own Linear(in_dim, out_dim)), or U(+-bound)."""
+        if bound is None:
+            _uniform_(self.weight, self.in_dim, generator)
+            _uniform_(self.bias, self.in_dim, generator)
+        else:
+            _bounded_(self.weight, bound, generator)
+            _bounded_(self.bias, bound, generator)
 
     def forward(self, x: torch.Tensor, task_ids: torch.Tensor) -> torch.Tensor:
         """(B, in) or (ensemble, B, in) -> (B, out_dim) or (ensemble, B, out_dim) of each sample's task head."""
@@ -177,10 +195,14 @@ class TaskNetwork(nn.Module):
             }
         )
 
-    def reset_parameters(self, generator: torch.Generator) -> None:
-        """Re-draw every parameter, in a fixed order (translators, trunk, heads)."""
-        for module in (*self.translators.values(), self.trunk, *self.heads.values()):
-            module.reset_parameters(generator)
+    def reset_parameters(
+        self, generator: torch.Generator, init: str = "torch", head_bound: float = 0.0
+    ) -> None:
+        """Re-draw every parameter, in a fixed order (translators, trunk, heads); see HEAD_BOUND."""
+        for module in (*self.translators.values(), self.trunk):
+            module.reset_parameters(generator, init)
+        for head in self.heads.values():
+            head.reset_parameters(generator, head_bound if init == "metaworld_algorithms" else None)
 
     def env_parameters(self, key: str) -> list[nn.Parameter]:
         """Parameters used by env `key`: its translator, the shared trunk and its heads."""
@@ -214,3 +236,43 @@ def tanh_gaussian(
     # log N(x_t; mean, std) = -noise^2 / 2 - log std - log(2 pi) / 2, since (x_t - mean) / std = noise
     log_prob = -0.5 * noise.square() - log_std - _HALF_LOG_2PI - torch.log1p(1e-6 - y_t.square())
     return y_t, log_prob.sum(-1)
+
+
+class PerEnvCritic(nn.Module):
+    """Independent per-environment critics (the SEAL authors' prototype): env i's twin Q is its own
+    MLP over (obs_i, one-hot, action_i) with one linear Q output per task of env i; nothing is
+    shared between environments. Same interface as `TaskNetwork`: forward(key, x, task_ids).
+    """
+
+    def __init__(
+        self,
+        segments: dict[str, Segments],
+        num_heads: dict[str, int],
+        hidden: Sequence[int],
+        ensemble: int = 2,
+    ) -> None:
+        super().__init__()
+        self.segments = dict(segments)
+        self.nets = nn.ModuleDict(
+            {
+                key: TaskNetwork(
+                    {key: segs}, {key: 1}, {key: num_heads[key]}, hidden, None, ensemble
+                )
+                for key, segs in segments.items()
+            }
+        )
+
+    def reset_parameters(
+        self, generator: torch.Generator, init: str = "torch", head_bound: float = 0.0
+    ) -> None:
+        """Re-draw every env's critic, in env order."""
+        for net in self.nets.values():
+            net.reset_parameters(generator, init, head_bound)
+
+    def env_parameters(self, key: str) -> list[nn.Parameter]:
+        """Parameters of env `key`'s critic (all of them: nothing is shared)."""
+        return list(self.nets[key].parameters())
+
+    def forward(self, key: str, x: torch.Tensor, task_ids: torch.Tensor) -> torch.Tensor:
+        """(ensemble, B, 1) Q values of env `key`'s critic for each sample's task."""
+        return self.nets[key](key, x, task_ids)

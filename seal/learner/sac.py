@@ -15,10 +15,21 @@ Temperatures are per task (one log_alpha per task of each env, MTMHSAC). The alp
 log_alpha rather than alpha, as garage's MTSAC (the Meta-World MTMHSAC) and stable-baselines3 do:
 same sign of gradient as cleanrl's alpha form, and Adam makes the scale immaterial.
 
-Optimiser ownership is described in `seal.learner.networks`. With optimizer="per_env" the envs of
-an update are stepped one after another (critic then actor for env 1, then env 2, ...), so env 2's
-losses see the shared trunk after env 1's step, which is what M separate optimisers sharing
-pi_eta means; with "shared" all envs' losses are summed and stepped once.
+How the environments of one update step the shared parameters (`AgentConfig.shared_update`):
+
+- "weighted": one Adam over the whole policy (and over the whole critic when critics are shared);
+  one step on sum_i (n_i / N) L_i, L_i env i's mean loss over its n_i samples, N = sum_i n_i. At a
+  90/10 ratio the 90% env carries ~90% of the trunk's gradient.
+- "sequential": the same single Adam, stepped once per env on that env's mean loss, env after env
+  (critic then actor for env 1, then env 2, ...): the authors' prototype.
+- "per_env": one Adam per env over its translator, the shared trunk and its head (SEAL §3.3:
+  "optimizer i is operating on f_theta_i, g_phi_i and pi_eta"), stepped env after env. Adam is
+  invariant to a loss's scale, so the data ratio then changes only gradient noise.
+
+Per-env critics (`critic_sharing = "per_env"`) share nothing, so each has its own Adam stepped on its
+own mean loss in every mode. Every actor and critic step clips the global gradient norm of that
+optimiser's parameters to `max_grad_norm` (0: off); the temperatures' Adam is never clipped.
+`ratio_lever` measures how much of the trunk's step each environment causes.
 """
 
 from __future__ import annotations
@@ -37,9 +48,18 @@ from torch import nn
 from seal.device import resolve_device
 from seal.errors import SealError, TrainingDivergedError, UnknownNameError
 from seal.learner.config import AgentConfig, Batch, EnvSpec
-from seal.learner.networks import LOG_STD_MAX, LOG_STD_MIN, Segments, TaskNetwork, tanh_gaussian
+from seal.learner.networks import (
+    HEAD_BOUND,
+    LOG_STD_MAX,
+    LOG_STD_MIN,
+    PerEnvCritic,
+    Segments,
+    TaskNetwork,
+    tanh_gaussian,
+)
 
-STATE_FORMAT = 1
+# 2: per-env critics (critic_sharing), optimiser slots by shared_update, the cached ratio lever.
+STATE_FORMAT = 2
 # Per-env scalars returned by update(), in the order they are stacked before the single .tolist().
 _SCALARS = (
     "losses/{}/qf1",
@@ -127,14 +147,21 @@ class Agent:
             translator,
             ensemble=1,
         )
-        self.critic = TaskNetwork(
-            self.critic_segments,
-            {keys[s.name]: 1 for s in specs},
-            {keys[s.name]: s.num_tasks if config.critic_multi_head else 1 for s in specs},
-            trunk,
-            translator,
-            ensemble=2,  # twin Q: qf1 and qf2 as one stacked network
-        )
+        critic_heads = {keys[s.name]: s.num_tasks if config.critic_multi_head else 1 for s in specs}
+        self.critic: TaskNetwork | PerEnvCritic
+        if config.architecture == "seal" and config.critic_sharing == "per_env":
+            self.critic = PerEnvCritic(
+                self.critic_segments, critic_heads, config.critic_hidden, ensemble=2
+            )
+        else:
+            self.critic = TaskNetwork(
+                self.critic_segments,
+                {keys[s.name]: 1 for s in specs},
+                critic_heads,
+                trunk,
+                translator,
+                ensemble=2,  # twin Q: qf1 and qf2 as one stacked network
+            )
         self.log_alpha = nn.ParameterDict(
             {keys[s.name]: nn.Parameter(torch.empty(s.num_tasks)) for s in specs}
         )
@@ -142,10 +169,24 @@ class Agent:
             s.name: float(-s.act_dim if config.target_entropy is None else config.target_entropy)
             for s in specs
         }
-        if config.optimizer == "per_env":
-            self._groups = [[name] for name in self.specs]
-        else:
-            self._groups = [list(self.specs)]
+        # Optimiser slots: which envs' parameters each actor / critic Adam owns.
+        per_env = [[name] for name in self.specs]
+        self._actor_members = per_env if config.shared_update == "per_env" else [list(self.specs)]
+        independent_critics = isinstance(self.critic, PerEnvCritic) or len(specs) == 1
+        self._critic_members = (
+            per_env
+            if independent_critics or config.shared_update == "per_env"
+            else [list(self.specs)]
+        )
+        self._actor_slot = {n: i for i, ns in enumerate(self._actor_members) for n in ns}
+        self._critic_slot = {n: i for i, ns in enumerate(self._critic_members) for n in ns}
+        # Independent critics each see their own mean loss; a shared critic follows shared_update.
+        self._weighted = {
+            "actor": config.shared_update == "weighted",
+            "critic": config.shared_update == "weighted" and not independent_critics,
+        }
+        self.last_ratio_lever: float | None = None
+        """The ratio lever last measured by update() (every config.ratio_lever_interval updates)."""
         self._lr_factor = config.lr_factor
         self.num_updates = 0
         self.last_checkpoint: str | None = None
@@ -158,9 +199,9 @@ class Agent:
     # ------------------------------------------------------------------ construction and reset
     def _initialise(self) -> None:
         """Draw all weights, copy the target critics, set temperatures, build fresh optimisers."""
-        for net in (self.actor, self.critic):
+        for net, role in ((self.actor, "actor"), (self.critic, "critic")):
             net.cpu()
-            net.reset_parameters(self._init_generator)
+            net.reset_parameters(self._init_generator, self.config.init, HEAD_BOUND[role])
             net.to(self.device)
         # A deep copy: the targets own their tensors (never views of the online critics).
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
@@ -171,31 +212,37 @@ class Agent:
         self._build_optimizers()
 
     def _build_optimizers(self) -> None:
-        """Fresh Adam states: one actor and one critic Adam per optimiser group, one for temperatures."""
-        fused = {"fused": True}  # measured: fused Adam is ~8x faster than foreach on CPU here
+        """Fresh Adam states: one actor and one critic Adam per optimiser slot, one for temperatures."""
+        # measured: fused Adam is ~8x faster than foreach on CPU here
+        adam = {"fused": True, "eps": self.config.adam_eps}
         self.actor_optimizers: list[torch.optim.Adam] = []
         self.critic_optimizers: list[torch.optim.Adam] = []
         self._actor_params: list[list[nn.Parameter]] = []
         self._critic_params: list[list[nn.Parameter]] = []
-        for members in self._groups:
-            actor_params = _unique(
-                p for name in members for p in self.actor.env_parameters(self._keys[name])
-            )
-            critic_params = _unique(
-                p for name in members for p in self.critic.env_parameters(self._keys[name])
-            )
-            self._actor_params.append(actor_params)
-            self._critic_params.append(critic_params)
-            self.actor_optimizers.append(
-                torch.optim.Adam(actor_params, lr=self.config.actor_lr * self._lr_factor, **fused)
-            )
-            self.critic_optimizers.append(
-                torch.optim.Adam(critic_params, lr=self.config.critic_lr * self._lr_factor, **fused)
-            )
+        for net, slots, params, optimizers, lr in (
+            (
+                self.actor,
+                self._actor_members,
+                self._actor_params,
+                self.actor_optimizers,
+                "actor_lr",
+            ),
+            (
+                self.critic,
+                self._critic_members,
+                self._critic_params,
+                self.critic_optimizers,
+                "critic_lr",
+            ),
+        ):
+            for members in slots:
+                owned = _unique(p for n in members for p in net.env_parameters(self._keys[n]))
+                params.append(owned)
+                optimizers.append(
+                    torch.optim.Adam(owned, lr=getattr(self.config, lr) * self._lr_factor, **adam)
+                )
         self._alpha_params = list(self.log_alpha.values())
-        self.alpha_optimizer = torch.optim.Adam(
-            self._alpha_params, lr=self.config.alpha_lr, **fused
-        )
+        self.alpha_optimizer = torch.optim.Adam(self._alpha_params, lr=self.config.alpha_lr, **adam)
         self._online_critic = list(self.critic.parameters())
         self._target_critic = list(self.critic_target.parameters())
 
@@ -393,70 +440,126 @@ class Agent:
         actor_loss = (alpha[task_ids] * log_pi - min_qf_pi).mean()
         return actor_loss, log_pi
 
-    @staticmethod
     def _step(
-        optimizer: torch.optim.Optimizer, params: list[nn.Parameter], loss: torch.Tensor
+        self,
+        role: str,
+        names: list[str],
+        losses: Mapping[str, torch.Tensor],
+        weights: Mapping[str, float],
     ) -> None:
-        """Backward into exactly `params` (no grads for frozen parts of the graph), then step."""
+        """One optimiser step of every `role` ("actor"/"critic") slot the envs `names` use.
+
+        The loss is sum_i w_i L_i under weighting, else sum_i L_i (one env, or independent
+        critics whose slots share no parameter). Backward goes into exactly the slots' parameters
+        (unused ones get no grad, so Adam leaves them alone); each slot's gradient is clipped to
+        max_grad_norm on its own, then stepped.
+        """
+        if self._weighted[role]:
+            terms = [losses[n] if weights[n] == 1.0 else losses[n] * weights[n] for n in names]
+        else:
+            terms = [losses[n] for n in names]
+        loss = terms[0] if len(terms) == 1 else torch.stack(terms).sum()
+        slot_of = self._actor_slot if role == "actor" else self._critic_slot
+        slots = sorted({slot_of[n] for n in names})
+        all_params = self._actor_params if role == "actor" else self._critic_params
+        optimizers = self.actor_optimizers if role == "actor" else self.critic_optimizers
+        params = [p for s in slots for p in all_params[s]]
         grads = torch.autograd.grad(loss, params, allow_unused=True)
         for p, g in zip(params, grads, strict=True):
             p.grad = g
-        optimizer.step()
+        for s in slots:
+            if self.config.max_grad_norm > 0:
+                # No host sync: the clip factor stays a tensor.
+                nn.utils.clip_grad_norm_(all_params[s], self.config.max_grad_norm)
+            optimizers[s].step()
+
+    def _inputs(
+        self, batches: Mapping[str, Batch]
+    ) -> dict[str, tuple[Batch, torch.Tensor, torch.Tensor, torch.Tensor]]:
+        """Per env with samples, in spec order: (batch on device, alpha, actor input, next actor input)."""
+        inputs = {}
+        for name in self.specs:
+            # An env with an empty batch (a ratio of 0) takes no step this update.
+            if name not in batches or batches[name].obs.shape[0] == 0:
+                continue
+            batch = batches[name]
+            if batch.obs.device != self.device:
+                batch = Batch(*(t.to(self.device, non_blocking=True) for t in batch))
+            alpha = self.log_alpha[self._keys[name]].detach().exp()
+            inputs[name] = (
+                batch,
+                alpha,
+                self._actor_input(name, batch.obs, batch.task_ids),
+                self._actor_input(name, batch.next_obs, batch.task_ids),
+            )
+        return inputs
 
     def update(self, batches: Mapping[str, Batch]) -> dict[str, float]:
-        """One gradient step (critic, actor, per-task alpha, Polyak target) for every env in `batches`.
+        """One gradient update (critic, actor, per-task alpha, Polyak target) over every env in `batches`.
 
-        Returns `losses/<env>/{critic,qf1,qf2,actor,alpha}`, `charts/<env>/{mean_q,entropy}` and
-        `charts/<env>/alpha/<task index>` (the temperature used by this update). Raises
-        TrainingDivergedError naming the update and the last good checkpoint if a loss is NaN/inf.
+        Returns `losses/<env>/{critic,qf1,qf2,actor,alpha}`, `charts/<env>/{mean_q,entropy}`,
+        `charts/<env>/alpha/<task index>` (the temperature used by this update) and, with two or
+        more envs and config.ratio_lever_interval > 0, `charts/ratio_lever` (the last measured
+        value). Raises TrainingDivergedError naming the update and the last good checkpoint if a
+        loss is NaN/inf.
         """
         for name in batches:
             self._spec(name)
-        scalars: list[torch.Tensor] = []
-        order: list[str] = []
-        alpha_loss = None
-        for group, members in enumerate(self._groups):
-            # An env with an empty batch (a ratio of 0) takes no step this update.
-            names = [n for n in members if n in batches and batches[n].obs.shape[0] > 0]
-            if not names:
-                continue
-            inputs = {}
-            for name in names:
-                batch = batches[name]
-                if batch.obs.device != self.device:
-                    batch = Batch(*(t.to(self.device, non_blocking=True) for t in batch))
-                alpha = self.log_alpha[self._keys[name]].detach().exp()
-                inputs[name] = (
-                    batch,
-                    alpha,
-                    self._actor_input(name, batch.obs, batch.task_ids),
-                    self._actor_input(name, batch.next_obs, batch.task_ids),
-                )
+        interval = self.config.ratio_lever_interval
+        multi_env = sum(1 for b in batches.values() if b.obs.shape[0] > 0) >= 2
+        if interval and self.num_updates % interval == 0 and multi_env:
+            # Off the hot path: three updates on copies of the agent, every `interval` updates.
+            self.last_ratio_lever = self.ratio_lever(batches)["lever"]
+        order, scalars = self._update(batches)
+        self.num_updates += 1
+        metrics = self._metrics(order, scalars)
+        if self.last_ratio_lever is not None:
+            metrics["charts/ratio_lever"] = self.last_ratio_lever
+        return metrics
 
-            # ---- critic: one step of this group's critic optimiser over its envs' summed losses
+    def _update(
+        self, batches: Mapping[str, Batch], drop: str | None = None
+    ) -> tuple[list[str], list[torch.Tensor]]:
+        """The update itself; with `drop`, that env's losses are computed (same noise draws) but
+        left out of every step, its weight n_X / N still counted in N (the ratio lever's Δ₋X)."""
+        inputs = self._inputs(batches)
+        total = sum(batch.obs.shape[0] for batch, *_ in inputs.values())
+        weights = {name: batch.obs.shape[0] / total for name, (batch, *_) in inputs.items()}
+        names = list(inputs)
+        stages = [names] if self.config.shared_update == "weighted" else [[n] for n in names]
+        scalars: list[torch.Tensor] = []
+        alpha_terms: list[torch.Tensor] = []
+        for stage in stages:
+            kept = [n for n in stage if n != drop]
+            # ---- critic: each stage's critic slots, on (weighted) mean losses
             critic_terms = {
                 name: self._loss("critic", name, obs_in, next_obs_in, batch, alpha)
                 for name, (batch, alpha, obs_in, next_obs_in) in inputs.items()
+                if name in stage
             }
-            qf_loss = sum(qf1 + qf2 for qf1, qf2, _ in critic_terms.values())
-            self._step(self.critic_optimizers[group], self._critic_params[group], qf_loss)
+            if kept:
+                critic_losses = {n: critic_terms[n][0] + critic_terms[n][1] for n in kept}
+                self._step("critic", kept, critic_losses, weights)
 
             # ---- actor: with the critic just updated, as in cleanrl
             actor_terms = {
                 name: self._loss("actor", name, obs_in, batch.task_ids, alpha)
                 for name, (batch, alpha, obs_in, _) in inputs.items()
+                if name in stage
             }
-            actor_loss = sum(loss for loss, _ in actor_terms.values())
-            self._step(self.actor_optimizers[group], self._actor_params[group], actor_loss)
+            if kept:
+                self._step("actor", kept, {n: actor_terms[n][0] for n in kept}, weights)
 
             # ---- temperature: one log_alpha per task, trained towards the env's target entropy
-            for name, (batch, alpha, _, _) in inputs.items():
+            for name in stage:
+                batch, alpha, _, _ = inputs[name]
                 log_pi = actor_terms[name][1].detach()
                 env_alpha_loss = (
                     -self.log_alpha[self._keys[name]][batch.task_ids]
                     * (log_pi + self.target_entropy[name])
                 ).mean()
-                alpha_loss = env_alpha_loss if alpha_loss is None else alpha_loss + env_alpha_loss
+                if name != drop:
+                    alpha_terms.append(env_alpha_loss)
                 qf1, qf2, qf_a_values = critic_terms[name]
                 scalars.append(
                     torch.stack(
@@ -472,15 +575,75 @@ class Agent:
                     ).detach()
                 )
                 scalars.append(alpha)
-                order.append(name)
-        if alpha_loss is not None:
-            self._step(self.alpha_optimizer, self._alpha_params, alpha_loss)
+        if alpha_terms:
+            alpha_loss = alpha_terms[0] if len(alpha_terms) == 1 else torch.stack(alpha_terms).sum()
+            grads = torch.autograd.grad(alpha_loss, self._alpha_params, allow_unused=True)
+            for p, g in zip(self._alpha_params, grads, strict=True):
+                p.grad = g
+            self.alpha_optimizer.step()
 
         # ---- target critics: Polyak averaging in place
         with torch.no_grad():
             torch._foreach_lerp_(self._target_critic, self._online_critic, self.config.tau)
-        self.num_updates += 1
-        return self._metrics(order, scalars)
+        return names, scalars
+
+    # ------------------------------------------------------------------ the ratio lever
+    def _clone(self) -> Agent:
+        """A deep copy (networks, optimiser states, RNG streams) that shares nothing with self."""
+        compiled, self._compiled = self._compiled, {}
+        try:
+            return copy.deepcopy(self)
+        finally:
+            self._compiled = compiled
+
+    def ratio_lever(self, batches: Mapping[str, Batch]) -> dict[str, Any]:
+        """How much of the shared policy trunk's step each env causes, measured on copies of the agent.
+
+        Δ = the trunk's parameter change of one full update (clipping and Adam included); Δ₋X =
+        the same with env X's terms dropped (`_update`'s drop). For A the env with the most
+        samples, lever = ||Δ - Δ₋A|| / sum_X ||Δ - Δ₋X|| (two envs: the issue's
+        ||Δ - Δ₋A|| / (||Δ - Δ₋A|| + ||Δ - Δ₋B||)); ~n_A / N means the ratio is the lever it
+        should be, ~0.5 at 90/10 means it is not. Also returns the trunk gradient norm of each
+        env's own mean actor loss at the current parameters (`grad_norm`). This agent is unchanged.
+        """
+        sizes = {
+            n: b.obs.shape[0] for n, b in batches.items() if n in self.specs and b.obs.shape[0]
+        }
+        if len(sizes) < 2:
+            raise SealError(f"ratio_lever needs batches of >= 2 envs, got {sorted(sizes)}")
+        first = max(sizes.values())
+        env_a = next(n for n in self.specs if sizes.get(n) == first)
+        before = [p.detach().clone() for p in self.actor.trunk.parameters()]
+
+        def trunk_step(drop: str | None) -> torch.Tensor:
+            clone = self._clone()
+            clone._update(batches, drop)
+            return torch.cat(
+                [
+                    (p.detach() - b).flatten()
+                    for p, b in zip(clone.actor.trunk.parameters(), before, strict=True)
+                ]
+            )
+
+        delta = trunk_step(None)
+        effect = {n: float((delta - trunk_step(n)).norm()) for n in self.specs if n in sizes}
+        clone = self._clone()
+        grad_norm = {}
+        for name, (batch, alpha, obs_in, _) in clone._inputs(batches).items():
+            loss, _ = clone._actor_loss(name, obs_in, batch.task_ids, alpha)
+            grads = torch.autograd.grad(loss, list(clone.actor.trunk.parameters()))
+            grad_norm[name] = float(
+                torch.linalg.vector_norm(torch.cat([g.flatten() for g in grads]))
+            )
+        total = sum(effect.values())
+        return {
+            "lever": effect[env_a] / total if total > 0 else float("nan"),
+            "env": env_a,
+            "share": sizes[env_a] / sum(sizes.values()),
+            "step_norm": float(delta.norm()),
+            "effect": effect,
+            "grad_norm": grad_norm,
+        }
 
     def _metrics(self, order: list[str], scalars: list[torch.Tensor]) -> dict[str, float]:
         """One device sync for all logs; raise TrainingDivergedError on a non-finite loss."""
@@ -534,13 +697,14 @@ class Agent:
             },
             "lr_factor": self._lr_factor,
             "num_updates": self.num_updates,
+            "ratio_lever": self.last_ratio_lever,
         }
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         """Restore everything `state_dict` saved; the specs and network shapes must match."""
         if state.get("format") != STATE_FORMAT:
             raise SealError(
-                f"agent state has format {state.get('format')!r}; this seal reads format {STATE_FORMAT}"
+                f"agent state has format {state.get('format')!r}; this seal resumes format {STATE_FORMAT} (an older state can seed a new run through [transfer])"
             )
         mine = [asdict(s) for s in self.specs.values()]
         if list(state["specs"]) != mine:
@@ -571,6 +735,7 @@ class Agent:
         self._update_generator.set_state(state["rng"]["update"])
         self._act_generator.set_state(state["rng"]["act"])
         self.num_updates = int(state["num_updates"])
+        self.last_ratio_lever = state["ratio_lever"]
 
     def transfer_from(self, state: Mapping[str, Any], *, reinit_critic: bool | None = None) -> None:
         """Pad-and-fine-tune: start from another env's agent state (SEAL Appendix D).
@@ -606,14 +771,7 @@ class Agent:
             copy_heads=False,
         )
         if not reinit_critic:
-            _transfer_network(
-                self.critic,
-                state["critic"],
-                state["segments"]["critic"],
-                self.critic_segments,
-                key_map,
-                copy_heads=True,
-            )
+            self._transfer_critic(state, key_map)
         self.critic_target.load_state_dict(self.critic.state_dict())
         with torch.no_grad():
             for key, source_key in key_map.items():
@@ -622,6 +780,43 @@ class Agent:
                 self.log_alpha[key][:n].copy_(old[:n])
         self._lr_factor = self.config.lr_factor
         self._build_optimizers()
+
+    def _transfer_critic(self, state: Mapping[str, Any], key_map: Mapping[str, str]) -> None:
+        """Copy the saved critics into this agent's, env by env; refuse across critic layouts."""
+        theirs = _critic_layout(state["config"])
+        mine = "per_env" if isinstance(self.critic, PerEnvCritic) else "shared"
+        if theirs != mine:
+            raise SealError(
+                f'cannot transfer the critic: the saved agent has {theirs} critics (critic_sharing = "{theirs}"; states from before critic_sharing have shared ones) and this agent {mine}; set [transfer] reinit_critic = true or agent.critic_sharing = "{theirs}"'
+            )
+        if not isinstance(self.critic, PerEnvCritic):
+            _transfer_network(
+                self.critic,
+                state["critic"],
+                state["segments"]["critic"],
+                self.critic_segments,
+                key_map,
+                copy_heads=True,
+            )
+            return
+        for key, source_key in key_map.items():
+            prefix = f"nets.{source_key}."
+            _transfer_network(
+                self.critic.nets[key],
+                {k[len(prefix) :]: v for k, v in state["critic"].items() if k.startswith(prefix)},
+                {source_key: state["segments"]["critic"][source_key]},
+                {key: self.critic_segments[key]},
+                {key: source_key},
+                copy_heads=True,
+            )
+
+
+def _critic_layout(config: Mapping[str, Any]) -> str:
+    """ "per_env" or "shared" critics of a saved agent config; states saved before critic_sharing
+    existed (format 1) had shared SEAL critics."""
+    if config["architecture"] == "seal" and config.get("critic_sharing", "shared") == "per_env":
+        return "per_env"
+    return "shared"
 
 
 def _transfer_network(

@@ -378,6 +378,12 @@ def _build_agent(raw: Any, kind: str, device: str, file: str) -> Any:
     if cls is None:  # learner layer not installed yet: keep the table for later validation
         return table
     names = {f.name for f in dataclasses.fields(cls)}
+    from seal.learner.config import RENAMED_KEYS
+
+    renamed = sorted(set(table) & set(RENAMED_KEYS))
+    if renamed:
+        old = renamed[0]
+        raise ConfigError(f"{file}: agent.{old} no longer exists; use {RENAMED_KEYS[old]}")
     # [protocol].device is the one place a user sets the device; [agent].device may still override it.
     defaults: dict[str, Any] = {"architecture": default_architecture(kind), "device": device}
     if kind == "finetune":

@@ -92,16 +92,15 @@ def test_default_mtmhsac_shapes_match_metaworld_mt10() -> None:
     assert tuple(agent.actor.heads["metaworld"].weight.shape) == (1, 400, 10 * 8)
     critic = [tuple(w.shape) for w in agent.critic.trunk.weights]
     assert critic == [(2, 53, 400), (2, 400, 400), (2, 400, 400)]  # twin Q, obs + one-hot + action
-    assert tuple(agent.critic.heads["metaworld"].weight.shape) == (
-        2,
-        400,
-        1,
-    )  # single-head critic by default
+    # one Q output per task by default, as both references' MTMHSAC critics
+    assert tuple(agent.critic.heads["metaworld"].weight.shape) == (2, 400, 10)
     assert tuple(agent.log_alpha["metaworld"].shape) == (10,)
     assert torch.allclose(agent.log_alpha["metaworld"], torch.zeros(10))  # init alpha 1
 
 
 def test_default_seal_shapes_translators_trunk_heads() -> None:
+    # Rewritten when critic_sharing arrived: the default SEAL critic is now the authors' (one
+    # independent twin critic per env on its own obs, one-hot and action), no longer a shared trunk.
     specs = [EnvSpec("metaworld", 39, 4, 10), EnvSpec("kitchen", 59, 9, 10)]
     agent = Agent(specs, AgentConfig(architecture="seal"), seed=0)
     # translator f_theta_i: (obs_i + one-hot) -> 400 -> latent 400 ("2 x 400")
@@ -112,32 +111,60 @@ def test_default_seal_shapes_translators_trunk_heads() -> None:
     assert [tuple(w.shape) for w in agent.actor.trunk.weights] == [(1, 400, 400)] * 3
     assert tuple(agent.actor.heads["kitchen"].weight.shape) == (1, 400, 10 * 18)
     assert tuple(agent.actor.heads["metaworld"].weight.shape) == (1, 400, 10 * 8)
-    # critic translator reads (obs, one-hot, action); per-env per-task Q heads by default
-    assert tuple(agent.critic.translators["kitchen"].weights[0].shape) == (2, 78, 400)
-    assert tuple(agent.critic.heads["kitchen"].weight.shape) == (2, 400, 10)
+    # kitchen's critic: (obs 59 + one-hot 10 + action 9 = 78) -> 3 x 400 -> one Q per task
+    kitchen = agent.critic.nets["kitchen"]
+    assert [tuple(w.shape) for w in kitchen.trunk.weights] == [(2, 78, 400)] + [(2, 400, 400)] * 2
+    assert tuple(kitchen.heads["kitchen"].weight.shape) == (2, 400, 10)
+    assert tuple(agent.critic.nets["metaworld"].trunk.weights[0].shape) == (2, 53, 400)
+    kitchen_ids = {id(p) for p in kitchen.parameters()}
+    assert not kitchen_ids & {id(p) for p in agent.critic.nets["metaworld"].parameters()}
+    shared = Agent(specs, AgentConfig(architecture="seal", critic_sharing="shared"), seed=0)
+    assert tuple(shared.critic.translators["kitchen"].weights[0].shape) == (2, 78, 400)
+    assert tuple(shared.critic.heads["kitchen"].weight.shape) == (2, 400, 10)
+
+
+def _owned(optimizer: torch.optim.Optimizer) -> set[int]:
+    return {id(p) for group in optimizer.param_groups for p in group["params"]}
+
+
+def _ids(*modules: torch.nn.Module) -> set[int]:
+    return {id(p) for m in modules for p in m.parameters()}
 
 
 def test_seal_per_env_optimisers_own_translator_trunk_and_head() -> None:
+    # Rewritten when shared_update replaced agent.optimizer: "per_env" is no longer the default,
+    # so it is asked for; the other modes' ownership is pinned beside it.
     specs = [EnvSpec("a", 3, 2, 2), EnvSpec("b", 5, 1, 3)]
-    agent = Agent(specs, AgentConfig(architecture="seal", **SMALL), seed=0)
-    assert len(agent.actor_optimizers) == 2 and len(agent.critic_optimizers) == 2
-    for i, env in enumerate(("a", "b")):
-        owned = {id(p) for group in agent.actor_optimizers[i].param_groups for p in group["params"]}
-        expected = {
-            id(p)
-            for m in (agent.actor.translators[env], agent.actor.trunk, agent.actor.heads[env])
-            for p in m.parameters()
-        }
-        assert owned == expected
-        critic_owned = {
-            id(p) for group in agent.critic_optimizers[i].param_groups for p in group["params"]
-        }
-        assert critic_owned == {id(p) for p in agent.critic.env_parameters(env)}
-    shared = Agent(specs, AgentConfig(architecture="seal", optimizer="shared", **SMALL), seed=0)
-    assert len(shared.actor_optimizers) == 1
-    assert len(shared.actor_optimizers[0].param_groups[0]["params"]) == len(
-        list(shared.actor.parameters())
-    )
+    for critics in ("per_env", "shared"):
+        agent = Agent(
+            specs,
+            AgentConfig(
+                architecture="seal", shared_update="per_env", critic_sharing=critics, **SMALL
+            ),
+            seed=0,
+        )
+        assert len(agent.actor_optimizers) == 2 and len(agent.critic_optimizers) == 2
+        for i, env in enumerate(("a", "b")):
+            assert _owned(agent.actor_optimizers[i]) == _ids(
+                agent.actor.translators[env], agent.actor.trunk, agent.actor.heads[env]
+            )
+            assert _owned(agent.critic_optimizers[i]) == {
+                id(p) for p in agent.critic.env_parameters(env)
+            }
+    for mode in ("weighted", "sequential"):
+        # one actor Adam over the whole policy; independent critics keep one Adam each
+        agent = Agent(specs, AgentConfig(architecture="seal", shared_update=mode, **SMALL), seed=0)
+        assert [_owned(o) for o in agent.actor_optimizers] == [_ids(agent.actor)]
+        assert [_owned(o) for o in agent.critic_optimizers] == [
+            _ids(agent.critic.nets["a"]),
+            _ids(agent.critic.nets["b"]),
+        ]
+        shared = Agent(
+            specs,
+            AgentConfig(architecture="seal", shared_update=mode, critic_sharing="shared", **SMALL),
+            seed=0,
+        )
+        assert [_owned(o) for o in shared.critic_optimizers] == [_ids(shared.critic)]
 
 
 def test_target_critics_share_no_storage_with_online_ones() -> None:

@@ -43,11 +43,22 @@ def _ops_of_one_update(config: AgentConfig, num_tasks: int) -> Counter[str]:
     "config",
     [
         AgentConfig(**SMALL),
-        AgentConfig(multi_head_critic=True, **SMALL),
-        AgentConfig(architecture="seal", **SMALL),
-        AgentConfig(architecture="seal", optimizer="shared", **SMALL),
+        AgentConfig(multi_head_critic=False, **SMALL),
+        *(
+            AgentConfig(architecture="seal", shared_update=mode, critic_sharing=critics, **SMALL)
+            for mode in ("weighted", "sequential", "per_env")
+            for critics in ("per_env", "shared")
+        ),
     ],
-    ids=["mtmhsac", "mtmhsac-multi-head-critic", "seal", "seal-shared-optimizer"],
+    ids=[
+        "mtmhsac",
+        "mtmhsac-single-head-critic",
+        *(
+            f"seal-{mode}-{critics}-critics"
+            for mode in ("weighted", "sequential", "per_env")
+            for critics in ("per_env", "shared")
+        ),
+    ],
 )
 def test_op_count_is_the_same_for_2_and_10_tasks(config: AgentConfig) -> None:
     two, ten = _ops_of_one_update(config, 2), _ops_of_one_update(config, 10)

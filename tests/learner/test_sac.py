@@ -73,12 +73,14 @@ def test_losses_by_hand_on_a_network_with_known_weights() -> None:
     assert metrics["losses/toy/qf2"] == pytest.approx(qf2_loss, rel=1e-5)
     assert metrics["losses/toy/critic"] == pytest.approx(qf1_loss + qf2_loss, rel=1e-5)
     assert metrics["charts/toy/mean_q"] == pytest.approx(1.5)
-    # The critic step moves only the head biases (all activations are 0): Adam's first step is
-    # -lr * g / (|g| + 1e-8) with g = d qf_loss / d bias = mean(2 (q - y)).
+    # The critic step moves only the head biases (all activations are 0), g = d qf_loss / d bias =
+    # mean(2 (q - y)). Clipping scales both by c = min(1, 1 / (||(g1, g2)|| + 1e-6)) (max_grad_norm
+    # 1), then Adam's first step is -lr * c g / (|c g| + eps), eps = 1e-5.
     g1 = sum(2 * (1.0 - t) for t in y) / 3
     g2 = sum(2 * (2.0 - t) for t in y) / 3
-    q1_new = 1.0 - 3e-4 * g1 / (abs(g1) + 1e-8)
-    q2_new = 2.0 - 3e-4 * g2 / (abs(g2) + 1e-8)
+    c = min(1.0, 1.0 / (math.hypot(g1, g2) + 1e-6))
+    q1_new = 1.0 - 3e-4 * c * g1 / (abs(c * g1) + 1e-5)
+    q2_new = 2.0 - 3e-4 * c * g2 / (abs(c * g2) + 1e-5)
     log_pi = [_log_prob(0.5, -1.0, e)[1] for e in eps_pi]
     # actor_loss = mean(alpha * log_pi - min(qf1, qf2)) with the critic just updated
     actor_loss = sum(alpha * lp - min(q1_new, q2_new) for lp in log_pi) / 3
@@ -92,10 +94,10 @@ def test_losses_by_hand_on_a_network_with_known_weights() -> None:
     assert agent.critic_target.heads["toy"].bias[0, 0, 0].item() == pytest.approx(
         0.995 + 0.005 * q1_new, rel=1e-6
     )
-    # Temperature: one Adam step of lr 3e-4 against the sign of d alpha_loss / d log_alpha.
+    # Temperature (never clipped): one Adam step of lr 3e-4, -lr * g / (|g| + 1e-5).
     d_log_alpha = sum(-(lp - 1.0) for lp in log_pi) / 3
     assert agent.log_alpha["toy"].item() == pytest.approx(
-        math.log(2) - 3e-4 * np.sign(d_log_alpha), abs=1e-7
+        math.log(2) - 3e-4 * d_log_alpha / (abs(d_log_alpha) + 1e-5), abs=1e-7
     )
 
 
@@ -217,7 +219,12 @@ def test_transfer_mt1_to_mt10_keeps_all_but_the_policy_head_and_zeroes_new_one_h
     assert torch.equal(
         target.actor.heads["mt10"].weight, fresh_head
     )  # policy last layer re-initialised
-    assert torch.equal(target.critic.heads["mt10"].weight, source.critic.heads["mt1"].weight)
+    # per-task Q heads (the default): MT1's one head becomes MT10's head 0, heads 1..9 stay fresh
+    fresh_q = Agent([EnvSpec("mt10", 39, 4, 10)], AgentConfig(**SMALL), seed=1).critic.heads["mt10"]
+    assert torch.equal(
+        target.critic.heads["mt10"].weight[..., :1], source.critic.heads["mt1"].weight
+    )
+    assert torch.equal(target.critic.heads["mt10"].weight[..., 1:], fresh_q.weight[..., 1:])
     for p, q in zip(target.critic.parameters(), target.critic_target.parameters(), strict=True):
         assert torch.equal(p, q)
     assert (
@@ -302,10 +309,21 @@ def test_config_errors_name_the_key_and_valid_values() -> None:
         AgentConfig(tau=0.0)
     with pytest.raises(SealError, match="mtmhsac.*trains one environment"):
         Agent([EnvSpec("a", 2, 1, 1), EnvSpec("b", 2, 1, 1)], AgentConfig(**SMALL), seed=0)
-    assert (
-        AgentConfig().critic_multi_head is False
-        and AgentConfig(architecture="seal").critic_multi_head is True
-    )
+    # per-task Q outputs are the default for both architectures (both references' MTMHSAC)
+    assert AgentConfig().critic_multi_head and AgentConfig(architecture="seal").critic_multi_head
+    for key, value, valid in (
+        ("shared_update", "shared", "weighted, sequential, per_env"),
+        ("critic_sharing", "none", "per_env, shared"),
+        ("init", "xavier", "torch, metaworld_algorithms"),
+    ):
+        with pytest.raises(
+            ConfigError, match=f"agent.{key}: unknown value '{value}'; valid: {valid}"
+        ):
+            AgentConfig(**{key: value})
+    with pytest.raises(ConfigError, match="agent.max_grad_norm.*0 = no clipping"):
+        AgentConfig(max_grad_norm=-1.0)
+    with pytest.raises(ConfigError, match="agent.critic_hidden"):
+        AgentConfig(critic_hidden=(0,))
     assert (
         "zero-padded" not in AgentConfig.field_help()["hidden"]
         and AgentConfig.field_help()["gamma"] == "Discount factor."

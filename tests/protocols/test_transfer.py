@@ -78,7 +78,9 @@ def test_transfer_one_task_to_four_keeps_weights_and_scales_lr(tmp_path: Path) -
     assert torch.equal(c_new[..., :5, :], c_src[..., :5, :])
     assert torch.count_nonzero(c_new[..., 5:8, :]) == 0
     assert torch.equal(c_new[..., 8:10, :], c_src[..., 5:7, :])  # action rows after the one-hot
-    assert torch.equal(target["critic"]["heads.pt.weight"], source["critic"]["heads.pt.weight"])
+    # One Q output per task (the default): the source's one head is copied into "east"'s (id 0).
+    q_src, q_new = source["critic"]["heads.pt.weight"], target["critic"]["heads.pt.weight"]
+    assert q_src.shape[-1] == 1 and q_new.shape[-1] == 4 and torch.equal(q_new[..., :1], q_src)
 
     # Learning rates: 3e-4 (AgentConfig default) x 0.1 = 3e-5 for actor and critic.
     assert target["lr_factor"] == pytest.approx(0.1)
