@@ -1,4 +1,4 @@
-"""`seal bench [--json] [--quick] [--learn]`: learner and collection speed as ratios, learning evidence."""
+"""`seal bench [--json] [--quick] [--learn [transfer] [--full]]`: learner and collection speed as ratios, learning evidence."""
 
 from __future__ import annotations
 
@@ -15,7 +15,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Measures sac_vs_sb3, mt10_update_flops_fraction, collect_mt10_speedup and collect_fk_speedup "
             "side by side in one run and prints a table (or one JSON object with --json). "
-            "--learn adds the slow learning checks (point with/without one-hot, reach-v3)."
+            "--learn adds the slow learning checks (point with/without one-hot, reach-v3); "
+            "--learn transfer runs only the cross-environment transfer testbed (protocols/testbed, "
+            "docs/transfer_testbed.md) and prints its table and transfer_updates_saved."
         ),
     )
     parser.add_argument(
@@ -25,7 +27,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--quick", action="store_true", help="few repeats and short episodes (noisier numbers)"
     )
     parser.add_argument(
-        "--learn", action="store_true", help="also run the learning evidence (slow; not for CI)"
+        "--learn",
+        nargs="?",
+        const="evidence",
+        default=None,
+        metavar="transfer",
+        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed",
+    )
+    parser.add_argument(
+        "--full",
+        action="store_true",
+        help="with --learn transfer: also the 50/50 and high-target arms and their target-alone arms",
+    )
+    parser.add_argument(
+        "--seeds", type=int, default=3, help="with --learn transfer: seeds per arm (default 3)"
+    )
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=2,
+        help="with --learn transfer: `seal run` processes at a time (default 2)",
+    )
+    parser.add_argument(
+        "--out",
+        default="reports/bench_transfer",
+        metavar="DIR",
+        help="with --learn transfer: reports root of the testbed's runs (default reports/bench_transfer)",
     )
     parser.add_argument(
         "--only", nargs="+", metavar="KEY", help="run only these keys, e.g. --only sac_vs_sb3"
@@ -51,6 +78,22 @@ def run(args: argparse.Namespace) -> int:
     from seal.bench import BenchSettings, format_table, run_bench
     from seal.errors import SealError
 
+    def log(msg: str) -> None:
+        print(f"[bench] {msg}", file=sys.stderr, flush=True)
+
+    if args.learn not in (None, "evidence", "transfer"):
+        raise SealError(f"--learn {args.learn!r}: unknown; valid: --learn, --learn transfer")
+    if args.full and args.learn != "transfer":
+        raise SealError("--full only applies to --learn transfer")
+    if args.learn == "transfer":
+        from seal.bench_transfer import format_result, run_transfer_bench
+
+        result = run_transfer_bench(
+            full=args.full, seeds=args.seeds, out=args.out, parallel=args.jobs, log=log
+        )
+        print(json.dumps(result, indent=2, default=float) if args.json else format_result(result))
+        return 0
+
     if args.threads is not None:
         if args.threads < 1:
             raise SealError(f"--threads must be >= 1, got {args.threads}")
@@ -63,8 +106,8 @@ def run(args: argparse.Namespace) -> int:
     result = run_bench(
         settings,
         only=args.only,
-        learn=args.learn,
-        log=lambda msg: print(f"[bench] {msg}", file=sys.stderr, flush=True),
+        learn=args.learn == "evidence",
+        log=log,
     )
     print(json.dumps(result, indent=2, default=float) if args.json else format_table(result))
     return 0

@@ -1,0 +1,109 @@
+"""The transfer testbed's plumbing: reading run directories into transfer_updates_saved, and a tiny end-to-end run."""
+
+from __future__ import annotations
+
+import math
+
+import pandas as pd
+import pytest
+
+from seal.bench_transfer import (
+    ARMS,
+    TargetCost,
+    arms,
+    run_transfer_bench,
+    target_cost,
+    updates_saved,
+)
+from seal.errors import SealError
+from seal.protocols import load_protocol
+
+
+def _metrics(rows: list[tuple[int, str, str, float, int, float]]) -> pd.DataFrame:
+    """metrics.csv rows (epoch, env, task, success, grad_steps, updates in millions) of seed 0."""
+    frame = pd.DataFrame(rows, columns=["epoch", "env", "task", "success", "grad_steps", "updates"])
+    return frame.assign(seed=0, phase="train", env_steps=frame["epoch"] * 200)
+
+
+def test_target_cost_sums_first_crossings_and_censors_at_the_total() -> None:
+    metrics = _metrics(
+        [
+            (2, "target", "t0", 0.5, 100, 0.0008),
+            (2, "target", "t1", 0.0, 100, 0.0008),
+            (2, "source", "east", 1.0, 100, 0.0072),  # not the target: ignored
+            (4, "target", "t0", 0.9, 200, 0.0016),  # first >= 0.9: 1,600 transitions, step 200
+            (4, "target", "t1", 0.8, 200, 0.0016),
+            (6, "target", "t0", 0.7, 300, 0.0024),
+            (6, "target", "t1", 0.6, 300, 0.0032),  # never reached: its total, 3,200
+        ]
+    )
+    cost = target_cost(metrics)
+    assert cost.per_task == pytest.approx({"t0": 1600.0, "t1": 3200.0})
+    assert cost.consumed == pytest.approx(4800.0)
+    # Not every task reached 90%, so the steps to 90% are the run's 300, and one task is censored.
+    assert (cost.grad_steps, cost.censored, cost.tasks, cost.reached) == (300, 1, 2, ("t0",))
+    with pytest.raises(SealError, match="no rows of env 'nowhere'"):
+        target_cost(metrics, env="nowhere")
+
+
+def test_updates_saved_is_per_seed() -> None:
+    def cost(consumed: float) -> TargetCost:
+        return TargetCost(consumed, 0, 0, 4, {}, ())
+
+    # 1 - 3000/4000 = 0.25; 1 - 6000/5000 = -0.2; an alone run that consumed nothing gives nan.
+    saved = updates_saved([cost(3000), cost(6000), cost(1)], [cost(4000), cost(5000), cost(0)])
+    assert saved[:2] == pytest.approx([0.25, -0.2]) and math.isnan(saved[2])
+    with pytest.raises(SealError, match="2 seeds of the arm but 1"):
+        updates_saved([cost(1), cost(1)], [cost(1)])
+
+
+def test_every_arm_is_a_loadable_protocol_with_the_same_network_and_batch() -> None:
+    configs = {arm.name: load_protocol(arm.protocol) for arm in ARMS}
+    assert [a.name for a in arms()] == [
+        "alone",
+        "high_source",
+        "high_source_per_env",
+        "no_correspondence",
+    ]
+    for name, config in configs.items():
+        assert config.envs["target"].adapter == "point_view", name
+        assert config.agent.architecture == "seal", name
+        assert (config.training.batch_per_task, config.protocol.threads) == (40, 1), name
+    assert configs["high_source_per_env"].agent.shared_update == "per_env"
+    assert configs["high_source"].agent.shared_update == configs["alone"].agent.shared_update
+    assert configs["no_correspondence"].envs["source"].adapter == "point_diagonal"
+
+
+TINY = [
+    "protocol.epochs=2",
+    "training.warmup_steps=0",
+    "training.grad_steps_per_epoch=2",
+    "evaluation.interval=1",
+    "evaluation.episodes=1",
+    "envs.target.episode_length=5",
+    "agent.translator_hidden=[8]",
+    "agent.latent_dim=8",
+    "agent.trunk_hidden=[8]",
+    "agent.critic_hidden=[8]",
+]
+
+
+def test_tiny_end_to_end(tmp_path) -> None:
+    # One seed of the minimum set, 2 epochs of 2 updates: the point is the plumbing, not learning.
+    result = run_transfer_bench(seeds=1, out=tmp_path, parallel=4, overrides=TINY)
+    assert set(result["arms"]) == {a.name for a in arms()}
+    alone, high = result["arms"]["alone"], result["arms"]["high_source"]
+    # 2 epochs x 2 updates x 8 target transitions per task (10% of 320) x 4 tasks, all censored.
+    assert alone["consumed_per_seed"] == high["consumed_per_seed"] == [128.0]
+    assert (alone["censored"], alone["grad_steps_to_90_per_seed"]) == (4, [4])
+    assert result["transfer_updates_saved"] == high["transfer_updates_saved_per_seed"][0] == 0.0
+    assert "Single Env" in result["table"] and "High Src per_env" in result["table"]
+
+
+def test_cli_errors_are_one_line(capsys) -> None:
+    from seal.cli.main import main
+
+    assert main(["bench", "--learn", "nope"]) == 2
+    assert "--learn 'nope': unknown; valid: --learn, --learn transfer" in capsys.readouterr().err
+    assert main(["bench", "--full"]) == 2
+    assert "--full only applies to --learn transfer" in capsys.readouterr().err
