@@ -1,6 +1,6 @@
 """Ten dense single-task Franka kitchens (SEAL Table 2), as gymnasium envs and a SEAL adapter.
 
-Importing the package registers `seal/FrankaKitchenDense-<task>-v0` for every task; the heavy
+Importing the package registers `seal/FrankaKitchenDense-<task>-v1` for every task; the heavy
 modules (gymnasium-robotics, MuJoCo) load only when an env is made.
 """
 
@@ -10,6 +10,7 @@ import gymnasium as gym
 
 from franka_kitchen_dense.tasks import (
     DEFAULT_EPISODE_LENGTH,
+    REWARD_VERSION,
     TASK_NAMES,
     TASKS,
     KitchenTask,
@@ -18,6 +19,7 @@ from franka_kitchen_dense.tasks import (
 
 __all__ = [
     "DEFAULT_EPISODE_LENGTH",
+    "REWARD_VERSION",
     "TASKS",
     "TASK_NAMES",
     "KitchenTask",

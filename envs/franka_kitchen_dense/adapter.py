@@ -10,6 +10,7 @@ reward or success fails the check.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -18,7 +19,7 @@ from scipy.stats import spearmanr
 
 from franka_kitchen_dense.tasks import DEFAULT_EPISODE_LENGTH, TASK_NAMES, gym_id
 from seal.envs.base import EnvAdapter, ObsLayout
-from seal.errors import UnknownNameError
+from seal.errors import SealError, UnknownNameError
 
 OBS_DIM = 62
 ACT_DIM = 9
@@ -29,6 +30,15 @@ CLOSING_ACTION = np.array([0, 0, 0, 0, 0, 0, 0, -1, -1], dtype=np.float32)
 GOAL_REWARD_MIN = 9.0
 SPEARMAN_MIN = 0.9
 INTERPOLATION_POINTS = 21
+EXPERT_EPISODES = 10  # seeds the scripted expert (and the random policy) run over
+SCRIPTED_SUCCESS_MIN = 0.8  # a physically solvable task's expert must succeed this often
+# Goals for the shaping figures: reported against these, not failed (they measure how well a
+# reward trains, not whether it is correct), as stable-baselines3's checker warns rather than errs.
+SHAPING_GOALS = {"expert_reward_spearman": 0.8, "return_ratio": 5.0, "flat_stretch_share": 0.2}
+# Tasks no policy can finish by holding the handle; the verdict is re-measured by every check
+# (`evidence.reach_evidence`): the gripper must stay over the success radius from the handle at the goal.
+UNSOLVABLE = ("left-hinge-door",)
+OPTIONS = {"gravity_compensation": "true or false, default false"}  # adapter options and values
 
 
 def interpolate_joint(start: np.ndarray, goal: np.ndarray, fraction: float) -> np.ndarray:
@@ -46,6 +56,27 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
     all_tasks: ClassVar[tuple[str, ...]] = TASK_NAMES
     task_sets: ClassVar[dict[str, tuple[str, ...]]] = {"all": TASK_NAMES}
     default_episode_length: ClassVar[int] = DEFAULT_EPISODE_LENGTH
+
+    def __init__(
+        self,
+        tasks: Sequence[str] | str | None = None,
+        episode_length: int | None = None,
+        **options: Any,
+    ) -> None:
+        """`options`: `gravity_compensation` (bool, default False: upstream's arm sags, as in the paper)."""
+        unknown = sorted(set(options) - set(OPTIONS))
+        if unknown:
+            raise SealError(
+                f"adapter {self.name!r}: unknown option(s) {unknown}; valid options: "
+                + ", ".join(f"{k} ({v})" for k, v in OPTIONS.items())
+            )
+        gravity = options.get("gravity_compensation", False)
+        if not isinstance(gravity, bool):
+            raise SealError(
+                f"adapter {self.name!r}: option gravity_compensation must be true or false, got {gravity!r}"
+            )
+        super().__init__(tasks=tasks, episode_length=episode_length)
+        self.gravity_compensation = gravity
 
     @property
     def observation_space(self) -> gym.spaces.Box:
@@ -65,10 +96,18 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
             raise UnknownNameError(f"{self.name} task", task, list(self.tasks))
         import franka_kitchen_dense  # noqa: F401 - registers the gymnasium ids
 
-        return gym.make(gym_id(task), episode_length=self.episode_length, seed=int(seed))
+        return gym.make(
+            gym_id(task),
+            episode_length=self.episode_length,
+            seed=int(seed),
+            gravity_compensation=self.gravity_compensation,
+        )
 
-    def semantic_check(self, task: str, seed: int = 0) -> dict[str, Any]:
-        """Goal, reset and interpolation evidence that reward and success mean what they say."""
+    def semantic_check(
+        self, task: str, seed: int = 0, episodes: int = EXPERT_EPISODES
+    ) -> dict[str, Any]:
+        """Goal, reset and interpolation evidence that reward and success mean what they say; then
+        the scripted expert and a random policy over `episodes` seeds (`evidence.expert_evidence`)."""
         from franka_kitchen_dense.posing import pose_gripper_at_object
 
         env = self.make(task, seed)
@@ -108,7 +147,7 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
             and goal_reward >= GOAL_REWARD_MIN
             and rho >= SPEARMAN_MIN
         )
-        return {
+        result: dict[str, Any] = {
             "ok": bool(ok),
             "goal_reward": round(float(goal_reward), 4),
             "goal_success": goal_success,
@@ -119,3 +158,40 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
             "goal_reach_error_m": round(goal_reach_error, 4),
             "max_reach_error_m": round(max(reach_errors), 4),
         }
+        if ok and episodes > 0:  # a kitchen that fails the posed checks is not worth running
+            result.update(self._expert_check(task, seed, episodes))
+            result["ok"] = bool(result.pop("expert_ok"))
+        return result
+
+    def _expert_check(self, task: str, seed: int, episodes: int) -> dict[str, Any]:
+        """The expert's figures; ok when it solves >= 80% of seeds, or, for a task declared
+        unsolvable, when the measured reach gap at the goal still exceeds the success radius."""
+        from franka_kitchen_dense.evidence import expert_evidence, reach_evidence
+
+        figures = expert_evidence(
+            lambda s: self.make(task, s), task, [seed + i for i in range(episodes)]
+        )
+        figures["shaping_goals_met"] = {
+            "expert_reward_spearman": figures["expert_reward_spearman"]
+            >= SHAPING_GOALS["expert_reward_spearman"],
+            "return_ratio": (figures["return_ratio"] or 0.0) >= SHAPING_GOALS["return_ratio"],
+            "flat_stretch_share": figures["flat_stretch_share"]
+            <= SHAPING_GOALS["flat_stretch_share"],
+        }
+        if task not in UNSOLVABLE:
+            figures["expert_ok"] = figures["scripted_success"] >= SCRIPTED_SUCCESS_MIN
+            return figures
+        env = self.make(task, seed)
+        env.reset(seed=seed)
+        reach = reach_evidence(env.unwrapped)
+        env.close()
+        threshold = env.unwrapped.task.threshold
+        figures.update(reach)
+        figures["unsolvable"] = True
+        figures["unsolvable_reason"] = (
+            f"the gripper gets no nearer than {reach['reach_gap_shut_m']:.3f} m to the handle with "
+            f"the door shut and {reach['reach_gap_goal_m']:.3f} m at the goal (position-only IK, "
+            f"9 starts); holding it within the {threshold} m success radius is out of reach"
+        )
+        figures["expert_ok"] = reach["reach_gap_goal_m"] > threshold
+        return figures

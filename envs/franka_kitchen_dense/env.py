@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import io
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -37,6 +38,8 @@ with contextlib.redirect_stderr(io.StringIO()):
 
 from franka_kitchen_dense.rewards import (
     FINGER_MAX_OPENING,
+    MW_PAD_SQUEEZE,
+    TCP_NEAR_OBJECT,
     Constants,
     Reading,
     compute_reward,
@@ -50,6 +53,8 @@ ACT_DIM = 9
 LEFT_FINGER_JOINT = "robot:panda0_finger_joint1"  # in body panda0_leftfinger
 RIGHT_FINGER_JOINT = "robot:panda0_finger_joint2"  # in body panda0_rightfinger
 TCP_SITE = "end_effector"
+KITCHEN_XML = "../assets/kitchen_franka/kitchen_assets/kitchen_env_model.xml"  # from franka_env.py
+ROBOT_BODY_PREFIX = "panda0_"
 
 
 class FrankaKitchenDenseEnv(gym.Env):
@@ -67,6 +72,7 @@ class FrankaKitchenDenseEnv(gym.Env):
         episode_length: int = DEFAULT_EPISODE_LENGTH,
         seed: int | None = None,
         render_mode: str | None = None,
+        gravity_compensation: bool = False,
     ) -> None:
         if task not in TASKS:
             from seal.errors import UnknownNameError
@@ -82,6 +88,9 @@ class FrankaKitchenDenseEnv(gym.Env):
             remove_task_when_completed=False,
             render_mode=render_mode,
         )
+        self.gravity_compensation = bool(gravity_compensation)
+        if self.gravity_compensation:
+            self._compile_with_gravity_compensation()
         self.model: mujoco.MjModel = self.kitchen.model
         self.data: mujoco.MjData = self.kitchen.data
         self._init_qpos = np.array(self.kitchen.robot_env.init_qpos, dtype=np.float64)
@@ -104,6 +113,28 @@ class FrankaKitchenDenseEnv(gym.Env):
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(ACT_DIM,), dtype=np.float32)
         self._steps = 0
 
+    def _compile_with_gravity_compensation(self) -> None:
+        """Rebuild upstream's model with MuJoCo's `gravcomp` = 1 on every robot body (links, hand,
+        fingers): a passive force that cancels gravity on them. Upstream has none, and its position
+        actuators (kp 870 / 120, joint damping 100 / 10) let the arm sag under a zero action.
+        (`gravcomp` must be set before compiling: MuJoCo sizes its gravcomp pass at compile time.)"""
+        import gymnasium_robotics.envs.franka_kitchen.franka_env as franka_env
+
+        robot = self.kitchen.robot_env
+        xml = Path(franka_env.__file__).parent / KITCHEN_XML
+        spec = mujoco.MjSpec.from_file(str(xml))
+        for body in spec.bodies:
+            if body.name.startswith(ROBOT_BODY_PREFIX):
+                body.gravcomp = 1.0
+        model = spec.compile()
+        data = mujoco.MjData(model)
+        robot.model, robot.data = model, data
+        robot.init_qvel = data.qvel.copy()
+        renderer = getattr(robot, "mujoco_renderer", None)
+        if renderer is not None:
+            renderer.model, renderer.data = model, data
+        self.kitchen.model, self.kitchen.data = model, data
+
     # ----- geometry -------------------------------------------------------------------------
 
     def _task_constants(self) -> Constants:
@@ -115,6 +146,12 @@ class FrankaKitchenDenseEnv(gym.Env):
         scratch.qpos[self._qpos_adr : self._qpos_adr + self._qpos_width] = self.task.goal_array
         mujoco.mj_kinematics(self.model, scratch)
         target = scratch.site_xpos[self._site_id].copy()
+        radius = self._handle_radius(scratch)
+        obj_radius, near_object = self.task.obj_radius, TCP_NEAR_OBJECT
+        if self.task.family in ("push", "pick-place"):
+            # Meta-World's push / pick-place puck has radius 0.02: its gate ("tcp_to_obj < 0.02")
+            # is that radius and its obj_radius (0.015) lies 5 mm inside; the same from the handle.
+            obj_radius, near_object = radius - MW_PAD_SQUEEZE, radius
         constants = Constants(
             target=target,
             obj_init=init["obj"],
@@ -124,11 +161,32 @@ class FrankaKitchenDenseEnv(gym.Env):
             finger_axis_init=init["finger_axis"],
             distance_init=0.0,
             threshold=self.task.threshold,
-            obj_radius=self.task.obj_radius,
+            obj_radius=0.0 if obj_radius is None else obj_radius,  # door-open, dial-turn: unused
+            near_object=near_object,
         )
         return dataclasses.replace(
             constants, distance_init=self._distance(self._init_qpos, init["obj"], constants)
         )
+
+    def _handle_radius(self, data: mujoco.MjData) -> float:
+        """Radius of the collision capsule or cylinder of the task site's body nearest the site (the
+        bar the gripper holds: slide handle 0.022 m, kettle handle 0.032 m, read from the model)."""
+        model, site = self.model, data.site_xpos[self._site_id]
+        best, radius = np.inf, np.nan
+        for g in np.flatnonzero(model.geom_bodyid == model.site_bodyid[self._site_id]):
+            bar = model.geom_type[g] in (
+                mujoco.mjtGeom.mjGEOM_CAPSULE,
+                mujoco.mjtGeom.mjGEOM_CYLINDER,
+            )
+            if not bar or not (model.geom_contype[g] or model.geom_conaffinity[g]):
+                continue
+            axis = data.geom_xmat[g].reshape(3, 3)[:, 2]
+            offset = site - data.geom_xpos[g]
+            along = np.clip(offset @ axis, -model.geom_size[g, 1], model.geom_size[g, 1])
+            distance = float(np.linalg.norm(offset - along * axis))
+            if distance < best:
+                best, radius = distance, float(model.geom_size[g, 0])
+        return radius
 
     def _read_geometry(self, data: mujoco.MjData) -> dict[str, np.ndarray]:
         """Gripper centre, finger axis, inner finger surfaces and the task site, from `data`."""

@@ -49,21 +49,35 @@ EMPTY_GRIP, OPEN_GRIP, HOLD_RADIUS = (
 )  # m: off the approach line by less than this, the gripper may move in
 STANDOFF = 0.10  # m: the pre-grasp point lies this far back along the approach direction
 DRAG_STEP = {"site": 0.06, "joint": 0.25}  # how far ahead of the handle the grasp point is dragged
-KETTLE_LIFT = 0.12  # m: carry height of the kettle handle above its initial height
-SET_DOWN_RADIUS = 0.02  # m: over its goal within this (horizontally), the kettle is lowered
+KETTLE_LIFT = 0.05  # m: carry height of the kettle handle above its initial height
+# Straight down, the wrist (link 6) hits the burner knobs on the way to the back burner; a hand
+# tilted forward by 0.5 rad keeps it low and behind the handle (0.8 and 1.1 rad: IK stalls at reset).
+KETTLE_APPROACH = np.array([0.0, np.sin(0.5), -np.cos(0.5)])
+SET_DOWN_RADIUS = 0.02
+# The handle slides a few cm in the fingers while carried; a looser hold radius keeps carrying it,
+# and a slower carry lets it slide less.
+KETTLE_HOLD_RADIUS, KETTLE_TCP_STEP = 0.07, 0.02
+KETTLE_IN_LINE = 0.006  # m: the open fingers clear the 6.4 cm bar by only 8 mm a side
+KETTLE_STANDOFF = 0.16  # m: the pre-grasp point clears the bar's top by 9 cm
+KETTLE_AT_HANDLE = 0.01  # close only once fully down: a grip over the bar's top half squeezes it out  # m: over its goal within this (horizontally), the kettle is lowered
+IK_ITERATIONS = 15  # per step, warm-started at the current pose with the target <= 3.5 cm away
 POSTURE = 0.02  # weight of the pull towards the reference posture in the IK (small: a tie-breaker)
-RESOLVE_ERROR = 0.005  # m: an IK from the current pose this far off is retried from the reference
+RESOLVE_ERROR = 0.01  # m: an IK from the current pose this far off is retried from the reference
+REFERENCE_ERROR = 0.005  # m: a reference posture this near the handle ends the search
 # Where the expert grasps, where it differs from the task table's approach (`tasks.py`):
 # the microwave handle hangs low (1.79 m): square-on it is 7.4 cm out of reach, taken 45 degrees
-# from above it is within 1 mm at reset and 1.8 cm at the goal; a knob's site is the blade's
-# centre, whose front half (4.8 cm) the fingers cage, so the gripper stops 2.5 cm short of it.
+# from above it is within 1 mm at reset and 1.8 cm at the goal; the light switch and the bottom
+# right knob are reachable square-on only by postures that wrap the arm round (base joint at
+# 1.8-2.4 rad), from which it cannot get there, but tilted down they are reached from near home.
+# A knob's site is the blade's centre, whose front half (4.8 cm) the fingers cage, so the
+# gripper stops 2.5 cm short of it.
 TILT_DOWN = {
     "microwave": 1.0,
     "light-switch": 1.0,
     "bottom-right-burner": 0.6,
 }  # added to the approach's downward component, then normalised
 # The kettle handle (a 3.2 cm-radius bar) squeezes out of a grip over its top half, so the gripper
-# goes 1.5 cm past the handle site and holds it against the palm.
+# goes as deep as the fingers let it (8 mm past the handle site, 1.5 cm below the bar's axis).
 GRASP_DEPTH = {
     **{
         t: 0.025
@@ -74,7 +88,7 @@ GRASP_DEPTH = {
             "bottom-left-burner",
         )
     },
-    "kettle": -0.015,
+    "kettle": -0.008,
 }
 # Upstream's initial arm pose (KitchenEnv's init_qpos[:7]); the reference-posture search starts here.
 HOME = np.array([0.148388, -1.768486, 1.843903, -2.476858, 0.260252, 0.712533, 1.595154])
@@ -149,7 +163,7 @@ class _Kinematics:
             q, error = self.solve(handle, rot, start, iterations=300)
             if error < best_error - 1e-4:
                 best, best_error = q, error
-            if error < RESOLVE_ERROR:
+            if error < REFERENCE_ERROR:
                 break
         return best
 
@@ -189,8 +203,8 @@ class _Kinematics:
             mujoco.mj_kinematics(self.model, self.data)
             mujoco.mj_comPos(self.model, self.data)
         approach = turn @ np.asarray(self.task.approach)
-        if self.free:  # the kettle handle is taken from straight above whatever the kettle's yaw
-            approach = np.array([0.0, 0.0, -1.0])
+        if self.free:  # the kettle handle is taken from the front and above, whatever its yaw
+            approach = KETTLE_APPROACH.copy()
         fingers = turn @ np.asarray(self.task.fingers)
         fingers -= np.dot(fingers, approach) * approach
         approach /= np.linalg.norm(approach)
@@ -206,7 +220,11 @@ class _Kinematics:
         return self.data.site_xpos[self.tcp].copy()
 
     def solve(
-        self, target: np.ndarray, target_rot: np.ndarray, start: np.ndarray, iterations: int = 40
+        self,
+        target: np.ndarray,
+        target_rot: np.ndarray,
+        start: np.ndarray,
+        iterations: int = IK_ITERATIONS,
     ) -> tuple[np.ndarray, float]:
         """Arm joints putting the gripper at `target` with rotation `target_rot`, by damped least
         squares from `start` with a weak pull towards the task's reference posture (which keeps the
@@ -234,13 +252,15 @@ class _Kinematics:
         error = float(np.linalg.norm(target - data.site_xpos[self.tcp]))
         return data.qpos[:ARM].copy(), error
 
-    def arm_action(self, target: np.ndarray, target_rot: np.ndarray) -> np.ndarray:
+    def arm_action(
+        self, target: np.ndarray, target_rot: np.ndarray, max_step: float = MAX_TCP_STEP
+    ) -> np.ndarray:
         """Arm actions (0..6) for one step along the joint-space line to the target pose's solution."""
         q = self.data.qpos[:ARM].copy()
         tcp = self.tcp_position()
         offset = target - tcp
         # straight-line Cartesian progress: aim at most MAX_TCP_STEP ahead along the line
-        target = tcp + offset * min(1.0, MAX_TCP_STEP / max(float(np.linalg.norm(offset)), 1e-9))
+        target = tcp + offset * min(1.0, max_step / max(float(np.linalg.norm(offset)), 1e-9))
         goal, error = self.solve(target, target_rot, q)
         if error > RESOLVE_ERROR and self.reference is not None:
             other, other_error = self.solve(target, target_rot, self.reference)
@@ -252,8 +272,11 @@ class _Kinematics:
 
     def _gravity(self) -> np.ndarray:
         """Generalised gravity torque on the arm joints at the observed pose (velocities zero)."""
-        mujoco.mj_forward(self.model, self.data)
-        return self.data.qfrc_bias[:ARM].copy()
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_comPos(self.model, self.data)
+        torque = np.zeros(self.model.nv)
+        mujoco.mj_rne(self.model, self.data, 0, torque)
+        return torque[:ARM]
 
 
 def _hand_rotation(kin: _Kinematics, data: mujoco.MjData) -> np.ndarray:
@@ -300,16 +323,22 @@ def _approach_plan(
     tcp = kin.tcp_position()
     offset = tcp - handle
     opening = float(kin.data.qpos[7] + kin.data.qpos[8])
-    holding = EMPTY_GRIP < opening < OPEN_GRIP and np.linalg.norm(offset) < HOLD_RADIUS
-    if np.linalg.norm(offset) < AT_HANDLE or holding:
+    radius = KETTLE_HOLD_RADIUS if kin.free else HOLD_RADIUS
+    holding = EMPTY_GRIP < opening < OPEN_GRIP and np.linalg.norm(offset) < radius
+    if np.linalg.norm(offset) < (KETTLE_AT_HANDLE if kin.free else AT_HANDLE) or holding:
         return None
     approach = rot[:, 0]
     depth = -float(np.dot(offset, approach))  # how far behind the handle, along the approach
     off_line = float(np.linalg.norm(offset + depth * approach))
     aligned = float(np.dot(kin.hand_rotation()[:, 0], approach)) > 0.97
-    if off_line < IN_LINE and -0.01 < depth < STANDOFF + 0.03 and aligned:
+    standoff = KETTLE_STANDOFF if kin.free else STANDOFF
+    if (
+        off_line < (KETTLE_IN_LINE if kin.free else IN_LINE)
+        and -0.01 < depth < standoff + 0.03
+        and aligned
+    ):
         return handle, OPEN
-    return handle - STANDOFF * approach, OPEN
+    return handle - standoff * approach, OPEN
 
 
 def _articulated(kin: _Kinematics) -> tuple[np.ndarray, float]:
@@ -355,4 +384,4 @@ def _kettle(kin: _Kinematics, obs: np.ndarray) -> tuple[np.ndarray, float]:
             aim = np.array([goal[0], goal[1], carry])
     else:
         aim = goal
-    return kin.arm_action(aim + (tcp - handle), rot), CLOSE
+    return kin.arm_action(aim + (tcp - handle), rot, KETTLE_TCP_STEP), CLOSE

@@ -34,7 +34,11 @@ DOOR_REACH_MARGIN = 0.5  # sawyer_door_v3._reward_pos: in_place margin
 DOOR_TRYING_ANGLE = np.pi / 90.0  # sawyer_door_v3: "just *trying* to open the door" after 2 degrees
 PAD_SUCCESS_MARGIN = 0.05  # gripper pad to object, all caging rewards
 XZ_SUCCESS_MARGIN = 0.005  # gripper centre to object across the finger axis, all caging rewards
-TCP_NEAR_OBJECT = 0.02  # push / pick-place: "tcp_to_obj < 0.02" bonus condition
+TCP_NEAR_OBJECT = (
+    0.02  # push / pick-place: "tcp_to_obj < 0.02" bonus condition (= its puck's radius)
+)
+MW_PUCK_RADIUS = 0.02  # push / pick-place's object: block_cyl.xml cylinder radius
+MW_PAD_SQUEEZE = MW_PUCK_RADIUS - 0.015  # obj_radius = 0.015 sits 5 mm inside the puck's surface
 PICK_LIFT = 0.01  # pick-place: "obj[2] - 0.01 > obj_init_pos[2]"
 DIAL_REACH_RADIUS = 0.005  # dial-turn: dial_reach_radius
 FINGER_MAX_OPENING = 0.08  # kitchen: each finger joint travels 0 (closed) to 0.04 m
@@ -92,6 +96,8 @@ class Constants:
     """Success when `distance <= threshold`."""
     obj_radius: float
     """Half-width of the grasped part (caging bounds)."""
+    near_object: float = TCP_NEAR_OBJECT
+    """Push / pick-place bonus gate: the gripper centre within this of the object site."""
 
 
 def _long_tail(x: float, upper: float, margin: float) -> float:
@@ -222,11 +228,11 @@ def dial_turn(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
 
 def push(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
     """push-v3 (v2 reward): 2 * grasped, plus (1 + 2 * grasped + 5 * in_place) with the gripper
-    within 2 cm of the handle and not shut; 10 on success."""
+    within `near_object` of the handle (its radius) and not shut; 10 on success."""
     in_place = _long_tail(r.distance, c.threshold, c.distance_init)
     grasped = caging_base(r, c)
     reward = 2.0 * grasped
-    if float(np.linalg.norm(r.obj - r.tcp)) < TCP_NEAR_OBJECT and r.finger_opening > 0:
+    if float(np.linalg.norm(r.obj - r.tcp)) < c.near_object and r.finger_opening > 0:
         reward += 1.0 + reward + 5.0 * in_place
     if r.distance <= c.threshold:
         reward = 10.0
@@ -235,12 +241,13 @@ def push(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
 
 def pick_place(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
     """pick-place-v3 (v2 reward): hamacher(grasped, in_place), plus (1 + 5 * in_place) with the
-    gripper within 2 cm of the kettle handle, not shut, and the kettle lifted 1 cm; 10 on success."""
+    gripper within `near_object` of the kettle handle (its radius), not shut, and the kettle lifted
+    1 cm; 10 on success."""
     in_place = _long_tail(r.distance, c.threshold, c.distance_init)
     grasped = caging_pick_place(r, c)
     reward = hamacher_product(grasped, in_place)
     lifted = r.obj[2] - PICK_LIFT > c.obj_init[2]
-    if float(np.linalg.norm(r.obj - r.tcp)) < TCP_NEAR_OBJECT and r.finger_opening > 0 and lifted:
+    if float(np.linalg.norm(r.obj - r.tcp)) < c.near_object and r.finger_opening > 0 and lifted:
         reward += 1.0 + 5.0 * in_place
     if r.distance <= c.threshold:
         reward = 10.0

@@ -45,8 +45,8 @@ class KitchenTask:
     """World direction the gripper approaches along, at the initial configuration (turns with `site`'s body)."""
     fingers: tuple[float, float, float]
     """World direction the fingers close along, at the initial configuration (turns with `site`'s body)."""
-    obj_radius: float = 0.015
-    """Half-width of the grasped part for the caging terms (Meta-World's value unless the part is thinner)."""
+    obj_radius: float | None = None
+    """Caging terms' object radius; None: measured from the handle's geom (push, pick-place; `env.py`)."""
 
     @property
     def goal_array(self) -> np.ndarray:
@@ -82,11 +82,13 @@ _ROWS = (
     ("kettle",              "kettle",              KETTLE_GOAL_QPOS,  "kettle_site",      "site",  SITE_THRESHOLD,  "pick-place", _DOWN,     _Y),
 )
 # fmt: on
-# The light-switch lever has a 0.021 m radius: Meta-World sweep's 0.02 object radius, not push's 0.015.
+# The light-switch lever has a 0.021 m radius: Meta-World sweep's own 0.02 object radius is kept.
+# Push and pick-place read theirs from the handle's geom (see env.FrankaKitchenDenseEnv); door-open
+# and dial-turn have no caging term.
 _RADIUS = {"light-switch": 0.02}
 
 TASKS: dict[str, KitchenTask] = {
-    row[0]: KitchenTask(*row, obj_radius=_RADIUS.get(row[0], 0.015))  # type: ignore[arg-type]
+    row[0]: KitchenTask(*row, obj_radius=_RADIUS.get(row[0]))  # type: ignore[arg-type]
     for row in _ROWS
 }
 
@@ -94,6 +96,12 @@ TASK_NAMES: tuple[str, ...] = tuple(TASKS)
 DEFAULT_EPISODE_LENGTH = 280  # upstream FrankaKitchen-v1 max_episode_steps
 
 
+# Bumped whenever a reward changes, with the gymnasium ids' version; recorded in run provenance.
+# v0: Meta-World's push / pick-place object radius 0.015 and 2 cm "near" gate;
+# v1: both from the measured handle geometry (see README, "Departures from Meta-World's constants").
+REWARD_VERSION = "v1"
+
+
 def gym_id(task: str) -> str:
-    """The gymnasium id registered for `task`, e.g. "seal/FrankaKitchenDense-kettle-v0"."""
-    return f"seal/FrankaKitchenDense-{task}-v0"
+    """The gymnasium id registered for `task`, e.g. "seal/FrankaKitchenDense-kettle-v1"."""
+    return f"seal/FrankaKitchenDense-{task}-{REWARD_VERSION}"
