@@ -64,6 +64,18 @@ def package_versions(names: tuple[str, ...] = TRACKED_PACKAGES) -> dict[str, str
     return out
 
 
+def reward_versions() -> dict[str, str]:
+    """Reward version of each installed environment package whose rewards are versioned
+    (the dense kitchens' `REWARD_VERSION`, also the suffix of their gymnasium ids)."""
+    out: dict[str, str] = {}
+    try:
+        from franka_kitchen_dense import REWARD_VERSION
+    except ImportError:
+        return out
+    out["franka_kitchen_dense"] = REWARD_VERSION
+    return out
+
+
 def resolve_device(device: str = "auto") -> str:
     """The device name a config value resolves to ("auto" -> "cuda" if present, else "cpu"); SealError if absent."""
     from seal.device import resolve_device as _resolve
@@ -87,11 +99,12 @@ def utc_now() -> str:
 
 
 def collect(command: list[str] | None = None, device: str = "auto", **extra: Any) -> dict[str, Any]:
-    """The provenance record: git SHA, package versions, command line, device, plus `extra` fields."""
+    """The provenance record: git SHA, package and reward versions, command line, device, plus `extra`."""
     resolved = resolve_device(device)
     return {
         "git_sha": git_sha(),
         "packages": package_versions(),
+        "reward_versions": reward_versions(),
         "command": " ".join(command if command is not None else sys.argv),
         "device": resolved,
         "device_name": device_description(resolved),
