@@ -62,10 +62,19 @@ def first_reach(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> 
     transitions), `grad_steps` and `env_steps` at that evaluation. A task that never reached the
     threshold has `reached=False` and 0 in the numeric columns (Tables 4-7 write 0 for it).
     Phases are kept apart: update counts restart at each phase (pre-train / fine-tune).
+
+    `paper_updates` is Appendix B's C x GS x BS at that evaluation, the phase's gradient steps
+    times the task's batch in force then (metrics.csv's `batch`; NaN for runs written before it):
+    equal to `updates` under a constant batch, and what the paper would report under a changing one.
     """
     _require_columns(metrics, REQUIRED_METRICS_COLUMNS, "metrics table")
     keys = ["seed", "phase", "env", "task"]
-    values = ["epoch", "updates", "grad_steps", "env_steps"]
+    values = ["epoch", "updates", "grad_steps", "env_steps", "paper_updates"]
+    metrics = metrics.assign(
+        paper_updates=metrics["grad_steps"] * metrics["batch"] / 1e6
+        if "batch" in metrics.columns
+        else math.nan
+    )
     # Evaluations in training order; "first" is the earliest epoch of the phase.
     ordered = metrics.sort_values([*keys, "epoch", "grad_steps"], kind="stable")
     hits = ordered[ordered["success"] >= threshold - SUCCESS_TOLERANCE]
@@ -73,7 +82,7 @@ def first_reach(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> 
     all_tasks = metrics[keys].drop_duplicates()
     out = all_tasks.merge(first, on=keys, how="left", indicator=True)
     out["reached"] = out.pop("_merge") == "both"
-    for column in values:
+    for column in values[:-1]:
         out[column] = out[column].fillna(0)
     out["epoch"] = out["epoch"].astype(np.int64)
     out["grad_steps"] = out["grad_steps"].astype(np.int64)
@@ -96,6 +105,8 @@ def aggregate_seeds(
     _require_columns(
         per_seed, [*keys, "reached", "updates", "grad_steps", "env_steps"], "per-seed table"
     )
+    if "paper_updates" not in per_seed.columns:
+        per_seed = per_seed.assign(paper_updates=math.nan)
     groups = per_seed.groupby(keys, sort=False)
     counts = pd.DataFrame(
         {"reached": groups["reached"].sum().astype(np.int64), "seeds": groups.size()}
@@ -107,6 +118,7 @@ def aggregate_seeds(
         updates_std=("updates", "std"),
         grad_steps_mean=("grad_steps", "mean"),
         env_steps_mean=("env_steps", "mean"),
+        paper_updates_mean=("paper_updates", "mean"),
     )
     out = counts.join(stats, how="left")
     for column in ("updates_mean", "grad_steps_mean", "env_steps_mean"):
@@ -119,6 +131,7 @@ def aggregate_seeds(
             "updates_std",
             "grad_steps_mean",
             "env_steps_mean",
+            "paper_updates_mean",
             "reached",
             "seeds",
         ]

@@ -427,6 +427,8 @@ class ReportResult:
     """The group directories reported on."""
     skipped: list[str] = field(default_factory=list)
     """Notes on what could not be drawn (e.g. no critic_loss rows in train.csv)."""
+    warnings: list[str] = field(default_factory=list)
+    """Settings that differ between the groups compared (agent.shared_update, critic_sharing, reward versions)."""
 
     def to_json(self) -> dict[str, Any]:
         """Paths and update-count numbers as plain JSON values (NaN -> null)."""
@@ -448,6 +450,7 @@ class ReportResult:
                 "grad_steps": num(float(row.grad_steps_mean)),
                 "env_steps": num(float(row.env_steps_mean)),
                 "pct_change": num(float(row.pct_change)),
+                "paper_updates": num(float(row.paper_updates_mean)),
             }
         totals: dict[str, dict[str, float]] = {}
         for row in self.totals.itertuples(index=False):
@@ -461,6 +464,7 @@ class ReportResult:
             "update_counts": counts,
             "update_count_totals": totals,
             "skipped": self.skipped,
+            "warnings": self.warnings,
         }
 
 
@@ -510,7 +514,7 @@ def _update_count_table(
                 pct,
                 show_pct,
                 style,
-            )
+            ) + _paper_suffix(row.updates_mean, row.paper_updates_mean, int(row.reached), style)
         records.append(record)
     for env in dict.fromkeys(env for env, _ in rows):
         record = {"Task": esc(f"Total ({labels[env]})")}
@@ -524,6 +528,53 @@ def _update_count_table(
             )
         records.append(record)
     return pd.DataFrame.from_records(records)
+
+
+PAPER_GAP = 0.005
+"""Show C x GS x BS beside the exact count when they differ by more than this fraction."""
+
+
+def _paper_suffix(exact: float, paper: float, reached: int, style: str) -> str:
+    """ " {C×GS×BS: x}" when the paper's product differs from the exact count (changing batches)."""
+    if (
+        reached == 0
+        or not math.isfinite(paper)
+        or abs(paper - exact) <= PAPER_GAP * max(exact, 1e-12)
+    ):
+        return ""
+    times = r"$\times$" if style == "latex" else "×"
+    open_, close = (r"\{", r"\}") if style == "latex" else ("{", "}")
+    return f" {open_}C{times}GS{times}BS: {format_number(paper)}{close}"
+
+
+# Settings that change what an update count measures: a report comparing groups that differ in
+# them compares different experiments, and says so.
+COMPARABILITY_KEYS: tuple[tuple[str, str], ...] = (
+    ("agent", "shared_update"),
+    ("agent", "critic_sharing"),
+)
+
+
+def _comparability_warnings(groups: Sequence[_Group]) -> list[str]:
+    """One line per setting (agent.shared_update, agent.critic_sharing, reward versions) that differs between groups."""
+    seen: dict[str, dict[str, list[str]]] = {}
+    for group in groups:
+        run = group.runs[0]
+        for table, key in COMPARABILITY_KEYS:
+            value = run.config.get(table, {}).get(key)
+            if value is not None:
+                seen.setdefault(f"{table}.{key}", {}).setdefault(str(value), []).append(group.name)
+        versions = run.provenance.get("reward_versions") or {}
+        for env, version in versions.items() if isinstance(versions, dict) else ():
+            seen.setdefault(f"reward version of {env}", {}).setdefault(str(version), []).append(
+                group.name
+            )
+    return [
+        f"groups differ in {what}: "
+        + "; ".join(f"{value} in {', '.join(names)}" for value, names in values.items())
+        for what, values in seen.items()
+        if len(values) > 1
+    ]
 
 
 def _notes(threshold: float, with_change: bool) -> list[str]:
@@ -872,6 +923,16 @@ def report(
         threshold,
         with_change=bool((counts["column"] == BASELINE_COLUMN).any() and len(columns) > 1),
     )
+    if (counts["reached"] > 0).any() and any(
+        _paper_suffix(r.updates_mean, r.paper_updates_mean, int(r.reached), "plain")
+        for r in counts.itertuples(index=False)
+    ):
+        notes.append(
+            "{C×GS×BS: x} = Appendix B's product (gradient steps × the task's batch in force at that "
+            "evaluation), shown where the batch changed during the run and it differs from the exact count."
+        )
+    warnings = _comparability_warnings(groups)
+    notes.extend(f"WARNING: {w}; these columns are not the same experiment." for w in warnings)
     title = f"Millions of updates to reach {threshold:.0%} success"
 
     tables: dict[str, Path] = {}
@@ -916,6 +977,7 @@ def report(
         totals=totals,
         groups=[g.path for g in groups],
         skipped=skipped,
+        warnings=warnings,
     )
 
 

@@ -57,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
     result = report(args.paths, out=args.out, threshold=args.threshold, x=args.x)
     for note in result.skipped:
         print(f"seal report: note: {note}", file=sys.stderr)
+    for warning in result.warnings:
+        print(f"seal report: warning: {warning}", file=sys.stderr)
     if args.json:
         print(json.dumps(result.to_json()))
         return 0

@@ -283,7 +283,13 @@ def scale_config(config: ProtocolConfig, factor: float) -> ProtocolConfig:
     return rep(
         config,
         protocol=rep(config.protocol, epochs=s(config.protocol.epochs)),
-        evaluation=rep(config.evaluation, interval=s(config.evaluation.interval)),
+        evaluation=rep(
+            config.evaluation,
+            interval=s(config.evaluation.interval),
+            every_grad_steps=s(config.evaluation.every_grad_steps)
+            if config.evaluation.every_grad_steps
+            else 0,
+        ),
         checkpoint=rep(config.checkpoint, interval=s(config.checkpoint.interval)),
         logging=rep(config.logging, train_interval=s(config.logging.train_interval)),
         finetune=finetune,

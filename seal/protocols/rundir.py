@@ -41,6 +41,7 @@ METRICS_COLUMNS: tuple[str, ...] = (
     "grad_steps",
     "env_steps",
     "updates",
+    "batch",  # the task's samples per update in force this epoch (0: no update this epoch)
     "wall_s",
 )
 TRAIN_COLUMNS: tuple[str, ...] = ("seed", "phase", "epoch", "grad_steps", "env", "key", "value")

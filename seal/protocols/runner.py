@@ -270,6 +270,9 @@ class PhaseState:
     """Sums of the agent's log values over the updates since the last train.csv row."""
     log_updates: int = 0
     """Updates since the last train.csv row (a checkpoint between two rows keeps both)."""
+    evaluated_at: int = -1
+    """Gradient steps at the last evaluation (an evaluation every K steps that falls on the last
+    update of the run is not repeated at its end)."""
 
 
 class Run:
@@ -465,6 +468,23 @@ class Run:
             state.grad_steps,
         )
         started = time.monotonic() - state.wall_s
+        every = cfg.evaluation.every_grad_steps
+        batch_now: dict[str, np.ndarray] = {}
+
+        def evaluate_now() -> None:
+            self._evaluate(
+                phase,
+                model,
+                agent,
+                replay,
+                scheduler,
+                eval_policy,
+                collector,
+                state,
+                started,
+                batch_now,
+            )
+
         try:
             while state.epoch < phase.epochs:
                 from seal.schedulers import Progress
@@ -520,6 +540,7 @@ class Run:
                             [int(stats.lengths[e][i]) for i in idx],
                         )
                 # ---- update: only once every env has finished its warm-up
+                batch_now = {e: np.zeros(len(model.env_tasks[e]), np.int64) for e in phase.envs}
                 if (
                     all(sum(state.env_steps[e]) >= cfg.training.warmup_steps for e in phase.envs)
                     and collected_lengths
@@ -531,6 +552,7 @@ class Run:
                         for e, c in counts.items()
                         if int(np.sum(c)) > 0
                     }
+                    batch_now = {e: np.asarray(c, dtype=np.int64) for e, c in counts.items()}
                     for _ in range(steps):
                         batches = replay.sample(sample_counts, np_rng)
                         batches = (
@@ -552,6 +574,8 @@ class Run:
                         state.log_updates += 1
                         for k, v in losses.items():
                             state.log_sums[k] = state.log_sums.get(k, 0.0) + float(v)
+                        if every and state.grad_steps % every == 0:
+                            evaluate_now()  # mid-epoch: the update-count grid is K x batch
                 state.epoch += 1
                 epoch = state.epoch
                 last_epoch = epoch >= phase.epochs or scheduler.done
@@ -567,19 +591,10 @@ class Run:
                         )
                     )
                     state.log_sums, state.log_updates = {}, 0
-                # ---- evaluation (Appendix B)
-                if epoch % cfg.evaluation.interval == 0 or last_epoch:
-                    self._evaluate(
-                        phase,
-                        model,
-                        agent,
-                        replay,
-                        scheduler,
-                        eval_policy,
-                        collector,
-                        state,
-                        started,
-                    )
+                # ---- evaluation (Appendix B): every `interval` epochs, or every K gradient steps above
+                due = not every and epoch % cfg.evaluation.interval == 0
+                if due or (last_epoch and not (every and state.evaluated_at == state.grad_steps)):
+                    evaluate_now()
                 request = scheduler.wants_scores()
                 if request is not None:
                     scheduler.observe_scores(self._scores(request, model, agent, epoch))
@@ -662,8 +677,10 @@ class Run:
         collector: Any,
         state: PhaseState,
         started: float,
+        batch: Mapping[str, np.ndarray],
     ) -> None:
         cfg = self.config
+        state.evaluated_at = state.grad_steps
         results = evaluate(
             policy, model.adapters, episodes=cfg.evaluation.episodes, seed=0, collector=collector
         )
@@ -687,6 +704,7 @@ class Run:
                         "grad_steps": state.grad_steps,
                         "env_steps": state.env_steps[env][i],
                         "updates": updates,
+                        "batch": int(batch[env][i]) if env in batch else 0,
                         "wall_s": round(wall, 3),
                     }
                 )
