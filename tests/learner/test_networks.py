@@ -48,7 +48,9 @@ def test_single_head_ignores_task_ids() -> None:
     head = MultiHeadLinear(3, 4, num_heads=1)
     head.reset_parameters(torch.Generator().manual_seed(0))
     x = torch.randn(5, 3)
-    torch.testing.assert_close(head(x, torch.zeros(5, dtype=torch.long)), head(x, torch.arange(5)))
+    expected = x @ head.weight[0] + head.bias[0, 0]  # the one head, by hand, for every task id
+    torch.testing.assert_close(head(x, torch.arange(5)), expected)
+    torch.testing.assert_close(head(x, torch.zeros(5, dtype=torch.long)), expected)
 
 
 def test_tanh_gaussian_log_prob_by_hand() -> None:

@@ -37,13 +37,16 @@ def test_losses_by_hand_on_a_network_with_known_weights() -> None:
     spec = EnvSpec("toy", obs_dim=2, act_dim=1, num_tasks=1)
     agent = Agent([spec], AgentConfig(hidden=(4,), init_alpha=2.0), seed=0)
     # Zero every weight and bias, so every hidden activation is 0 and each net outputs its head bias:
-    # policy mean 0.5, log std -1; qf1 = 1, qf2 = 2 everywhere (targets too, they are copies).
+    # policy mean 0.5, log std -1; qf1 = 1, qf2 = 2 everywhere. The target critics differ from the
+    # online ones (qf1_target = 3, qf2_target = 0.5), so bootstrapping from the wrong critic
+    # (min 1 instead of 0.5) changes every critic number below.
     with torch.no_grad():
         for p in [*agent.actor.parameters(), *agent.critic.parameters()]:
             p.zero_()
         agent.actor.heads["toy"].bias.copy_(torch.tensor([[[0.5, -1.0]]]))
         agent.critic.heads["toy"].bias.copy_(torch.tensor([[[1.0]], [[2.0]]]))
         agent.critic_target.load_state_dict(agent.critic.state_dict())
+        agent.critic_target.heads["toy"].bias.copy_(torch.tensor([[[3.0]], [[0.5]]]))
     rewards, terminations = [0.5, -1.0, 2.0], [0.0, 1.0, 0.0]
     batch = Batch(
         torch.randn(3, 2),
@@ -62,9 +65,9 @@ def test_losses_by_hand_on_a_network_with_known_weights() -> None:
 
     alpha, gamma = 2.0, 0.99
     next_log_pi = [_log_prob(0.5, -1.0, e)[1] for e in eps_next]
-    # next_q_value = r + gamma * (1 - term) * (min(qf1_target, qf2_target) - alpha * next_log_pi), min = 1
+    # next_q_value = r + gamma * (1 - term) * (min(qf1_target, qf2_target) - alpha * next_log_pi), min = 0.5
     y = [
-        r + gamma * (1 - d) * (1.0 - alpha * lp)
+        r + gamma * (1 - d) * (0.5 - alpha * lp)
         for r, d, lp in zip(rewards, terminations, next_log_pi, strict=True)
     ]
     qf1_loss = sum((1.0 - t) ** 2 for t in y) / 3
@@ -90,9 +93,9 @@ def test_losses_by_hand_on_a_network_with_known_weights() -> None:
     assert metrics["losses/toy/alpha"] == pytest.approx(alpha_loss, rel=1e-5)
     assert metrics["charts/toy/alpha/0"] == pytest.approx(2.0)  # the temperature this update used
     assert metrics["charts/toy/entropy"] == pytest.approx(-sum(log_pi) / 3, rel=1e-5)
-    # Polyak: target bias = 0.995 * 1 + 0.005 * q1_new
+    # Polyak: target bias = 0.995 * 3 + 0.005 * q1_new
     assert agent.critic_target.heads["toy"].bias[0, 0, 0].item() == pytest.approx(
-        0.995 + 0.005 * q1_new, rel=1e-6
+        0.995 * 3.0 + 0.005 * q1_new, rel=1e-6
     )
     # Temperature (never clipped): one Adam step of lr 3e-4, -lr * g / (|g| + 1e-5).
     d_log_alpha = sum(-(lp - 1.0) for lp in log_pi) / 3

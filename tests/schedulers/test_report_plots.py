@@ -4,8 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib.pyplot as plt
+import pandas as pd
+from png_colours import colours_drawn
+
 from seal.protocols import load_protocol, run_seed
 from seal.reports import report
+from seal.schedulers.plots import STATUS_COLOURS
 
 BODY = """
 [protocol]
@@ -50,8 +55,14 @@ def test_report_plots_smt_membership_and_budget_usage(tmp_path: Path) -> None:
     plots = tmp_path / "out" / "plots"
     assert plots / "scheduler_membership.png" in result.plots
     assert plots / "scheduler_budget.png" in result.plots
-    assert (plots / "scheduler_membership.png").stat().st_size > 0
-    assert (plots / "scheduler_budget.png").stat().st_size > 0
+    # Each pool the timeline visited is drawn in its colour; one line per task in the budget plot.
+    timeline = pd.read_csv(run / "scheduler.csv")
+    pools = {STATUS_COLOURS[s.split(":")[-1]] for s in timeline["status"].astype(str)}
+    assert len(pools) >= 2
+    assert colours_drawn(plots / "scheduler_membership.png", sorted(pools)) == pools
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    tasks = timeline.groupby(["env", "task"]).ngroups
+    assert colours_drawn(plots / "scheduler_budget.png", cycle[:tasks]) == set(cycle[:tasks])
 
 
 def test_report_without_a_scheduler_timeline_draws_no_scheduler_plot(tmp_path: Path) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from seal.learner.config import AgentConfig, EnvSpec
@@ -99,3 +100,64 @@ def test_reset_keeps_buffers_and_changes_every_reset_parameter() -> None:
     # Training goes on from the kept buffers.
     logs = agent.update(replay.sample({"mw": np.array([8, 8])}, rng))
     assert all(math.isfinite(v) for v in logs.values())
+
+
+RUN = """
+[protocol]
+kind = "baseline"
+epochs = 8
+seeds = 1
+device = "cpu"
+threads = 1
+[envs.pt]
+adapter = "point"
+tasks = ["east", "north", "west"]
+episode_length = 10
+[agent]
+hidden = [8, 8]
+[training]
+warmup_steps = 0
+batch_per_task = 4
+collector = "sync"
+[evaluation]
+interval = 4
+episodes = 1
+[logging]
+tensorboard = false
+[scheduler]
+kind = "smt"
+budget_stage1 = 1000
+budget_stage2 = 0
+slots = 2
+reset_interval = 40
+score_interval = 40
+solved_return = { pt = 1e9 }
+unsolvable_return = { pt = -1e9 }
+"""
+
+
+def test_the_runner_applies_every_reset_the_scheduler_asks_for(
+    tmp_path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # 2 slots x 10 steps = 20 stage-1 env steps an epoch, T_reset = 40: resets are due at the
+    # plans of epochs 2, 4 and 6 (after 40, 80, 120 steps) within 8 epochs. The spy calls the
+    # real reset, and records the critic's first weight just before and after it.
+    from seal.learner.checkpoint import read_checkpoint
+    from seal.protocols import load_protocol, run_seed
+
+    calls: list[tuple[torch.Tensor, torch.Tensor]] = []
+    real = Agent.reset_parameters
+
+    def spy(self: Agent) -> None:
+        before = next(self.critic.parameters()).detach().clone()
+        real(self)
+        calls.append((before, next(self.critic.parameters()).detach().clone()))
+
+    monkeypatch.setattr(Agent, "reset_parameters", spy)
+    path = tmp_path / "smt.toml"
+    path.write_text(RUN)
+    run = run_seed(load_protocol(path), 0, tmp_path / "out").run_dir
+    state = read_checkpoint(run / "checkpoints" / "ckpt-0000008.pt")
+    assert state["scheduler"]["resets_done"] == 3
+    assert len(calls) == 3
+    assert all(not torch.equal(before, after) for before, after in calls)
