@@ -82,8 +82,13 @@ def expert_evidence(make: Callable[[int], gym.Env], task: str, seeds: list[int])
         any_success += first is not None
         final_success += successes[-1] == 1.0
         end = len(rewards) if first is None else first + 1
-        rho = float(spearmanr(np.arange(end), rewards[:end]).statistic) if end > 2 else 1.0
-        rhos.append(rho if np.isfinite(rho) else 0.0)
+        if end <= 2:
+            rho = 1.0  # solved at once: nothing to rank
+        elif np.ptp(rewards[:end]) == 0.0:
+            rho = 0.0  # a constant reward has no rank correlation: a failure
+        else:
+            rho = float(spearmanr(np.arange(end), rewards[:end]).statistic)
+        rhos.append(rho)
         travel = distances[0] - spec.threshold
         flats.append(flat_stretch(rewards[:end], distances[: end + 1], travel))
         if first is not None:
