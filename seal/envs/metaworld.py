@@ -51,16 +51,20 @@ def _benchmark_goals(task: str, goal_seed: int) -> tuple[Any, ...]:
     return tuple(metaworld.MT1(task, seed=goal_seed).train_tasks)
 
 
-class MetaWorldTaskEnv(gym.Wrapper):
+class MetaWorldTaskEnv(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """One Meta-World task: a seeded choice among its benchmark goals at each reset, float success.
 
     The only wrapper around the raw env (no TimeLimit, checker or checkpoint layers): truncation
-    comes from upstream's own `max_path_length`, which is set to the episode length.
+    comes from upstream's own `max_path_length`, which is set to the episode length. It records
+    its constructor arguments, so `env.spec.make()` rebuilds it (gymnasium's `check_env` does).
     """
 
     def __init__(
         self, env: gym.Env, goals: tuple[Any, ...], seed: int, episode_length: int
     ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(
+            self, goals=goals, seed=seed, episode_length=episode_length
+        )
         raw = env.unwrapped
         super().__init__(raw)
         self._raw = raw

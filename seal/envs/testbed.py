@@ -114,6 +114,7 @@ class PointViewEnv(gym.Env):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset the inner point env and map its observation."""
+        super().reset(seed=seed)  # gymnasium's contract; the inner env draws the start state
         if seed is not None:
             self.action_space.seed(seed)
         obs, info = self.inner.reset(seed=seed, options=options)
