@@ -98,29 +98,27 @@ def run(args: argparse.Namespace) -> int:
         seeds = parse_seeds(args.seeds) if args.seeds else config.seeds
         group = new_group_dir(config, args.out)
         results = [run_seed(config, s, group, quiet=args.quiet, command=command) for s in seeds]
-    if not args.no_report:
-        _report(group, quiet=args.quiet)
+    table = None if args.no_report else _report(group)
     if not args.quiet and not args.json:
+        if table is not None:
+            print(table.read_text())
         print(f"runs written to {group}")
     if args.json:
         print(result_json(results))
     return 0
 
 
-def _report(group: Path, quiet: bool) -> None:
-    """Tables and plots for the group, if the reports layer is there; a failure here never loses the run."""
+def _report(group: Path) -> Path | None:
+    """Tables and plots for the group; the update-count table's Markdown file, or None if the
+    report failed (a failure here never loses the run)."""
+    from seal.reports import report
+
     try:
-        from seal import reports
-    except ImportError:
-        return
-    report = getattr(reports, "report", None)
-    if report is None:
-        return
-    try:
-        report([group], out=group)
+        return report([group], out=group).tables["update_counts.md"]
     except Exception:  # noqa: BLE001 - the runs are on disk; say what failed and go on
         print(
             f"seal run: warning: making tables and plots for {group} failed (the runs are complete; retry with `seal report {group}`):",
             file=sys.stderr,
         )
         traceback.print_exc(file=sys.stderr)
+        return None

@@ -240,6 +240,18 @@ def test_cli_json_line_for_two_seeds(tmp_path: Path, capsys: pytest.CaptureFixtu
         )  # one evaluation (epoch 2) x 2 tasks
 
 
+def test_cli_ends_with_the_update_count_table(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = protocol(tmp_path, BASELINE_ENVS, kind="baseline", epochs=1)
+    assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    (table,) = (tmp_path / "out").glob("tiny/*/tables/update_counts.md")
+    assert out.startswith(table.read_text())  # the table the report wrote, then where runs went
+    assert "| east (pt)" in out and "| north (pt)" in out
+    assert out.rstrip().endswith(f"runs written to {table.parents[1]}")
+
+
 def test_eval_video_says_why_it_cannot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     config = load_protocol(protocol(tmp_path, BASELINE_ENVS, kind="baseline", epochs=1))
     run = run_seed(config, 0, tmp_path / "g").run_dir
