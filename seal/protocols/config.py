@@ -51,6 +51,8 @@ class EnvConfig:
     """Task names or set names (e.g. "mt10"); empty means all of the adapter's tasks."""
     episode_length: int = 0
     """Steps per episode (truncation); 0 means the adapter's default (Meta-World 500, kitchen 280)."""
+    options: dict[str, Any] = field(default_factory=dict)
+    """Adapter options, validated by the adapter, e.g. { gravity_compensation = true } for the kitchen."""
 
 
 @dataclass(frozen=True, kw_only=True)

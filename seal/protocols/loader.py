@@ -319,7 +319,9 @@ def _build_envs(raw: Any, file: str) -> dict[str, EnvConfig]:
     for name, table in raw.items():
         where = f"{file}: envs.{name}"
         if not isinstance(table, dict):
-            raise ConfigError(f"{where} must be a table with keys adapter, tasks, episode_length")
+            raise ConfigError(
+                f"{where} must be a table with keys adapter, tasks, episode_length, options"
+            )
         env = build_dataclass(EnvConfig, table, where)
         adapter_name = env.adapter or name
         try:
@@ -327,13 +329,25 @@ def _build_envs(raw: Any, file: str) -> dict[str, EnvConfig]:
         except SealError as exc:
             raise ConfigError(f"{where}.adapter: {exc}") from None
         try:
-            adapter = cls(tasks=list(env.tasks) or None, episode_length=env.episode_length or None)
+            adapter = cls(
+                tasks=list(env.tasks) or None,
+                episode_length=env.episode_length or None,
+                **env.options,
+            )
         except SealError as exc:
-            key = "episode_length" if "episode_length" in str(exc) else "tasks"
+            message = str(exc)  # which key the adapter refused, for the error's location
+            key = "tasks"
+            if "option" in message:
+                key = "options"
+            elif "episode_length" in message:
+                key = "episode_length"
             raise ConfigError(f"{where}.{key}: {exc}") from None
         # Resolved: set names expanded and the adapter's default episode length filled in.
         envs[name] = EnvConfig(
-            adapter=adapter_name, tasks=tuple(adapter.tasks), episode_length=adapter.episode_length
+            adapter=adapter_name,
+            tasks=tuple(adapter.tasks),
+            episode_length=adapter.episode_length,
+            options=dict(env.options),
         )
     return envs
 

@@ -67,6 +67,8 @@ class RunResult:
     """env -> task -> millions of that task's transitions consumed by updates when it first reached the threshold (0 = never)."""
     final_success: dict[str, dict[str, float]]
     """env -> task -> success rate at the last evaluation of the phase that trained on env."""
+    timing: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """phase -> {"seconds", "calls"} of its collect/update/evaluate/checkpoint parts, "epochs", "grad_steps" (`seal bench --protocol`)."""
 
 
 @dataclass(frozen=True)
@@ -108,6 +110,7 @@ def build_adapters(
             config.envs[n].adapter,
             tasks=list(config.envs[n].tasks),
             episode_length=config.envs[n].episode_length,
+            **config.envs[n].options,
         )
         for n in names
     }
@@ -270,9 +273,18 @@ class PhaseState:
     """Sums of the agent's log values over the updates since the last train.csv row."""
     log_updates: int = 0
     """Updates since the last train.csv row (a checkpoint between two rows keeps both)."""
+    seconds: dict[str, float] = field(default_factory=dict)
+    """Wall seconds spent in each part of the loop: collect, update, evaluate, checkpoint."""
+    calls: dict[str, int] = field(default_factory=dict)
+    """How many times each part ran (update: gradient steps; evaluate: evaluations)."""
     evaluated_at: int = -1
     """Gradient steps at the last evaluation (an evaluation every K steps that falls on the last
     update of the run is not repeated at its end)."""
+
+    def add_time(self, part: str, since: float) -> None:
+        """Count one run of `part` that started at time.perf_counter() `since`."""
+        self.seconds[part] = self.seconds.get(part, 0.0) + time.perf_counter() - since
+        self.calls[part] = self.calls.get(part, 0) + 1
 
 
 class Run:
@@ -364,7 +376,16 @@ class Run:
                 tasks = self.adapters[env].tasks
                 counts[env] = {t: float(state.reached.get(env, {}).get(t, 0.0)) for t in tasks}
                 final[env] = {t: float(state.last_success.get(env, {}).get(t, 0.0)) for t in tasks}
-        return RunResult(self.rundir.path, counts, final)
+        timing = {
+            name: {
+                "seconds": dict(state.seconds),
+                "calls": dict(state.calls),
+                "epochs": state.epoch,
+                "grad_steps": state.grad_steps,
+            }
+            for name, state in self.results.items()
+        }
+        return RunResult(self.rundir.path, counts, final, timing)
 
     # ------------------------------------------------------------ building blocks
     def _new_agent(self, model: PhaseModel) -> Any:
@@ -472,6 +493,7 @@ class Run:
         batch_now: dict[str, np.ndarray] = {}
 
         def evaluate_now() -> None:
+            since = time.perf_counter()
             self._evaluate(
                 phase,
                 model,
@@ -484,6 +506,7 @@ class Run:
                 started,
                 batch_now,
             )
+            state.add_time("evaluate", since)
 
         try:
             while state.epoch < phase.epochs:
@@ -505,6 +528,7 @@ class Run:
                 if plan.reset_agent:
                     agent.reset_parameters()
                 # ---- collect: warm-up envs act uniformly at random, the others with the policy
+                since = time.perf_counter()
                 warm = {e: sum(state.env_steps[e]) < cfg.training.warmup_steps for e in phase.envs}
                 collected_lengths: dict[str, int] = {}
                 for random_actions in (True, False):
@@ -539,6 +563,7 @@ class Run:
                             [float(stats.successes[e][i]) for i in idx],
                             [int(stats.lengths[e][i]) for i in idx],
                         )
+                state.add_time("collect", since)
                 # ---- update: only once every env has finished its warm-up
                 batch_now = {e: np.zeros(len(model.env_tasks[e]), np.int64) for e in phase.envs}
                 if (
@@ -554,6 +579,7 @@ class Run:
                     }
                     batch_now = {e: np.asarray(c, dtype=np.int64) for e, c in counts.items()}
                     for _ in range(steps):
+                        since = time.perf_counter()
                         batches = replay.sample(sample_counts, np_rng)
                         batches = (
                             {
@@ -574,6 +600,7 @@ class Run:
                         state.log_updates += 1
                         for k, v in losses.items():
                             state.log_sums[k] = state.log_sums.get(k, 0.0) + float(v)
+                        state.add_time("update", since)
                         if every and state.grad_steps % every == 0:
                             evaluate_now()  # mid-epoch: the update-count grid is K x batch
                 state.epoch += 1
@@ -608,7 +635,9 @@ class Run:
                 if epoch % cfg.checkpoint.interval == 0 or last_epoch:
                     state.wall_s = time.monotonic() - started
                     state.anchor_epoch = epoch
+                    since = time.perf_counter()
                     self._checkpoint(phase, agent, replay, scheduler, state, np_rng)
+                    state.add_time("checkpoint", since)
                     if not last_epoch:
                         # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
                         collector.close()
