@@ -66,6 +66,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--repeats", type=int, default=None, help="timing repeats (best of N); overrides the preset"
     )
+    parser.add_argument(
+        "--protocol",
+        default=None,
+        metavar="FILE",
+        help="measure --epochs epochs of this protocol (collection, updates, evaluation, checkpoint) and project its whole wall time per seed",
+    )
+    parser.add_argument(
+        "--epochs",
+        type=int,
+        default=5,
+        help="with --protocol: epochs per phase to measure (default 5)",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="TABLE.KEY=VALUE",
+        help="with --protocol: override a protocol value (e.g. protocol.device=cuda)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -85,6 +105,14 @@ def run(args: argparse.Namespace) -> int:
         raise SealError(f"--learn {args.learn!r}: unknown; valid: --learn, --learn transfer")
     if args.full and args.learn != "transfer":
         raise SealError("--full only applies to --learn transfer")
+    if args.protocol is not None:
+        from seal.bench_protocol import bench_protocol, format_protocol_bench
+
+        if args.threads is not None:
+            torch.set_num_threads(max(1, args.threads))
+        result = bench_protocol(args.protocol, args.epochs, args.overrides, log=log)
+        print(json.dumps(result, indent=2) if args.json else format_protocol_bench(result))
+        return 0
     if args.learn == "transfer":
         from seal.bench_transfer import format_result, run_transfer_bench
 
