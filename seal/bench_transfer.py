@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from seal.errors import SealError
+from seal.errors import SealError, UnknownNameError
 from seal.metrics import DEFAULT_THRESHOLD, first_reach, format_count, format_number
 
 TESTBED = Path(__file__).resolve().parents[1] / "protocols" / "testbed"
@@ -71,9 +71,16 @@ ARMS: tuple[Arm, ...] = (
 """The minimum set, then the --full arms; the default-mode high-source arm gives the headline figure."""
 
 
-def arms(full: bool = False) -> list[Arm]:
-    """The arms run by `seal bench --learn transfer` (with `--full`: all of them)."""
-    return [a for a in ARMS if full or not a.full]
+def arms(full: bool = False, only: Sequence[str] | None = None) -> list[Arm]:
+    """The arms run by `seal bench --learn transfer` (with `--full`: all of them; `only`: these and their alone arms)."""
+    if not only:
+        return [a for a in ARMS if full or not a.full]
+    by_name = {a.name: a for a in ARMS}
+    for name in only:
+        if name not in by_name:
+            raise UnknownNameError("testbed arm", name, list(by_name))
+    wanted = set(only) | {by_name[n].alone for n in only if by_name[n].alone is not None}
+    return [a for a in ARMS if a.name in wanted]
 
 
 # ---------------------------------------------------------------- reading one run
@@ -291,8 +298,13 @@ def run_transfer_bench(
     parallel: int = 2,
     overrides: Sequence[str] = (),
     log: Callable[[str], None] = lambda _: None,
+    only: Sequence[str] | None = None,
 ) -> dict[str, Any]:
-    """Run every arm's seeds with `seal run`, read their run directories, and return the result as JSON-able dict."""
+    """Run every arm's seeds with `seal run`, read their run directories, and return the result as JSON-able dict.
+
+    `only` runs just the named arms (with the alone arms they are set against), e.g. the
+    `--full` arms after the minimum set; the headline figures are then None where not run.
+    """
     from seal import load_run
     from seal.bench import machine_load
 
@@ -300,7 +312,7 @@ def run_transfer_bench(
         raise SealError(f"--seeds must be >= 1, got {seeds}")
     if parallel < 1:
         raise SealError(f"--jobs must be >= 1, got {parallel}")
-    chosen = arms(full)
+    chosen = arms(full, only)
     load_before = machine_load()
     started = time.monotonic()
     # Longest arms first, so the last process does not run alone while a core idles.
@@ -313,14 +325,18 @@ def run_transfer_bench(
         for arm in chosen
     }
     summary = summarise(costs, chosen)
-    headline = summary["high_source"]
+
+    def saved(name: str) -> float | None:
+        return summary[name]["transfer_updates_saved"] if name in summary else None
+
+    headline = saved("high_source")
     return {
-        "transfer_updates_saved": headline["transfer_updates_saved"],
+        "transfer_updates_saved": headline,
         "goal": {
             "transfer_updates_saved_ge": GOAL,
-            "met": bool(headline["transfer_updates_saved"] >= GOAL),
-            "per_env": summary["high_source_per_env"]["transfer_updates_saved"],
-            "no_correspondence": summary["no_correspondence"]["transfer_updates_saved"],
+            "met": None if headline is None else bool(headline >= GOAL),
+            "per_env": saved("high_source_per_env"),
+            "no_correspondence": saved("no_correspondence"),
         },
         "arms": summary,
         "table": format_table(costs, chosen, summary),
@@ -339,13 +355,18 @@ def format_result(result: Mapping[str, Any]) -> str:
     """The human-readable output of `run_transfer_bench`."""
     goal = result["goal"]
     load = result["load_before"]
+
+    def shown(value: float | None) -> str:
+        return "not run" if value is None else f"{value:+.3f}"
+
+    verdict = {None: "not run", True: "met", False: "not met"}[goal["met"]]
     return "\n".join(
         [
             result["table"],
             "",
-            f"transfer_updates_saved (high-source, default shared_update) = {result['transfer_updates_saved']:+.3f} "
-            f"(goal >= {goal['transfer_updates_saved_ge']}: {'met' if goal['met'] else 'not met'}); "
-            f"per_env {goal['per_env']:+.3f}, no correspondence {goal['no_correspondence']:+.3f}",
+            f"transfer_updates_saved (high-source, default shared_update) = {shown(result['transfer_updates_saved'])} "
+            f"(goal >= {goal['transfer_updates_saved_ge']}: {verdict}); "
+            f"per_env {shown(goal['per_env'])}, no correspondence {shown(goal['no_correspondence'])}",
             f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s wall; "
             f"load before {load['loadavg_1m']} (1 min) on {load['cpus']} CPUs, after {result['load_after']['loadavg_1m']}",
         ]

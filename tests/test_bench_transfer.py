@@ -74,6 +74,18 @@ def test_every_arm_is_a_loadable_protocol_with_the_same_network_and_batch() -> N
     assert configs["no_correspondence"].envs["source"].adapter == "point_diagonal"
 
 
+def test_arms_adds_the_alone_arms_they_are_set_against() -> None:
+    assert [a.name for a in arms(only=["joint_50_50", "high_target"])] == [
+        "alone_50_50",
+        "joint_50_50",
+        "alone_high_target",
+        "high_target",
+    ]
+    assert len(arms(full=True)) == 8
+    with pytest.raises(SealError, match="unknown testbed arm 'nope'"):
+        arms(only=["nope"])
+
+
 TINY = [
     "protocol.epochs=2",
     "training.warmup_steps=0",
@@ -106,4 +118,6 @@ def test_cli_errors_are_one_line(capsys) -> None:
     assert main(["bench", "--learn", "nope"]) == 2
     assert "--learn 'nope': unknown; valid: --learn, --learn transfer" in capsys.readouterr().err
     assert main(["bench", "--full"]) == 2
-    assert "--full only applies to --learn transfer" in capsys.readouterr().err
+    assert (
+        "only appl" in capsys.readouterr().err
+    )  # "--full [and --arms] only appl(y|ies) to --learn transfer"
