@@ -109,6 +109,16 @@ def evaluate(
     }
 
 
+# Success rates are means of 0/1 outcomes; a mean that should equal the threshold (45/50 = 0.9)
+# may come out a rounding error below it, and must still count as reaching it.
+SUCCESS_TOLERANCE = 1e-9
+
+
+def reaches(success: float, threshold: float) -> bool:
+    """Whether a success rate counts as reaching `threshold` (the update-count metric's one rule)."""
+    return success >= threshold - SUCCESS_TOLERANCE
+
+
 def mean_success(results: Mapping[str, Mapping[str, Mapping[str, float]]]) -> float:
     """Mean success over every (env, task) of an `evaluate` result."""
     values = [v["success"] for per_task in results.values() for v in per_task.values()]

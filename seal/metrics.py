@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from seal.errors import SealError
+from seal.evaluation import SUCCESS_TOLERANCE
 
 DEFAULT_THRESHOLD = 0.9
 """Success rate a task must reach (Appendix B: 90%)."""
@@ -28,9 +29,6 @@ DEFAULT_THRESHOLD = 0.9
 NEVER_REACHED = "—"
 """How a task that never reached the threshold is rendered; the number stays 0 in CSVs and totals."""
 
-# Success rates are means of 0/1 outcomes; a mean that should equal the threshold (45/50 = 0.9)
-# may come out a rounding error below it, and must still count as reaching it.
-SUCCESS_TOLERANCE = 1e-9
 
 # metrics.csv columns without which no update count can be made; `return` and `wall_s` are only shown.
 REQUIRED_METRICS_COLUMNS = (
@@ -77,7 +75,7 @@ def first_reach(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> 
     )
     # Evaluations in training order; "first" is the earliest epoch of the phase.
     ordered = metrics.sort_values([*keys, "epoch", "grad_steps"], kind="stable")
-    hits = ordered[ordered["success"] >= threshold - SUCCESS_TOLERANCE]
+    hits = ordered[ordered["success"] >= threshold - SUCCESS_TOLERANCE]  # as evaluation.reaches
     first = hits.groupby(keys, sort=False).head(1)[keys + values]
     all_tasks = metrics[keys].drop_duplicates()
     out = all_tasks.merge(first, on=keys, how="left", indicator=True)

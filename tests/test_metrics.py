@@ -246,3 +246,17 @@ def test_format_number_four_significant_digits() -> None:
 def test_missing_column_is_a_seal_error() -> None:
     with pytest.raises(SealError, match=r"lacks column\(s\) \['updates'\]"):
         first_reach(_csv(CONSTANT_BATCH).drop(columns=["updates"]))
+
+
+def test_one_rule_for_reaching_the_threshold() -> None:
+    from seal.evaluation import reaches
+
+    # np.mean of 0/1 outcomes can land a rounding error below 0.9: 0.1 * 9 = 0.9000000000000000222,
+    # but sum([0.1] * 9) = 0.8999999999999999. Both count, in the runner and in the report.
+    below = sum([0.1] * 9)
+    assert below < 0.9 and reaches(below, 0.9) and not reaches(0.89, 0.9)
+    frame = _csv(
+        "seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s\n"
+        f"0,train,1,mw,a,{below!r},1,10,10,0.001,1\n"
+    )
+    assert bool(first_reach(frame, 0.9)["reached"].iloc[0])

@@ -44,7 +44,7 @@ from seal import provenance
 from seal.envs import make_adapter
 from seal.envs.base import EnvAdapter
 from seal.errors import ConfigError, SealError, TrainingDivergedError
-from seal.evaluation import AgentPolicy, evaluate, mean_success
+from seal.evaluation import AgentPolicy, evaluate, mean_success, reaches
 from seal.learner.checkpoint import read_checkpoint, save_checkpoint
 from seal.protocols import scheduling
 from seal.protocols.config import ProtocolConfig
@@ -738,9 +738,9 @@ class Run:
                     }
                 )
                 success_by_key[(env, task)] = r["success"]
-                if r["success"] >= cfg.evaluation.threshold and task not in state.reached.get(
-                    env, {}
-                ):
+                if reaches(
+                    r["success"], cfg.evaluation.threshold
+                ) and task not in state.reached.get(env, {}):
                     state.reached.setdefault(env, {})[task] = updates
         self.rundir.log_eval(rows)
         state.last_success = {
