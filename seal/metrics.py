@@ -200,20 +200,6 @@ def add_percent_change(
     return merged.drop(columns=["baseline_mean_", "baseline_reached_"])
 
 
-def update_counts_by_env(
-    metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD
-) -> dict[str, dict[str, float]]:
-    """One seed's update counts as {env: {task: millions}}, 0 where never reached (for `seal run --json`).
-
-    If an environment appears in several phases, the last phase's counts are kept (the fine-tune
-    phase of a same-environment fine-tune), since that is the phase the run ends in.
-    """
-    counts: dict[str, dict[str, float]] = {}
-    for row in first_reach(metrics, threshold).itertuples(index=False):
-        counts.setdefault(str(row.env), {})[str(row.task)] = float(row.updates)
-    return counts
-
-
 # --------------------------------------------------------------------------- rendering
 
 

@@ -19,7 +19,6 @@ from seal.metrics import (
     format_number,
     format_percent,
     percent_change,
-    update_counts_by_env,
 )
 
 
@@ -173,8 +172,6 @@ def test_update_counts_restart_per_phase() -> None:
     assert per_seed.loc["pretrain", "updates"] == pytest.approx(0.20)
     assert per_seed.loc["finetune", "updates"] == pytest.approx(0.05)
     assert per_seed.loc["finetune", "grad_steps"] == 100
-    # update_counts_by_env keeps the last phase's count for an env seen in both phases.
-    assert update_counts_by_env(_csv(PHASES)) == {"point": {"reach": pytest.approx(0.05)}}
 
 
 def test_env_totals_count_never_reached_as_zero() -> None:

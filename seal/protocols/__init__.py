@@ -19,7 +19,6 @@ __all__ = [
     "dumps_toml",
     "explain",
     "load_protocol",
-    "run_protocol",
     "run_seed",
 ]
 
@@ -28,7 +27,6 @@ def __getattr__(name: str):  # noqa: ANN202 - lazy: the runner imports torch and
     if name in (
         "RunResult",
         "run_seed",
-        "run_protocol",
         "new_group_dir",
         "resume_run",
         "load_policy",

@@ -1029,19 +1029,6 @@ def _saved_config(path: Path) -> ProtocolConfig:
     )
 
 
-def run_protocol(
-    config: ProtocolConfig,
-    *,
-    out: str | Path = "reports",
-    quiet: bool = True,
-    command: list[str] | None = None,
-) -> tuple[Path, list[RunResult]]:
-    """Run every seed of `config` one after another into one new group; returns (group dir, results)."""
-    group = new_group_dir(config, out)
-    results = [run_seed(config, s, group, quiet=quiet, command=command) for s in config.seeds]
-    return group, results
-
-
 def result_json(results: Sequence[RunResult]) -> str:
     """The one-line JSON that `seal run --json` ends with."""
     last = results[-1]
