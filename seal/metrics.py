@@ -8,7 +8,7 @@ composition changes (data-ratio schedules, schedulers). This module reads that c
 recomputes C x GS x BS.
 
 Everything here is a pure function of pandas DataFrames, so it can be tested on hand-written
-tables and reused by `seal run --json` and `seal report`.
+tables and reused by `seal report` and the benches.
 """
 
 from __future__ import annotations
