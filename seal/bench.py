@@ -9,6 +9,9 @@ machine load affects both sides (the load is recorded with the results):
 - ``mt10_update_flops_fraction``: matmul FLOPs an ideal MT10 MTMHSAC update needs
   (`ideal_update_gemms`), per second of our update, / the FLOP/s torch.mm reaches on exactly those
   GEMM shapes. Equivalently: time of the update's GEMMs alone / time of the whole update.
+- ``ratio_lever``: at a 90/10 data ratio, the 90% environment's share of the shared policy trunk's
+  step (`Agent.ratio_lever`) under the default ``shared_update = "weighted"``; the details list
+  every mode with the ratio of the two environments' trunk gradient norms. Not a timing.
 - ``collect_mt10_speedup`` / ``collect_fk_speedup``: env steps/s of `Collector` over the 10 tasks /
   a plain single-process loop over envs built by the same adapter (same wrappers), with the same
   actions; both must end on identical observations.
@@ -691,6 +694,66 @@ def bench_collection(
     return result
 
 
+# ---------------------------------------------------------------- the ratio lever
+
+SHARED_UPDATES = ("weighted", "sequential", "per_env")
+
+
+def bench_ratio_lever(
+    seed: int = 0,
+    warmup_updates: int = 100,
+    ratio: float = 0.9,
+    batch_per_task: int = 128,
+    episodes: int = 3,
+    modes: Sequence[str] = SHARED_UPDATES,
+    agent: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """`Agent.ratio_lever` of a default-width SEAL agent under each shared_update mode.
+
+    Replay: seeded uniform-random episodes of `point` (A, the `ratio` share) and `point_view`
+    (B: other observation and action spaces), `episodes` per task. Each mode's agent (same seed)
+    first takes `warmup_updates` updates at the ratio so that Adam's moments are not fresh, then
+    the lever is measured on the next update's batches. Goal: >= 0.8 under "weighted".
+    `agent` overrides AgentConfig fields (default widths otherwise).
+    """
+    from seal.envs import make_adapter
+    from seal.learner import Agent, AgentConfig, EnvSpec, MultiTaskReplay, counts_from_ratio
+    from seal.learner.collection import Collector
+
+    adapters = {"a": make_adapter("point"), "b": make_adapter("point_view")}
+    specs = [EnvSpec(name, ad.obs_dim, ad.act_dim, len(ad.tasks)) for name, ad in adapters.items()]
+    replay = MultiTaskReplay(specs, capacity=sum(len(a.tasks) for a in adapters.values()) * 1000)
+    with Collector(adapters, seed=seed, backend="sync") as collector:
+        for _ in range(episodes):
+            collector.collect_episodes(None, random_actions=True, sink=replay.add)
+    counts = counts_from_ratio(
+        {"a": ratio, "b": 1.0 - ratio}, {s.name: s.num_tasks for s in specs}, batch_per_task
+    )
+    out: dict[str, Any] = {
+        "ratio": ratio,
+        "warmup_updates": warmup_updates,
+        "batch": {k: int(v.sum()) for k, v in counts.items()},
+        "modes": {},
+    }
+    for mode in modes:
+        config = AgentConfig(
+            architecture="seal",
+            shared_update=mode,
+            ratio_lever_interval=0,
+            device="cpu",
+            **(agent or {}),
+        )
+        learner = Agent(specs, config, seed)
+        rng = np.random.default_rng(seed)
+        for _ in range(warmup_updates):
+            learner.update(replay.sample(counts, rng))
+        lever = learner.ratio_lever(replay.sample(counts, rng))
+        g = lever["grad_norm"]
+        out["modes"][mode] = {**lever, "grad_norm_ratio_a_over_b": g["a"] / g["b"]}
+    out["ratio_lever"] = out["modes"].get("weighted", {}).get("lever")
+    return out
+
+
 # ---------------------------------------------------------------- learning evidence
 
 
@@ -933,6 +996,7 @@ def run_bench(
         "mt10_update_flops_fraction",
         "collect_mt10_speedup",
         "collect_fk_speedup",
+        "ratio_lever",
     )
     chosen = list(only or keys)
     unknown = [k for k in chosen if k not in keys]
@@ -974,6 +1038,11 @@ def run_bench(
                 continue
             out["details"][key] = d
             out[key] = d["speedup"]
+    if "ratio_lever" in chosen:
+        log("ratio_lever")
+        d = bench_ratio_lever()
+        out["details"]["ratio_lever"] = d
+        out["ratio_lever"] = d["ratio_lever"]
     if learn:
         out["learn"] = run_learn(log)
     out["load_after"] = machine_load()
@@ -1000,6 +1069,7 @@ GOALS = {
     "mt10_update_flops_fraction": 0.75,
     "collect_mt10_speedup": 1.7,
     "collect_fk_speedup": 1.7,
+    "ratio_lever": 0.8,
 }
 
 
@@ -1019,6 +1089,14 @@ def format_table(result: Mapping[str, Any]) -> str:
             f"({d['mt10_update_flops']['update_s'] * 1e3:.1f} ms/update); formula==FlopCounter: {d['flop_formula_check']['equal']}"
         ),
     }
+    if "ratio_lever" in d:
+        detail["ratio_lever"] = lambda: (
+            "; ".join(
+                f"{mode} {m['lever']:.2f} (|g_A|/|g_B| {m['grad_norm_ratio_a_over_b']:.2f})"
+                for mode, m in d["ratio_lever"]["modes"].items()
+            )
+            + f"; {d['ratio_lever']['ratio']:.0%} of the batch from A, after {d['ratio_lever']['warmup_updates']} updates"
+        )
     for key in ("collect_mt10_speedup", "collect_fk_speedup"):
         if key in d and "backends" in d[key]:
             c = d[key]

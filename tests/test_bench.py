@@ -80,3 +80,33 @@ def test_unknown_benchmark_key_is_a_one_line_user_error(capsys: pytest.CaptureFi
     assert main(["bench", "--only", "nope"]) == 2
     err = capsys.readouterr().err
     assert "unknown benchmark 'nope'" in err and "sac_vs_sb3" in err
+
+
+def test_ratio_lever_bench_reports_every_mode_with_gradient_norm_ratios() -> None:
+    from seal.bench import bench_ratio_lever
+
+    # Smoke size (2 warm-up updates, 4 per task): what is reported, not the figure itself.
+    small = {
+        "translator_hidden": (16,),
+        "latent_dim": 16,
+        "trunk_hidden": (16,),
+        "critic_hidden": (16,),
+    }
+    result = bench_ratio_lever(warmup_updates=2, batch_per_task=4, episodes=1, agent=small)
+    # point (4 tasks) and point_view at 90/10 of 4 x 8 tasks' samples: 29 and 3 (largest remainder)
+    assert result["batch"] == {"a": 29, "b": 3}
+    assert list(result["modes"]) == ["weighted", "sequential", "per_env"]
+    for mode in result["modes"].values():
+        assert mode["env"] == "a" and 0.0 < mode["lever"] < 1.0
+        g = mode["grad_norm"]
+        assert mode["grad_norm_ratio_a_over_b"] == g["a"] / g["b"]
+    assert result["ratio_lever"] == result["modes"]["weighted"]["lever"]
+    table = format_table(
+        {
+            "ratio_lever": result["ratio_lever"],
+            "details": {"ratio_lever": result},
+            "load_before": {"loadavg_1m": 1.0, "cpus": 2, "torch_threads": 1},
+            "load_after": {"loadavg_1m": 1.0},
+        }
+    )
+    assert "ratio_lever" in table and ">=0.8" in table and "per_env" in table

@@ -631,10 +631,10 @@ class Agent:
         grad_norm = {}
         for name, (batch, alpha, obs_in, _) in clone._inputs(batches).items():
             loss, _ = clone._actor_loss(name, obs_in, batch.task_ids, alpha)
-            grads = torch.autograd.grad(loss, list(clone.actor.trunk.parameters()))
-            grad_norm[name] = float(
-                torch.linalg.vector_norm(torch.cat([g.flatten() for g in grads]))
-            )
+            trunk = list(clone.actor.trunk.parameters())
+            grads = torch.autograd.grad(loss, trunk, allow_unused=True)
+            flat = [g.flatten() for g in grads if g is not None]
+            grad_norm[name] = float(torch.linalg.vector_norm(torch.cat(flat))) if flat else 0.0
         total = sum(effect.values())
         return {
             "lever": effect[env_a] / total if total > 0 else float("nan"),
@@ -757,6 +757,8 @@ class Agent:
             raise SealError(
                 f"cannot transfer a {state['config']['architecture']!r} agent into a {self.config.architecture!r} agent"
             )
+        if not reinit_critic:
+            self._check_critic_layout(state)  # before anything is copied
         source_keys = list(state["segments"]["actor"])
         if len(source_keys) == 1 and len(self._keys) == 1:
             key_map = {next(iter(self._keys.values())): source_keys[0]}
@@ -781,14 +783,18 @@ class Agent:
         self._lr_factor = self.config.lr_factor
         self._build_optimizers()
 
-    def _transfer_critic(self, state: Mapping[str, Any], key_map: Mapping[str, str]) -> None:
-        """Copy the saved critics into this agent's, env by env; refuse across critic layouts."""
+    def _check_critic_layout(self, state: Mapping[str, Any]) -> None:
+        """SealError (one line) when the saved critics are laid out otherwise than this agent's."""
         theirs = _critic_layout(state["config"])
         mine = "per_env" if isinstance(self.critic, PerEnvCritic) else "shared"
         if theirs != mine:
             raise SealError(
                 f'cannot transfer the critic: the saved agent has {theirs} critics (critic_sharing = "{theirs}"; states from before critic_sharing have shared ones) and this agent {mine}; set [transfer] reinit_critic = true or agent.critic_sharing = "{theirs}"'
             )
+
+    def _transfer_critic(self, state: Mapping[str, Any], key_map: Mapping[str, str]) -> None:
+        """Copy the saved critics into this agent's, env by env; refuse across critic layouts."""
+        self._check_critic_layout(state)
         if not isinstance(self.critic, PerEnvCritic):
             _transfer_network(
                 self.critic,
