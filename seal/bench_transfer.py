@@ -21,6 +21,7 @@ import os
 import subprocess
 import sys
 import time
+import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -197,6 +198,72 @@ def run_all(
     return done
 
 
+# ---------------------------------------------------------------- reuse and consistency
+
+COMPARED_TABLES = ("envs", "agent", "replay", "training", "evaluation", "scheduler")
+"""The resolved tables a reused run must share with the protocol as it resolves now."""
+
+
+def _tables(resolved: Mapping[str, Any]) -> dict[str, Any]:
+    out = {t: resolved.get(t, {}) for t in COMPARED_TABLES}
+    out["epochs"] = resolved["protocol"]["epochs"]
+    return out
+
+
+def resolved_tables(arm: Arm, overrides: Sequence[str] = ()) -> tuple[str, dict[str, Any]]:
+    """(protocol name, the tables a run of `arm` saves in its config.toml), as the code resolves them now."""
+    from seal.protocols import load_protocol
+    from seal.protocols.loader import config_to_dict, dumps_toml
+
+    config = load_protocol(arm.protocol, overrides)
+    # Through TOML, as the runner writes config.toml, so that both sides compare alike.
+    return config.name, _tables(tomllib.loads(dumps_toml(config_to_dict(config))))
+
+
+def finished_run(arm: Arm, seed: int, out: Path, overrides: Sequence[str] = ()) -> Path | None:
+    """The newest finished run of (arm, seed) under `out` whose saved config equals today's resolution, else None.
+
+    Defaults of the learner can change between two runs (a new default init, say); a run is
+    reused only if every resolved key of COMPARED_TABLES is the same, so arms never mix them.
+    """
+    from seal import load_run
+
+    name, want = resolved_tables(arm, overrides)
+    # Group directories start with their creation time, so the newest sorts last.
+    for run in sorted(out.glob(f"{name}/*/seed-{seed}"), reverse=True):
+        if not (run / "metrics.csv").is_file() or not (run / "config.toml").is_file():
+            continue
+        if _tables(tomllib.loads((run / "config.toml").read_text())) != want:
+            continue
+        epochs = load_run(run).metrics["epoch"]
+        if not epochs.empty and int(epochs.max()) >= want["epochs"]:
+            return run
+    return None
+
+
+def agent_mismatches(
+    agents: Mapping[tuple[str, int], Mapping[str, Any]], chosen: Sequence[Arm]
+) -> list[str]:
+    """Agent keys, other than shared_update, that differ between runs set against each other."""
+    problems = []
+    for arm in chosen:
+        base = arm.alone or arm.name
+        for (name, seed), agent in agents.items():
+            if name != arm.name:
+                continue
+            ref = agents[(base, 0)]
+            keys = sorted(
+                k
+                for k in set(agent) | set(ref)
+                if k != "shared_update" and agent.get(k) != ref.get(k)
+            )
+            problems += [
+                f"{name} seed {seed} vs {base} seed 0: agent.{k} = {agent.get(k)!r} vs {ref.get(k)!r}"
+                for k in keys
+            ]
+    return problems
+
+
 # ---------------------------------------------------------------- the table
 
 
@@ -299,11 +366,13 @@ def run_transfer_bench(
     overrides: Sequence[str] = (),
     log: Callable[[str], None] = lambda _: None,
     only: Sequence[str] | None = None,
+    reuse: bool = False,
 ) -> dict[str, Any]:
     """Run every arm's seeds with `seal run`, read their run directories, and return the result as JSON-able dict.
 
     `only` runs just the named arms (with the alone arms they are set against), e.g. the
     `--full` arms after the minimum set; the headline figures are then None where not run.
+    `reuse` takes finished runs under `out` whose resolved config is today's (`finished_run`).
     """
     from seal import load_run
     from seal.bench import machine_load
@@ -318,12 +387,22 @@ def run_transfer_bench(
     # Longest arms first, so the last process does not run alone while a core idles.
     order = sorted(chosen, key=lambda a: a.alone is None)
     jobs = [(arm, seed) for arm in order for seed in range(seeds)]
-    run_dirs = run_all(jobs, Path(out), overrides, parallel, log)
+    reused: dict[tuple[str, int], Path] = {}
+    if reuse:
+        for arm, seed in jobs:
+            found = finished_run(arm, seed, Path(out), overrides)
+            if found is not None:
+                reused[(arm.name, seed)] = found
+                log(f"reuse {arm.name} seed {seed}: {found}")
+        jobs = [(a, s) for a, s in jobs if (a.name, s) not in reused]
+    run_dirs = {**reused, **run_all(jobs, Path(out), overrides, parallel, log)}
     wall = time.monotonic() - started
+    loaded = {key: load_run(path) for key, path in run_dirs.items()}
     costs = {
-        arm.name: [target_cost(load_run(run_dirs[(arm.name, s)]).metrics) for s in range(seeds)]
+        arm.name: [target_cost(loaded[(arm.name, s)].metrics) for s in range(seeds)]
         for arm in chosen
     }
+    mismatches = agent_mismatches({k: r.config.get("agent", {}) for k, r in loaded.items()}, chosen)
     summary = summarise(costs, chosen)
 
     def saved(name: str) -> float | None:
@@ -344,6 +423,8 @@ def run_transfer_bench(
         "full": full,
         "overrides": list(overrides),
         "run_dirs": {f"{a}/seed-{s}": str(p) for (a, s), p in run_dirs.items()},
+        "reused": sorted(f"{a}/seed-{s}" for a, s in reused),
+        "agent_mismatches": mismatches,
         "wall_s": wall,
         "parallel": parallel,
         "load_before": load_before,
@@ -367,7 +448,9 @@ def format_result(result: Mapping[str, Any]) -> str:
             f"transfer_updates_saved (high-source, default shared_update) = {shown(result['transfer_updates_saved'])} "
             f"(goal >= {goal['transfer_updates_saved_ge']}: {verdict}); "
             f"per_env {shown(goal['per_env'])}, no correspondence {shown(goal['no_correspondence'])}",
-            f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s wall; "
+            *(f"WARNING, arms not comparable: {m}" for m in result["agent_mismatches"]),
+            f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s wall"
+            f"{' (' + str(len(result['reused'])) + ' runs reused)' if result['reused'] else ''}; "
             f"load before {load['loadavg_1m']} (1 min) on {load['cpus']} CPUs, after {result['load_after']['loadavg_1m']}",
         ]
     )

@@ -10,7 +10,9 @@ import pytest
 from seal.bench_transfer import (
     ARMS,
     TargetCost,
+    agent_mismatches,
     arms,
+    finished_run,
     run_transfer_bench,
     target_cost,
     updates_saved,
@@ -121,3 +123,43 @@ def test_cli_errors_are_one_line(capsys) -> None:
     assert (
         "only appl" in capsys.readouterr().err
     )  # "--full [and --arms] only appl(y|ies) to --learn transfer"
+
+
+def test_agent_mismatches_name_every_key_but_shared_update() -> None:
+    base = {"init": "torch", "shared_update": "weighted", "latent_dim": 64}
+    agents = {
+        ("alone", 0): base,
+        ("high_source", 0): {**base, "init": "metaworld_algorithms"},
+        ("high_source_per_env", 0): {**base, "shared_update": "per_env"},  # the arm's own lever
+    }
+    assert agent_mismatches(agents, arms()[:3]) == [
+        "high_source seed 0 vs alone seed 0: agent.init = 'metaworld_algorithms' vs 'torch'"
+    ]
+
+
+def test_finished_run_reuses_only_complete_runs_of_todays_config(tmp_path) -> None:
+    from seal.protocols import load_protocol
+    from seal.protocols.loader import config_to_dict, dumps_toml
+
+    arm = next(a for a in ARMS if a.name == "alone")
+    resolved = config_to_dict(load_protocol(arm.protocol))
+
+    def run(group: str, epoch: int, init: str) -> None:
+        path = tmp_path / "testbed_alone" / group / "seed-1"
+        path.mkdir(parents=True)
+        table = {**resolved, "agent": {**resolved["agent"], "init": init}}
+        (path / "config.toml").write_text(dumps_toml(table))
+        (path / "metrics.csv").write_text(
+            "seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s\n"
+            f"1,train,{epoch},target,t0,1.0,-5.0,100,200,0.0008,1.0\n"
+        )
+
+    today = resolved["agent"]["init"]
+    other = "torch" if today != "torch" else "metaworld_algorithms"
+    run("20261123-060000-aaaaaa", 100, today)  # finished, today's config
+    run("20261123-070000-bbbbbb", 100, other)  # newer, but another init
+    run("20261123-080000-cccccc", 50, today)  # newest, unfinished
+    assert (
+        finished_run(arm, 1, tmp_path) == tmp_path / "testbed_alone/20261123-060000-aaaaaa/seed-1"
+    )
+    assert finished_run(arm, 0, tmp_path) is None
