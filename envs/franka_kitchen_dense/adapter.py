@@ -169,7 +169,10 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
         from franka_kitchen_dense.evidence import expert_evidence, reach_evidence
 
         figures = expert_evidence(
-            lambda s: self.make(task, s), task, [seed + i for i in range(episodes)]
+            lambda s: self.make(task, s),
+            task,
+            [seed + i for i in range(episodes)],
+            gravity_compensation=self.gravity_compensation,
         )
         figures["shaping_goals_met"] = {
             "expert_reward_spearman": figures["expert_reward_spearman"]

@@ -301,7 +301,9 @@ class FrankaKitchenDenseEnv(gym.Env):
         return self._init_qpos[self._qpos_adr : self._qpos_adr + self._qpos_width].copy()
 
     def sync(self) -> None:
-        """After editing qpos/qvel: recompute derived quantities and make upstream's velocity
-        controller hold the edited robot pose (it integrates from the last observed qpos)."""
+        """After editing qpos/qvel: recompute derived quantities and point upstream's velocity
+        controller at the edited robot pose (it integrates from the last observed qpos). It does
+        not hold it: under a zero action the arm sags from there, 34 cm in 50 steps, unless the env
+        was made with `gravity_compensation=True` (4 mm; README, "Gravity compensation")."""
         mujoco.mj_forward(self.model, self.data)
         self.kitchen.robot_env._last_robot_qpos = self.data.qpos[:9].copy()

@@ -5,10 +5,12 @@ uniform random policy over the same seeds, through the env that the adapter's `m
 and reports:
 
 - `scripted_success`: share of expert episodes with `info["success"]` 1 at some step (any-step,
-  Meta-World's evaluation); `scripted_final_success`: share still successful at the last step.
+  Meta-World's evaluation); `scripted_final_success`: share still successful at the last step;
+  `scripted_flicks` / `random_flicks`: episodes successful at some step but not at the last one
+  (an object flicked through its success band); `random_success_rate`: the random policy's any-step rate.
 - `expert_reward_spearman`: Spearman's rho of step index against reward, from the first step up
   to the first success (the whole episode if none), averaged over episodes.
-- `return_ratio`: mean expert return / mean random return over full episodes.
+- `expert_mean_return`, `random_mean_return` over full episodes, and `return_ratio` = their ratio.
 - `flat_stretch_share`: the longest run of consecutive steps in which the reward stays within a
   0.1 band, measured as the object progress made during it (the success measure's decrease)
   over the task's travel (initial distance - threshold); the worst episode's.
@@ -66,17 +68,25 @@ def _uniform_policy(space: gym.spaces.Box, seed: int) -> Callable[[np.ndarray], 
     return lambda obs: rng.uniform(space.low, space.high).astype(space.dtype)
 
 
-def expert_evidence(make: Callable[[int], gym.Env], task: str, seeds: list[int]) -> dict[str, Any]:
-    """Expert and random episodes over `seeds` (`make(seed)` builds a seeded env); figures above."""
+def expert_evidence(
+    make: Callable[[int], gym.Env],
+    task: str,
+    seeds: list[int],
+    gravity_compensation: bool = False,
+) -> dict[str, Any]:
+    """Expert and random episodes over `seeds` (`make(seed)` builds a seeded env, with gravity
+    compensation when `gravity_compensation`, which the expert is told); figures above."""
     from franka_kitchen_dense.experts import policy
     from franka_kitchen_dense.tasks import TASKS
 
     spec = TASKS[task]
     expert_returns, random_returns, rhos, flats, firsts = [], [], [], [], []
-    any_success = final_success = 0
+    any_success = final_success = random_any = random_flicks = 0
     for seed in seeds:
         env = make(seed)
-        rewards, successes, distances = _episode(env, lambda obs: policy(obs, task))
+        rewards, successes, distances = _episode(
+            env, lambda obs: policy(obs, task, gravity_compensation)
+        )
         expert_returns.append(sum(rewards))
         first = successes.index(1.0) if 1.0 in successes else None
         any_success += first is not None
@@ -95,19 +105,25 @@ def expert_evidence(make: Callable[[int], gym.Env], task: str, seeds: list[int])
             firsts.append(first + 1)
         env.close()
         env = make(seed)
-        random_rewards, _, _ = _episode(env, _uniform_policy(env.action_space, seed))
+        random_rewards, random_successes, _ = _episode(env, _uniform_policy(env.action_space, seed))
         random_returns.append(sum(random_rewards))
+        random_any += 1.0 in random_successes
+        random_flicks += 1.0 in random_successes and random_successes[-1] == 0.0
         env.close()
     n = len(seeds)
     random_mean = float(np.mean(random_returns))
     return {
         "scripted_success": any_success / n,
         "scripted_final_success": final_success / n,
+        # flicks: a success at some step that the episode's last step no longer has
+        "scripted_flicks": any_success - final_success,
+        "random_success_rate": random_any / n,
+        "random_flicks": random_flicks,
         "episodes": n,
         "mean_steps_to_success": float(np.mean(firsts)) if firsts else None,
         "expert_reward_spearman": round(float(np.mean(rhos)), 4),
-        "expert_return": round(float(np.mean(expert_returns)), 2),
-        "random_return": round(random_mean, 2),
+        "expert_mean_return": round(float(np.mean(expert_returns)), 2),
+        "random_mean_return": round(random_mean, 2),
         "return_ratio": round(float(np.mean(expert_returns)) / random_mean, 2)
         if random_mean > 0
         else None,

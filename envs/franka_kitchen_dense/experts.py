@@ -141,6 +141,7 @@ class _Kinematics:
         self.initial_handle = self.data.site_xpos[self.site].copy()
         self.joint_start = 0.0  # every articulated task starts with its joint at 0 (to 0.007)
         self.scratch = mujoco.MjData(self.model)
+        self.feed_forward = True  # add gravity / kp to each arm action (off with gravcomp envs)
         self.reference: np.ndarray | None = None
         self.finger_sign = 0.0  # free while the reference posture is searched, then fixed
         self.reference = self._reference_posture()
@@ -268,7 +269,8 @@ class _Kinematics:
                 goal = other
         dq = goal - q
         dq /= max(1.0, float(np.max(np.abs(dq))) / MAX_JOINT_STEP)
-        return np.clip((dq + self._gravity() / self.kp) / TARGET_PER_ACTION, -1.0, 1.0)
+        hold = self._gravity() / self.kp if self.feed_forward else 0.0
+        return np.clip((dq + hold) / TARGET_PER_ACTION, -1.0, 1.0)
 
     def _gravity(self) -> np.ndarray:
         """Generalised gravity torque on the arm joints at the observed pose (velocities zero)."""
@@ -304,10 +306,16 @@ def _kinematics(task: str) -> _Kinematics:
     return _Kinematics(TASKS[task])
 
 
-def policy(obs: np.ndarray, task: str) -> np.ndarray:
-    """The scripted expert's action (9 floats in [-1, 1]) for `task` given one 62-d observation."""
+def policy(obs: np.ndarray, task: str, gravity_compensation: bool = False) -> np.ndarray:
+    """The scripted expert's action (9 floats in [-1, 1]) for `task` given one 62-d observation.
+
+    `gravity_compensation`: whether the env was made with that option (like the task, a fact
+    about the env, not its state); then the arm needs no gravity feed-forward, and adding it
+    would drive the joints by `bias / kp` every step.
+    """
     obs = np.asarray(obs, dtype=np.float64)
     kin = _kinematics(task)
+    kin.feed_forward = not gravity_compensation
     kin.set_obs(obs)
     if kin.free:
         arm, fingers = _kettle(kin, obs)

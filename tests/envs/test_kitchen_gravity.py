@@ -80,3 +80,17 @@ def test_unknown_options_and_bad_values_are_one_line_errors() -> None:
     assert "valid options: gravity_compensation (true or false" in message
     with pytest.raises(SealError, match="gravity_compensation must be true or false, got 'yes'"):
         FrankaKitchenDenseAdapter(gravity_compensation="yes")
+
+
+def test_the_expert_told_of_gravity_compensation_still_solves_the_slide() -> None:
+    from franka_kitchen_dense.experts import policy
+
+    adapter = FrankaKitchenDenseAdapter(tasks=["slide-cabinet"], gravity_compensation=True)
+    env = adapter.make("slide-cabinet", 0)
+    obs, _ = env.reset(seed=0)
+    successes = []
+    for _ in range(120):
+        obs, _, _, _, info = env.step(policy(obs, "slide-cabinet", gravity_compensation=True))
+        successes.append(info["success"])
+    env.close()
+    assert 1.0 in successes
