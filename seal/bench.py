@@ -190,10 +190,9 @@ def _fixed_normal_noise(queue: list[torch.Tensor]) -> Iterator[None]:
 def sac_loss_check(seed: int = 0, updates: int = 3, batch_size: int = 256) -> dict[str, Any]:
     """From identical weights and the same batches and noise, compare our and SB3's losses per update.
 
-    Known differences, handled rather than hidden: SB3's critic loss is 0.5 * (mse1 + mse2),
-    ours mse1 + mse2 (compared as 2 x SB3; Adam makes the gradient scale immaterial up to its
-    eps); SB3 draws the policy noise for s before that for s', ours the other way round (the
-    same noise is fed to both). Returns per-update losses and the largest relative difference.
+    Known differences, handled rather than hidden: SB3 draws the policy noise for s before that
+    for s', ours the other way round (the same noise is fed to both). Both critic losses are
+    0.5 * (mse1 + mse2). Returns per-update losses and the largest relative difference.
     """
     from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
@@ -244,7 +243,7 @@ def sac_loss_check(seed: int = 0, updates: int = 3, batch_size: int = 256) -> di
         logged = sb3.logger.name_to_value
         row = {
             "critic_ours": metrics["losses/bench/critic"],
-            "critic_sb3_x2": 2.0 * float(logged["train/critic_loss"]),
+            "critic_sb3": float(logged["train/critic_loss"]),
             "actor_ours": metrics["losses/bench/actor"],
             "actor_sb3": float(logged["train/actor_loss"]),
             "alpha_loss_ours": metrics["losses/bench/alpha"],
@@ -254,7 +253,7 @@ def sac_loss_check(seed: int = 0, updates: int = 3, batch_size: int = 256) -> di
         }
         rows.append(row)
         for a, b in (
-            ("critic_ours", "critic_sb3_x2"),
+            ("critic_ours", "critic_sb3"),
             ("actor_ours", "actor_sb3"),
             ("alpha_ours", "alpha_sb3"),
         ):
@@ -266,7 +265,6 @@ def sac_loss_check(seed: int = 0, updates: int = 3, batch_size: int = 256) -> di
             / max(1.0, abs(row["alpha_loss_sb3"])),
         )
     differences = [
-        "critic loss: SB3 logs 0.5 * (mse1 + mse2), we mse1 + mse2; compared as 2 x SB3 (the 2x gradient scale is absorbed by Adam)",
         "policy noise: SB3 samples for s, then s'; we for s', then s; both get the same noise here",
         "temperature step: SB3 steps log alpha before the critic, we after the actor; both use the pre-step alpha in every loss",
         "Polyak: SB3 target*(1-tau) + tau*online, we lerp; equal up to float rounding",

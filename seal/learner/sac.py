@@ -538,7 +538,9 @@ class Agent:
                 if name in stage
             }
             if kept:
-                critic_losses = {n: critic_terms[n][0] + critic_terms[n][1] for n in kept}
+                # Mean over the twin critics, as metaworld-algorithms, the prototype and SB3: with
+                # max_grad_norm the loss's scale sets how often clipping bites, so it must match.
+                critic_losses = {n: 0.5 * (critic_terms[n][0] + critic_terms[n][1]) for n in kept}
                 self._step("critic", kept, critic_losses, weights)
 
             # ---- actor: with the critic just updated, as in cleanrl
@@ -566,7 +568,7 @@ class Agent:
                         (
                             qf1,
                             qf2,
-                            qf1 + qf2,
+                            0.5 * (qf1 + qf2),
                             actor_terms[name][0],
                             env_alpha_loss,
                             qf_a_values.mean(),

@@ -74,13 +74,14 @@ def test_losses_by_hand_on_a_network_with_known_weights() -> None:
     qf2_loss = sum((2.0 - t) ** 2 for t in y) / 3
     assert metrics["losses/toy/qf1"] == pytest.approx(qf1_loss, rel=1e-5)
     assert metrics["losses/toy/qf2"] == pytest.approx(qf2_loss, rel=1e-5)
-    assert metrics["losses/toy/critic"] == pytest.approx(qf1_loss + qf2_loss, rel=1e-5)
+    # The critic loss is the mean over the twin critics (metaworld-algorithms, the prototype, SB3).
+    assert metrics["losses/toy/critic"] == pytest.approx((qf1_loss + qf2_loss) / 2, rel=1e-5)
     assert metrics["charts/toy/mean_q"] == pytest.approx(1.5)
-    # The critic step moves only the head biases (all activations are 0), g = d qf_loss / d bias =
-    # mean(2 (q - y)). Clipping scales both by c = min(1, 1 / (||(g1, g2)|| + 1e-6)) (max_grad_norm
-    # 1), then Adam's first step is -lr * c g / (|c g| + eps), eps = 1e-5.
-    g1 = sum(2 * (1.0 - t) for t in y) / 3
-    g2 = sum(2 * (2.0 - t) for t in y) / 3
+    # The critic step moves only the head biases (all activations are 0), g = d (qf_loss / 2) /
+    # d bias = mean(q - y). Clipping scales both by c = min(1, 1 / (||(g1, g2)|| + 1e-6))
+    # (max_grad_norm 1), then Adam's first step is -lr * c g / (|c g| + eps), eps = 1e-5.
+    g1 = sum((1.0 - t) for t in y) / 3
+    g2 = sum((2.0 - t) for t in y) / 3
     c = min(1.0, 1.0 / (math.hypot(g1, g2) + 1e-6))
     q1_new = 1.0 - 3e-4 * c * g1 / (abs(c * g1) + 1e-5)
     q2_new = 2.0 - 3e-4 * c * g2 / (abs(c * g2) + 1e-5)
