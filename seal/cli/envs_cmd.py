@@ -5,11 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tomllib
 from typing import Any
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add `seal envs [--json]` and `seal envs check NAME [--tasks ...] [--seed N] [--json]`."""
+    """Add `seal envs [--json]` and `seal envs check NAME [--tasks ...] [--seed N] [--option K=V] [--json]`."""
     parser = subparsers.add_parser("envs", help="list environment adapters, or check one")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
     parser.set_defaults(func=list_adapters)
@@ -22,6 +23,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--tasks", nargs="+", help="task names or task-set names (default: the adapter's tasks)"
     )
     check.add_argument("--seed", type=int, default=0, help="seed for envs and random actions")
+    check.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="an adapter option, value as TOML (e.g. gravity_compensation=true); repeatable",
+    )
     # SUPPRESS keeps a --json given before `check` (seal envs --json check NAME) from being reset.
     check.add_argument(
         "--json", action="store_true", default=argparse.SUPPRESS, help="print the report as JSON"
@@ -58,7 +66,7 @@ def check_command(args: argparse.Namespace) -> int:
     from seal.envs.check import check_adapter
     from seal.envs.registry import make_adapter
 
-    adapter = make_adapter(args.name, tasks=args.tasks)
+    adapter = make_adapter(args.name, tasks=args.tasks, **_options(args.option))
     as_json = getattr(args, "json", False)
     progress = None if as_json else (lambda line: print(line, file=sys.stderr, flush=True))
     report = check_adapter(adapter, seed=args.seed, progress=progress)
@@ -76,6 +84,24 @@ def check_command(args: argparse.Namespace) -> int:
                 print(f"     {error}")
         print(f"{report['adapter']}: {'ok' if report['ok'] else 'NOT ok'}")
     return 0 if report["ok"] else 1
+
+
+def _options(pairs: list[str]) -> dict[str, Any]:
+    """--option KEY=VALUE pairs as a dict; values parse as TOML, anything else stays a string."""
+    from seal.errors import SealError
+
+    options: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, raw = pair.partition("=")
+        if not sep or not key.strip():
+            raise SealError(
+                f"--option {pair!r} must look like key=value (e.g. gravity_compensation=true)"
+            )
+        try:
+            options[key.strip()] = tomllib.loads(f"v = {raw.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            options[key.strip()] = raw.strip()
+    return options
 
 
 def _fmt(value: Any) -> str:

@@ -94,3 +94,28 @@ def test_the_expert_told_of_gravity_compensation_still_solves_the_slide() -> Non
         successes.append(info["success"])
     env.close()
     assert 1.0 in successes
+
+
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        (
+            "gravity=true",
+            "seal envs: error: adapter 'franka_kitchen_dense': unknown option(s) ['gravity']; "
+            "valid options: gravity_compensation (true or false, default false)",
+        ),
+        (
+            "gravity",
+            "seal envs: error: --option 'gravity' must look like key=value "
+            "(e.g. gravity_compensation=true)",
+        ),
+    ],
+)
+def test_cli_check_option_errors_are_one_line(
+    capsys: pytest.CaptureFixture[str], option: str, message: str
+) -> None:
+    from seal.cli.main import main
+
+    assert main(["envs", "check", "franka_kitchen_dense", "--option", option]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err == message + "\n"
