@@ -6,14 +6,15 @@ kitchen objects `[18:39]`) into a private `MjData` of upstream's kitchen model, 
 computes the gripper pose, the handle's pose and the Jacobian. One rule serves every articulated
 task (doors, slide, switch, knobs): grasp the handle, then drag the grasp pose along the joint by a
 small step towards the goal; the arm's joint step comes from damped-least-squares inverse
-kinematics on the `end_effector` site. The kettle is grasped from above, lifted, carried and set
-down. Phases are read from the state (is the gripper on the handle? are the fingers closed? is
+kinematics on the `end_effector` site. The kettle is grasped from the front and above, lifted,
+carried and set down. Phases are read from the state (is the gripper on the handle? are the fingers closed? is
 the kettle lifted?), never remembered.
 
 Upstream's controller turns an action `a` into a position target `q_observed + 0.16 a` (velocity
 `2 a` rad/s for one 80 ms step) for position actuators whose gains cannot hold the arm against
 gravity, so each arm action adds the offset `bias / kp` that makes the actuator's force equal the
-gravity and Coriolis torque at the observed state (a stateless feed-forward: no integral term).
+gravity torque at the observed pose (a stateless feed-forward: no integral term); an env made
+with `gravity_compensation=True` needs none, and `policy(..., gravity_compensation=True)` adds none.
 """
 
 from __future__ import annotations
@@ -39,27 +40,24 @@ MAX_JOINT_STEP = 0.15  # rad per env step, within the action's 0.16
 DAMPING = 0.05  # damped-least-squares damping (m)
 ROTATION_WEIGHT = 0.3  # m per rad: how much orientation error weighs against position error
 AT_HANDLE = 0.02  # m: the gripper counts as on the handle within this distance of its grasp point
-IN_LINE = 0.02
+IN_LINE = 0.02  # m: off the approach line by less than this, the gripper may move in
 # Fingers closed on something (between empty and fully open, metres of total opening) and the
 # gripper within HOLD_RADIUS of the grasp point: keep holding rather than re-approach.
-EMPTY_GRIP, OPEN_GRIP, HOLD_RADIUS = (
-    0.004,
-    0.07,
-    0.045,
-)  # m: off the approach line by less than this, the gripper may move in
+EMPTY_GRIP, OPEN_GRIP, HOLD_RADIUS = 0.004, 0.07, 0.045
 STANDOFF = 0.10  # m: the pre-grasp point lies this far back along the approach direction
 DRAG_STEP = {"site": 0.06, "joint": 0.25}  # how far ahead of the handle the grasp point is dragged
 KETTLE_LIFT = 0.05  # m: carry height of the kettle handle above its initial height
 # Straight down, the wrist (link 6) hits the burner knobs on the way to the back burner; a hand
 # tilted forward by 0.5 rad keeps it low and behind the handle (0.8 and 1.1 rad: IK stalls at reset).
 KETTLE_APPROACH = np.array([0.0, np.sin(0.5), -np.cos(0.5)])
-SET_DOWN_RADIUS = 0.02
+SET_DOWN_RADIUS = 0.02  # m: over its goal within this (horizontally), the kettle is lowered
 # The handle slides a few cm in the fingers while carried; a looser hold radius keeps carrying it,
 # and a slower carry lets it slide less.
 KETTLE_HOLD_RADIUS, KETTLE_TCP_STEP = 0.07, 0.02
 KETTLE_IN_LINE = 0.006  # m: the open fingers clear the 6.4 cm bar by only 8 mm a side
 KETTLE_STANDOFF = 0.16  # m: the pre-grasp point clears the bar's top by 9 cm
-KETTLE_AT_HANDLE = 0.01  # close only once fully down: a grip over the bar's top half squeezes it out  # m: over its goal within this (horizontally), the kettle is lowered
+# Close only once fully down: a grip over the bar's top half squeezes it out.
+KETTLE_AT_HANDLE = 0.01
 IK_ITERATIONS = 15  # per step, warm-started at the current pose with the target <= 3.5 cm away
 POSTURE = 0.02  # weight of the pull towards the reference posture in the IK (small: a tie-breaker)
 RESOLVE_ERROR = 0.01  # m: an IK from the current pose this far off is retried from the reference
@@ -169,6 +167,8 @@ class _Kinematics:
         return best
 
     def _initial_objects(self) -> np.ndarray:
+        """Kitchen object qpos at reset: joints at 0 (upstream's are within 0.007), the kettle at
+        upstream's initial position with its quaternion rounded to the identity."""
         objects = np.zeros(self.model.nq - 9)
         kettle = self.model.joint("kettle").qposadr[0] - 9
         objects[kettle : kettle + 7] = (-0.269, 0.350, 1.619, 1.0, 0.0, 0.0, 0.0)
@@ -374,7 +374,7 @@ def _articulated(kin: _Kinematics) -> tuple[np.ndarray, float]:
 
 
 def _kettle(kin: _Kinematics, obs: np.ndarray) -> tuple[np.ndarray, float]:
-    """Grasp the kettle handle from above, lift it, carry it over its goal and set it down."""
+    """Grasp the kettle handle from the front and above, lift it, carry it over its goal, set it down."""
     handle, rot = kin.grasp_pose()
     plan = _approach_plan(kin, handle, rot)
     if plan is not None:
