@@ -43,6 +43,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--seeds", type=int, default=3, help="with --learn transfer: seeds per arm (default 3)"
     )
     parser.add_argument(
+        "--arms",
+        nargs="+",
+        metavar="ARM",
+        default=None,
+        help="with --learn transfer: only these arms (protocols/testbed/<ARM>.toml) and the alone arms they are set against",
+    )
+    parser.add_argument(
+        "--reuse",
+        action="store_true",
+        help="with --learn transfer: take finished runs under --out whose resolved config is today's instead of running them again",
+    )
+    parser.add_argument(
         "--jobs",
         type=int,
         default=2,
@@ -103,8 +115,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.learn not in (None, "evidence", "transfer"):
         raise SealError(f"--learn {args.learn!r}: unknown; valid: --learn, --learn transfer")
-    if args.full and args.learn != "transfer":
-        raise SealError("--full only applies to --learn transfer")
+    if (args.full or args.arms) and args.learn != "transfer":
+        raise SealError("--full and --arms only apply to --learn transfer")
     if args.protocol is not None:
         from seal.bench_protocol import bench_protocol, format_protocol_bench
 
@@ -117,7 +129,13 @@ def run(args: argparse.Namespace) -> int:
         from seal.bench_transfer import format_result, run_transfer_bench
 
         result = run_transfer_bench(
-            full=args.full, seeds=args.seeds, out=args.out, parallel=args.jobs, log=log
+            full=args.full,
+            seeds=args.seeds,
+            out=args.out,
+            parallel=args.jobs,
+            log=log,
+            only=args.arms,
+            reuse=args.reuse,
         )
         print(json.dumps(result, indent=2, default=float) if args.json else format_result(result))
         return 0
