@@ -50,6 +50,11 @@ actor_lr = 3e-3
 critic_lr = 3e-3
 init_alpha = {init_alpha}
 gamma = 0.9
+# The learner settings the module docstring's "success 1.0 by epoch 15" was measured with (before
+# issue 10's reference defaults); these tests are about sweep plumbing, not about the learner.
+init = "torch"
+max_grad_norm = 0.0
+adam_eps = 1e-8
 
 [replay]
 capacity_per_env = 2000
