@@ -46,7 +46,7 @@ class EnvConfig:
     """[envs.<name>]: one environment; <name> is how the run's tables and files refer to it."""
 
     adapter: str = ""
-    """Built-in adapter name (metaworld, franka_kitchen_dense, point) or "package.module:Class" (default: <name>)."""
+    """Built-in adapter name (metaworld, franka_kitchen_dense, point, point_view, point_diagonal) or "package.module:Class" (default: <name>)."""
     tasks: tuple[str, ...] = ()
     """Task names or set names (e.g. "mt10"); empty means all of the adapter's tasks."""
     episode_length: int = 0
