@@ -264,6 +264,18 @@ def agent_mismatches(
     return problems
 
 
+def code_versions(shas: Mapping[tuple[str, int], str | None]) -> dict[str, list[str]]:
+    """The code versions (provenance git_sha) the runs were made with, each with its runs; one key when consistent.
+
+    A learner change without a config key (a loss's scale, say) is invisible to
+    `finished_run`; runs of different commits should not be set against each other.
+    """
+    out: dict[str, list[str]] = {}
+    for (arm, seed), sha in sorted(shas.items()):
+        out.setdefault(sha or "unknown", []).append(f"{arm}/seed-{seed}")
+    return out
+
+
 # ---------------------------------------------------------------- the table
 
 
@@ -403,6 +415,7 @@ def run_transfer_bench(
         for arm in chosen
     }
     mismatches = agent_mismatches({k: r.config.get("agent", {}) for k, r in loaded.items()}, chosen)
+    versions = code_versions({k: r.provenance.get("git_sha") for k, r in loaded.items()})
     summary = summarise(costs, chosen)
 
     def saved(name: str) -> float | None:
@@ -425,6 +438,7 @@ def run_transfer_bench(
         "run_dirs": {f"{a}/seed-{s}": str(p) for (a, s), p in run_dirs.items()},
         "reused": sorted(f"{a}/seed-{s}" for a, s in reused),
         "agent_mismatches": mismatches,
+        "code_versions": versions,
         "wall_s": wall,
         "parallel": parallel,
         "load_before": load_before,
@@ -441,16 +455,21 @@ def format_result(result: Mapping[str, Any]) -> str:
         return "not run" if value is None else f"{value:+.3f}"
 
     verdict = {None: "not run", True: "met", False: "not met"}[goal["met"]]
-    return "\n".join(
-        [
-            result["table"],
-            "",
-            f"transfer_updates_saved (high-source, default shared_update) = {shown(result['transfer_updates_saved'])} "
-            f"(goal >= {goal['transfer_updates_saved_ge']}: {verdict}); "
-            f"per_env {shown(goal['per_env'])}, no correspondence {shown(goal['no_correspondence'])}",
-            *(f"WARNING, arms not comparable: {m}" for m in result["agent_mismatches"]),
-            f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s wall"
-            f"{' (' + str(len(result['reused'])) + ' runs reused)' if result['reused'] else ''}; "
-            f"load before {load['loadavg_1m']} (1 min) on {load['cpus']} CPUs, after {result['load_after']['loadavg_1m']}",
-        ]
+    lines = [
+        result["table"],
+        "",
+        f"transfer_updates_saved (high-source, default shared_update) = {shown(result['transfer_updates_saved'])} "
+        f"(goal >= {goal['transfer_updates_saved_ge']}: {verdict}); "
+        f"per_env {shown(goal['per_env'])}, no correspondence {shown(goal['no_correspondence'])}",
+    ]
+    lines += [f"WARNING, arms not comparable: {m}" for m in result["agent_mismatches"]]
+    versions = result["code_versions"]
+    if len(versions) > 1:
+        listed = "; ".join(f"{sha}: {', '.join(runs)}" for sha, runs in versions.items())
+        lines.append(f"WARNING, runs made with {len(versions)} code versions: {listed}")
+    reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
+    lines.append(
+        f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s wall{reused}; "
+        f"load before {load['loadavg_1m']} (1 min) on {load['cpus']} CPUs, after {result['load_after']['loadavg_1m']}"
     )
+    return "\n".join(lines)

@@ -12,6 +12,7 @@ from seal.bench_transfer import (
     TargetCost,
     agent_mismatches,
     arms,
+    code_versions,
     finished_run,
     run_transfer_bench,
     target_cost,
@@ -163,3 +164,12 @@ def test_finished_run_reuses_only_complete_runs_of_todays_config(tmp_path) -> No
         finished_run(arm, 1, tmp_path) == tmp_path / "testbed_alone/20261123-060000-aaaaaa/seed-1"
     )
     assert finished_run(arm, 0, tmp_path) is None
+
+
+def test_code_versions_group_runs_by_commit() -> None:
+    shas = {("alone", 0): "abc+dirty", ("high_source", 0): "def", ("alone", 1): "abc+dirty"}
+    assert code_versions(shas) == {
+        "abc+dirty": ["alone/seed-0", "alone/seed-1"],
+        "def": ["high_source/seed-0"],
+    }
+    assert code_versions({("alone", 0): None}) == {"unknown": ["alone/seed-0"]}
