@@ -183,19 +183,11 @@ def test_unreadable_or_mismatched_checkpoints_raise_seal_errors(tmp_path: Path) 
         other.load_state_dict(read_checkpoint(path)["agent"])
 
 
-class _RunsCode:
-    """Unpickling this calls Path.touch: the shape of a checkpoint that would run a command."""
-
-    def __init__(self, target: Path) -> None:
-        self.target = target
-
-    def __reduce__(self) -> tuple[object, tuple[object, ...]]:
-        return (Path.touch, (self.target,))
-
-
-def test_a_checkpoint_that_would_run_code_is_refused_and_runs_nothing(tmp_path: Path) -> None:
+def test_a_checkpoint_that_would_run_code_is_refused_and_runs_nothing(
+    tmp_path: Path, code_running_checkpoint
+) -> None:
     target = tmp_path / "pwned"
-    torch.save({"seal_checkpoint": 2, "agent": {"x": _RunsCode(target)}}, tmp_path / "evil.pt")
+    evil = code_running_checkpoint(tmp_path / "evil.pt", target)
     with pytest.raises(NotACheckpointError, match="cannot be read as plain data"):
-        read_checkpoint(tmp_path / "evil.pt")
+        read_checkpoint(evil)
     assert not target.exists()

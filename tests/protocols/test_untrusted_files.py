@@ -10,7 +10,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-import torch
 
 from seal.cli.main import main
 
@@ -39,19 +38,6 @@ tensorboard = false
 """
 
 
-class _RunsCode:
-    def __init__(self, target: Path) -> None:
-        self.target = target
-
-    def __reduce__(self) -> tuple[object, tuple[object, ...]]:
-        return (Path.touch, (self.target,))
-
-
-def _evil(path: Path, target: Path) -> Path:
-    torch.save({"seal_checkpoint": 2, "agent": {"w": _RunsCode(target)}}, path)
-    return path
-
-
 def _refused(capsys: pytest.CaptureFixture[str], code: int, target: Path) -> None:
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
@@ -61,18 +47,19 @@ def _refused(capsys: pytest.CaptureFixture[str], code: int, target: Path) -> Non
 
 
 def test_seal_eval_refuses_a_checkpoint_that_would_run_code(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], code_running_checkpoint
 ) -> None:
     target = tmp_path / "created-by-unpickling"
-    code = main(["eval", str(_evil(tmp_path / "shared.pt", target)), "--episodes", "1"])
+    evil = code_running_checkpoint(tmp_path / "shared.pt", target)
+    code = main(["eval", str(evil), "--episodes", "1"])
     _refused(capsys, code, target)
 
 
 def test_transfer_refuses_it_before_any_run_directory_exists(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], code_running_checkpoint
 ) -> None:
     target = tmp_path / "created-by-unpickling"
-    evil = _evil(tmp_path / "shared.pt", target)
+    evil = code_running_checkpoint(tmp_path / "shared.pt", target)
     (tmp_path / "p.toml").write_text(PROTOCOL + f'[transfer]\ncheckpoint = "{evil}"\n')
     out = tmp_path / "reports"
     code = main(["run", str(tmp_path / "p.toml"), "--out", str(out), "--quiet"])
@@ -81,7 +68,7 @@ def test_transfer_refuses_it_before_any_run_directory_exists(
 
 
 def test_resume_refuses_it_and_leaves_the_run_as_it_was(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], code_running_checkpoint
 ) -> None:
     (tmp_path / "p.toml").write_text(PROTOCOL)
     out = tmp_path / "reports"
@@ -89,7 +76,7 @@ def test_resume_refuses_it_and_leaves_the_run_as_it_was(
     (run,) = out.glob("p/*/seed-0")
     (latest,) = (run / "checkpoints").glob("ckpt-*.pt")
     target = tmp_path / "created-by-unpickling"
-    _evil(latest, target)  # someone handed us this run directory
+    code_running_checkpoint(latest, target)  # someone handed us this run directory
     before = (run / "metrics.csv").read_bytes()
     capsys.readouterr()
     code = main(["run", str(tmp_path / "p.toml"), "--resume", str(run), "--quiet", "--no-report"])
