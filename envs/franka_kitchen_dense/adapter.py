@@ -10,6 +10,7 @@ reward or success fails the check.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
@@ -101,6 +102,16 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
             episode_length=self.episode_length,
             seed=int(seed),
             gravity_compensation=self.gravity_compensation,
+        )
+
+    def expert(self, task: str) -> Any:
+        """The scripted expert of `task` (`experts.policy`), told whether the arm is compensated."""
+        from franka_kitchen_dense import experts
+
+        if task not in self.tasks:
+            raise UnknownNameError(f"{self.name} task", task, list(self.tasks))
+        return functools.partial(
+            experts.policy, task=task, gravity_compensation=self.gravity_compensation
         )
 
     def semantic_check(

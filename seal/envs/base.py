@@ -9,7 +9,7 @@ requires editing seal: write a subclass and name it by import path, "package.mod
 from __future__ import annotations
 
 import abc
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -122,6 +122,14 @@ class EnvAdapter(abc.ABC):
         Returns {"ok": bool, ...figures}. The default has no such evidence and says so.
         """
         return {"ok": True, "semantic_check": "none defined for this adapter"}
+
+    def expert(self, task: str) -> Callable[[np.ndarray], np.ndarray] | None:
+        """A scripted expert for `task`: one observation (as `reset`/`step` return it) -> one action.
+
+        Used to seed the replay with demonstrations (`training.demo_episodes`). None (the
+        default) means the adapter ships none for that task.
+        """
+        return None
 
     @property
     def obs_dim(self) -> int:

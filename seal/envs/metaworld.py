@@ -155,34 +155,45 @@ class MetaWorldAdapter(EnvAdapter):
         goals = _benchmark_goals(task, self.goal_seed)
         return MetaWorldTaskEnv(env, goals, seed, self.episode_length)
 
+    def expert(self, task: str) -> Any:
+        """metaworld's scripted policy for `task` (`metaworld.policies.ENV_POLICY_MAP`), or None."""
+        from metaworld.policies import ENV_POLICY_MAP
+
+        self._check_task(task)
+        if task not in ENV_POLICY_MAP:
+            return None
+        get_action = ENV_POLICY_MAP[task]().get_action
+
+        def act(obs: np.ndarray) -> np.ndarray:
+            with warnings.catch_warnings():
+                # The experts' gains trip metaworld's "constant(s) may be too high" warning; the
+                # env clips the xyz action to [-1, 1] anyway.
+                warnings.simplefilter("ignore", UserWarning)
+                return np.clip(get_action(obs), -1.0, 1.0).astype(np.float32)
+
+        return act
+
     def semantic_check(self, task: str, seed: int = 0, episodes: int = 10) -> dict[str, Any]:
         """Run metaworld's scripted expert for `task` through this adapter; ok when it succeeds >= 80%.
 
         An episode counts as a success when `info["success"]` is 1 at any step, as in
         metaworld's own evaluation; the episode stops there to save time.
         """
-        from metaworld.policies import ENV_POLICY_MAP
-
-        self._check_task(task)
-        if task not in ENV_POLICY_MAP:
+        act = self.expert(task)
+        if act is None:
             return {"ok": True, "semantic_check": f"metaworld ships no scripted expert for {task}"}
-        policy = ENV_POLICY_MAP[task]()
         env = self.make(task, seed)
         successes, steps_to_success = 0, []
-        with warnings.catch_warnings():
-            # The experts' gains trip metaworld's "constant(s) may be too high" warning; the
-            # env clips the xyz action to [-1, 1] anyway.
-            warnings.simplefilter("ignore", UserWarning)
-            for _ in range(episodes):
-                obs, _ = env.reset()  # continues the generator seeded by make: a new goal each time
-                for t in range(self.episode_length):
-                    obs, _, terminated, truncated, info = env.step(policy.get_action(obs))
-                    if info["success"] == 1.0:
-                        successes += 1
-                        steps_to_success.append(t + 1)
-                        break
-                    if terminated or truncated:
-                        break
+        for _ in range(episodes):
+            obs, _ = env.reset()  # continues the generator seeded by make: a new goal each time
+            for t in range(self.episode_length):
+                obs, _, terminated, truncated, info = env.step(act(obs))
+                if info["success"] == 1.0:
+                    successes += 1
+                    steps_to_success.append(t + 1)
+                    break
+                if terminated or truncated:
+                    break
         env.close()
         rate = successes / episodes
         return {

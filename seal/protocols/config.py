@@ -80,6 +80,13 @@ class TrainingConfig:
     """
     collector: Literal["auto", "sync", "subproc-batched", "inline-batched", "gym-async"] = "auto"
     """Collection backend (seal.learner.collection.BACKENDS): "auto" measures one step and picks "inline-batched" or "sync"."""
+    demo_episodes: int = 0
+    """Episodes per task of the adapter's scripted expert put in the replay at the start of each phase (0 = none).
+
+    Demonstrations are data: their env steps count neither toward `warmup_steps` (the random
+    warm-up still runs in full, so a run with demos differs from one without only by the demos)
+    nor toward the env-step counts, and they count as consumed updates only when sampled.
+    """
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -99,6 +106,8 @@ class EvaluationConfig:
     """Deterministic episodes per task per evaluation (paper: 100; 50 halves the cost)."""
     threshold: float = 0.9
     """Success rate at which a task counts as learned for the update-count metric."""
+    stop_when_reached: bool = False
+    """End each phase at the first evaluation at which every task has reached `threshold` (its update count is then fixed); for learning checks."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -215,6 +224,7 @@ BOUNDS: dict[tuple[type, str], tuple[float | None, float | None]] = {
     (TrainingConfig, "warmup_steps"): (0, None),
     (TrainingConfig, "batch_per_task"): (1, None),
     (TrainingConfig, "grad_steps_per_epoch"): (-1, None),
+    (TrainingConfig, "demo_episodes"): (0, None),
     (EvaluationConfig, "interval"): (1, None),
     (EvaluationConfig, "every_grad_steps"): (0, None),
     (EvaluationConfig, "episodes"): (1, None),

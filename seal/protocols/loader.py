@@ -352,6 +352,25 @@ def _build_envs(raw: Any, file: str) -> dict[str, EnvConfig]:
     return envs
 
 
+def _check_demos(config: ProtocolConfig, file: str) -> None:
+    """training.demo_episodes > 0 needs a scripted expert for every task of every env."""
+    if config.training.demo_episodes == 0:
+        return
+    from seal.envs import adapter_class
+
+    for name, env in config.envs.items():
+        adapter = adapter_class(env.adapter)(
+            tasks=list(env.tasks), episode_length=env.episode_length, **env.options
+        )
+        missing = [t for t in adapter.tasks if adapter.expert(t) is None]
+        if missing:
+            raise ConfigError(
+                f"{file}: training.demo_episodes = {config.training.demo_episodes} needs a scripted "
+                f"expert for every task, and adapter {env.adapter!r} (envs.{name}) has none for "
+                f"{', '.join(missing)}; set demo_episodes = 0 or drop those tasks"
+            )
+
+
 def _check_kind(config: ProtocolConfig, file: str) -> None:
     kind, envs = config.kind, list(config.envs)
     if kind == "baseline" and len(envs) != 1:
@@ -485,6 +504,7 @@ def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolCon
         **tables,
     )
     _check_kind(config, file)
+    _check_demos(config, file)
     if config.kind == "finetune" and config.scheduler:
         raise ConfigError(
             f'{file}: scheduler is not used by kind = "finetune" (each phase trains on one env with uniform batches); remove [scheduler]'

@@ -277,6 +277,8 @@ class PhaseState:
     """Wall seconds spent in each part of the loop: collect, update, evaluate, checkpoint."""
     calls: dict[str, int] = field(default_factory=dict)
     """How many times each part ran (update: gradient steps; evaluate: evaluations)."""
+    demos: dict[str, dict[str, float]] = field(default_factory=dict)
+    """env -> demonstration figures (episodes, env steps, expert success rate) put in the replay at the phase's start."""
     evaluated_at: int = -1
     """Gradient steps at the last evaluation (an evaluation every K steps that falls on the last
     update of the run is not repeated at its end)."""
@@ -475,6 +477,10 @@ class Run:
             torch.set_rng_state(payload["runner"]["torch_rng"])
             random.setstate(_tuple_state(payload["runner"]["py_rng"]))
         collector = self._collector(model, state.anchor_epoch)
+        if payload is None and cfg.training.demo_episodes:
+            since = time.perf_counter()
+            state.demos = self._demonstrations(model, replay, collector)
+            state.add_time("demos", since)
         id_maps = {
             model.agent_env[e]: torch.as_tensor(model.aligned_ids(e), dtype=torch.long)
             for e in phase.envs
@@ -508,8 +514,15 @@ class Run:
             )
             state.add_time("evaluate", since)
 
+        stop_when_reached = cfg.evaluation.stop_when_reached
+
+        def all_reached() -> bool:
+            return stop_when_reached and all(
+                t in state.reached.get(e, {}) for e, ts in model.env_tasks.items() for t in ts
+            )
+
         try:
-            while state.epoch < phase.epochs:
+            while state.epoch < phase.epochs and not all_reached():
                 from seal.schedulers import Progress
 
                 task_steps = {
@@ -625,6 +638,7 @@ class Run:
                 request = scheduler.wants_scores()
                 if request is not None:
                     scheduler.observe_scores(self._scores(request, model, agent, epoch))
+                last_epoch = last_epoch or all_reached()
                 # ---- scheduler timeline and checkpoint
                 timeline = scheduler.timeline()
                 if len(timeline) > state.timeline_rows:
@@ -654,13 +668,50 @@ class Run:
                     )
                     bar.update(1)
                     tick_time, tick_env, tick_grad = now, env_now, state.grad_steps
-                if scheduler.done:
+                if scheduler.done or all_reached():
                     break
         finally:
             collector.close()
             if bar is not None:
                 bar.close()
         return state
+
+    def _demonstrations(
+        self, model: PhaseModel, replay: Any, collector: Any
+    ) -> dict[str, dict[str, float]]:
+        """Put `training.demo_episodes` episodes per task of each adapter's scripted expert in the replay."""
+        experts = {
+            e: [model.adapters[e].expert(t) for t in tasks] for e, tasks in model.env_tasks.items()
+        }
+
+        def act(env: str, obs: np.ndarray, task_ids: np.ndarray) -> np.ndarray:
+            return np.stack([experts[env][i](o) for o, i in zip(obs, task_ids, strict=True)])
+
+        episodes = self.config.training.demo_episodes
+        steps = {e: 0 for e in experts}
+        successes = {e: 0.0 for e in experts}
+        sink = _ReplaySink(replay, model)
+        for _ in range(episodes):
+            stats = collector.collect_episodes(act, sink=sink)
+            for e in experts:
+                steps[e] += int(stats.lengths[e].sum())
+                successes[e] += float(stats.successes[e].sum())
+        figures = {
+            e: {
+                "episodes": episodes * len(experts[e]),
+                "env_steps": steps[e],
+                "expert_success": successes[e] / (episodes * len(experts[e])),
+            }
+            for e in experts
+        }
+        if not self.quiet:
+            for e, f in figures.items():
+                print(
+                    f"[seal] {e}: {f['episodes']} demonstration episodes, {f['env_steps']} env steps "
+                    f"in the replay (expert success {f['expert_success']:.2f})",
+                    file=sys.stderr,
+                )
+        return figures
 
     def _grad_steps(self, plan: Any, collected_lengths: Mapping[str, int]) -> int:
         from seal.schedulers import GRAD_STEPS_COLLECTED
