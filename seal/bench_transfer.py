@@ -52,11 +52,13 @@ class Arm:
     """The target-alone arm with the same per-step batch schedule; None for an alone arm itself."""
     full: bool = False
     """Only with --full."""
+    directory: Path = TESTBED
+    """Where the arm's protocol file lies."""
 
     @property
     def protocol(self) -> Path:
         """The arm's protocol file."""
-        return TESTBED / f"{self.name}.toml"
+        return self.directory / f"{self.name}.toml"
 
 
 ARMS: tuple[Arm, ...] = (
@@ -235,8 +237,12 @@ def finished_run(arm: Arm, seed: int, out: Path, overrides: Sequence[str] = ()) 
             continue
         if _tables(tomllib.loads((run / "config.toml").read_text())) != want:
             continue
-        epochs = load_run(run).metrics["epoch"]
-        if not epochs.empty and int(epochs.max()) >= want["epochs"]:
+        loaded = load_run(run)
+        epochs = loaded.metrics["epoch"]
+        # Finished: all its epochs, or ended early (evaluation.stop_when_reached) with an end time.
+        if loaded.provenance.get("end_time") or (
+            not epochs.empty and int(epochs.max()) >= want["epochs"]
+        ):
             return run
     return None
 

@@ -1,4 +1,4 @@
-"""`seal bench [--json] [--quick] [--learn [transfer] [--full]]`: learner and collection speed as ratios, learning evidence."""
+"""`seal bench [--json] [--quick] [--learn [transfer|kitchen] [--full]]`: learner and collection speed as ratios, learning evidence."""
 
 from __future__ import annotations
 
@@ -17,7 +17,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "side by side in one run and prints a table (or one JSON object with --json). "
             "--learn adds the slow learning checks (point with/without one-hot, reach-v3); "
             "--learn transfer runs only the cross-environment transfer testbed (protocols/testbed, "
-            "docs/transfer_testbed.md) and prints its table and transfer_updates_saved."
+            "docs/transfer_testbed.md) and prints its table and transfer_updates_saved; "
+            "--learn kitchen runs only the kitchen learning protocols (protocols/kitchen_learn: "
+            "slide-cabinet and light-switch, with and without demonstrations)."
         ),
     )
     parser.add_argument(
@@ -31,8 +33,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs="?",
         const="evidence",
         default=None,
-        metavar="transfer",
-        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed",
+        metavar="transfer|kitchen",
+        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs",
     )
     parser.add_argument(
         "--full",
@@ -40,31 +42,34 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="with --learn transfer: also the 50/50 and high-target arms and their target-alone arms",
     )
     parser.add_argument(
-        "--seeds", type=int, default=3, help="with --learn transfer: seeds per arm (default 3)"
+        "--seeds",
+        type=int,
+        default=None,
+        help="with --learn transfer|kitchen: seeds per arm (default 3 for transfer, 2 for kitchen)",
     )
     parser.add_argument(
         "--arms",
         nargs="+",
         metavar="ARM",
         default=None,
-        help="with --learn transfer: only these arms (protocols/testbed/<ARM>.toml) and the alone arms they are set against",
+        help="with --learn transfer|kitchen: only these arms (protocols/testbed/<ARM>.toml and the alone arms they are set against; protocols/kitchen_learn/<ARM>.toml)",
     )
     parser.add_argument(
         "--reuse",
         action="store_true",
-        help="with --learn transfer: take finished runs under --out whose resolved config is today's instead of running them again",
+        help="with --learn transfer|kitchen: take finished runs under --out whose resolved config is today's instead of running them again",
     )
     parser.add_argument(
         "--jobs",
         type=int,
         default=2,
-        help="with --learn transfer: `seal run` processes at a time (default 2)",
+        help="with --learn transfer|kitchen: `seal run` processes at a time (default 2)",
     )
     parser.add_argument(
         "--out",
-        default="reports/bench_transfer",
+        default=None,
         metavar="DIR",
-        help="with --learn transfer: reports root of the testbed's runs (default reports/bench_transfer)",
+        help="with --learn transfer|kitchen: reports root of the runs (default reports/bench_transfer or reports/bench_kitchen)",
     )
     parser.add_argument(
         "--only", nargs="+", metavar="KEY", help="run only these keys, e.g. --only sac_vs_sb3"
@@ -113,10 +118,27 @@ def run(args: argparse.Namespace) -> int:
     def log(msg: str) -> None:
         print(f"[bench] {msg}", file=sys.stderr, flush=True)
 
-    if args.learn not in (None, "evidence", "transfer"):
-        raise SealError(f"--learn {args.learn!r}: unknown; valid: --learn, --learn transfer")
-    if (args.full or args.arms) and args.learn != "transfer":
-        raise SealError("--full and --arms only apply to --learn transfer")
+    if args.learn not in (None, "evidence", "transfer", "kitchen"):
+        raise SealError(
+            f"--learn {args.learn!r}: unknown; valid: --learn, --learn transfer, --learn kitchen"
+        )
+    if args.full and args.learn != "transfer":
+        raise SealError("--full only applies to --learn transfer")
+    if args.arms and args.learn not in ("transfer", "kitchen"):
+        raise SealError("--arms only applies to --learn transfer and --learn kitchen")
+    if args.learn == "kitchen":
+        from seal.bench_kitchen import format_result, run_kitchen_bench
+
+        result = run_kitchen_bench(
+            seeds=2 if args.seeds is None else args.seeds,
+            out=args.out or "reports/bench_kitchen",
+            parallel=args.jobs,
+            log=log,
+            only=args.arms,
+            reuse=args.reuse,
+        )
+        print(json.dumps(result, indent=2, default=float) if args.json else format_result(result))
+        return 0
     if args.protocol is not None:
         from seal.bench_protocol import bench_protocol, format_protocol_bench
 
@@ -130,8 +152,8 @@ def run(args: argparse.Namespace) -> int:
 
         result = run_transfer_bench(
             full=args.full,
-            seeds=args.seeds,
-            out=args.out,
+            seeds=3 if args.seeds is None else args.seeds,
+            out=args.out or "reports/bench_transfer",
             parallel=args.jobs,
             log=log,
             only=args.arms,

@@ -1,0 +1,166 @@
+"""`seal bench --learn kitchen`: learning evidence on single dense kitchens, with and without demonstrations.
+
+Every arm is an ordinary protocol under `protocols/kitchen_learn/` (MTMHSAC on one kitchen task,
+stopping at its first evaluation at >= 90% success), run by `seal run` in its own process through
+the transfer bench's launcher; this module reads the run directories. Per run it reports the env
+steps (the learner's own: demonstrations are not counted) and the updates (millions of consumed
+transitions) at the first evaluation at >= 90%; a run that never got there is censored at its total.
+Goal (issue 11): every arm's task reaches 90% within 150k env steps in every seed.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from seal.bench_transfer import Arm, finished_run, run_all
+from seal.errors import SealError, UnknownNameError
+from seal.metrics import DEFAULT_THRESHOLD, first_reach
+
+KITCHEN_LEARN = Path(__file__).resolve().parents[1] / "protocols" / "kitchen_learn"
+"""The kitchen learning protocols."""
+ENV_STEP_BUDGET = 150_000
+"""Env steps per task within which each arm must reach 90% (issue 11)."""
+
+
+def _arm(name: str, label: str) -> Arm:
+    return Arm(name, label, None, directory=KITCHEN_LEARN)
+
+
+ARMS: tuple[Arm, ...] = (
+    _arm("slide_cabinet", "slide-cabinet"),
+    _arm("slide_cabinet_demos", "slide-cabinet + demos"),
+    _arm("light_switch", "light-switch"),
+    _arm("light_switch_demos", "light-switch + demos"),
+)
+
+
+def arms(only: Sequence[str] | None = None) -> list[Arm]:
+    """All arms, or the named ones."""
+    if not only:
+        return list(ARMS)
+    by_name = {a.name: a for a in ARMS}
+    for name in only:
+        if name not in by_name:
+            raise UnknownNameError("kitchen arm", name, list(by_name))
+    return [a for a in ARMS if a.name in only]
+
+
+def run_figures(metrics: Any, threshold: float = DEFAULT_THRESHOLD) -> dict[str, Any]:
+    """One run's figures: reached, env steps / gradient steps / M updates at the first >= threshold (else the run's totals), best success."""
+    (row,) = first_reach(metrics, threshold).itertuples(index=False)
+    last = metrics.sort_values(["epoch", "grad_steps"], kind="stable").iloc[-1]
+    reached = bool(row.reached)
+    return {
+        "reached": reached,
+        "env_steps": int(row.env_steps if reached else last["env_steps"]),
+        "grad_steps": int(row.grad_steps if reached else last["grad_steps"]),
+        "updates_m": float(row.updates if reached else last["updates"]),
+        "best_success": float(metrics["success"].max()),
+        "final_success": float(last["success"]),
+    }
+
+
+def run_kitchen_bench(
+    seeds: int = 2,
+    out: str | os.PathLike[str] = "reports/bench_kitchen",
+    parallel: int = 2,
+    overrides: Sequence[str] = (),
+    log: Callable[[str], None] = lambda _: None,
+    only: Sequence[str] | None = None,
+    reuse: bool = False,
+) -> dict[str, Any]:
+    """Run (or, with `reuse`, take finished runs of) every arm's seeds; the figures as a JSON-able dict."""
+    from seal import load_run
+    from seal.bench import machine_load
+
+    if seeds < 1:
+        raise SealError(f"--seeds must be >= 1, got {seeds}")
+    chosen = arms(only)
+    load_before = machine_load()
+    started = time.monotonic()
+    jobs = [(arm, seed) for seed in range(seeds) for arm in chosen]
+    reused: dict[tuple[str, int], Path] = {}
+    if reuse:
+        for arm, seed in jobs:
+            found = finished_run(arm, seed, Path(out), overrides)
+            if found is not None:
+                reused[(arm.name, seed)] = found
+                log(f"reuse {arm.name} seed {seed}: {found}")
+        jobs = [(a, s) for a, s in jobs if (a.name, s) not in reused]
+    run_dirs = {**reused, **run_all(jobs, Path(out), overrides, parallel, log)}
+    result_arms: dict[str, Any] = {}
+    for arm in chosen:
+        runs = [load_run(run_dirs[(arm.name, s)]) for s in range(seeds)]
+        figures = [run_figures(r.metrics) for r in runs]
+        within = [f["reached"] and f["env_steps"] <= ENV_STEP_BUDGET for f in figures]
+        result_arms[arm.name] = {
+            "label": arm.label,
+            "protocol": str(arm.protocol.relative_to(KITCHEN_LEARN.parents[1])),
+            "per_seed": figures,
+            "reached": f"{sum(f['reached'] for f in figures)}/{seeds}",
+            "env_steps_to_90_mean": float(np.mean([f["env_steps"] for f in figures])),
+            "learned_within_budget": all(within),
+            "demos": [_demos(run_dirs[(arm.name, s)]) for s in range(seeds)],
+        }
+    return {
+        "arms": result_arms,
+        "goal": {
+            "env_steps_le": ENV_STEP_BUDGET,
+            "met": all(a["learned_within_budget"] for a in result_arms.values()),
+        },
+        "seeds": seeds,
+        "overrides": list(overrides),
+        "run_dirs": {f"{a}/seed-{s}": str(p) for (a, s), p in run_dirs.items()},
+        "reused": sorted(f"{a}/seed-{s}" for a, s in reused),
+        "wall_s": time.monotonic() - started,
+        "parallel": parallel,
+        "load_before": load_before,
+        "load_after": machine_load(),
+    }
+
+
+def _demos(run_dir: Path) -> dict[str, Any] | None:
+    """The demonstration figures the run's last checkpoint saved (None without demonstrations)."""
+    from seal.learner.checkpoint import read_checkpoint
+
+    checkpoints = sorted((run_dir / "checkpoints").glob("ckpt-*.pt"))
+    if not checkpoints:
+        return None
+    demos = read_checkpoint(checkpoints[-1])["runner"]["state"].get("demos") or {}
+    return next(iter(demos.values()), None)
+
+
+def format_result(result: Mapping[str, Any]) -> str:
+    """The human-readable table of `run_kitchen_bench`."""
+    lines = [
+        f"{'arm':<24} {'reached':>7}  env steps to 90% per seed (M updates)   best / final success",
+        "-" * 92,
+    ]
+    for a in result["arms"].values():
+        cells = ", ".join(
+            f"{f['env_steps']:,}{'' if f['reached'] else '+'} ({f['updates_m']:.2f})"
+            for f in a["per_seed"]
+        )
+        success = ", ".join(
+            f"{f['best_success']:.1f}/{f['final_success']:.1f}" for f in a["per_seed"]
+        )
+        lines.append(f"{a['label']:<24} {a['reached']:>7}  {cells:<38} {success}")
+    goal = result["goal"]
+    load = result["load_before"]
+    reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
+    lines += [
+        "env steps: the learner's own (demonstrations excluded) at the first evaluation >= 90%; "
+        "+ = never reached, the run's total.",
+        f"goal: every arm >= 90% within {goal['env_steps_le']:,} env steps in every seed: "
+        f"{'met' if goal['met'] else 'not met'}",
+        f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s wall"
+        f"{reused}; load before "
+        f"{load['loadavg_1m']} (1 min) on {load['cpus']} CPUs, after {result['load_after']['loadavg_1m']}",
+    ]
+    return "\n".join(lines)

@@ -1,0 +1,101 @@
+"""`seal bench --learn kitchen`: the arms, reading a run's first crossing, and a tiny end-to-end run."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pandas as pd
+import pytest
+
+from seal.bench_kitchen import ARMS, arms, format_result, run_figures, run_kitchen_bench
+from seal.errors import SealError
+from seal.protocols import load_protocol
+
+
+def _metrics(success: list[float]) -> pd.DataFrame:
+    """One task evaluated every 10 epochs of 280 steps (2,800 env steps), one update per step at batch 256."""
+    n = len(success)
+    epochs = [10 * (i + 1) for i in range(n)]
+    return pd.DataFrame(
+        {
+            "seed": 0,
+            "phase": "train",
+            "env": "fk",
+            "task": "slide-cabinet",
+            "epoch": epochs,
+            "success": success,
+            "grad_steps": [280 * e - 4000 for e in epochs],
+            "env_steps": [280 * e for e in epochs],
+            "updates": [(280 * e - 4000) * 256 / 1e6 for e in epochs],
+        }
+    )
+
+
+def test_run_figures_first_crossing_and_censored_total() -> None:
+    # First >= 0.9 at the third evaluation: epoch 30, 8,400 env steps, 4,400 gradient steps,
+    # 4,400 x 256 = 1.1264 M transitions; the later 0.8 does not undo it.
+    reached = run_figures(_metrics([0.1, 0.5, 0.9, 0.8]))
+    assert reached == {
+        "reached": True,
+        "env_steps": 8400,
+        "grad_steps": 4400,
+        "updates_m": pytest.approx(1.1264),
+        "best_success": 0.9,
+        "final_success": 0.8,
+    }
+    # Never reached: censored at the run's last evaluation (epoch 20: 5,600 steps, 1,600 updates).
+    censored = run_figures(_metrics([0.3, 0.7]))
+    assert (censored["reached"], censored["env_steps"], censored["grad_steps"]) == (
+        False,
+        5600,
+        1600,
+    )
+    assert censored["updates_m"] == pytest.approx(0.4096)
+
+
+def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() -> None:
+    configs = {arm.name: load_protocol(arm.protocol) for arm in ARMS}
+    for name, config in configs.items():
+        assert config.kind == "baseline" and config.envs["fk"].adapter == "franka_kitchen_dense"
+        assert config.evaluation.stop_when_reached, name
+        # 535 epochs x 280 steps = 149,800 env steps: within the issue's 150k budget.
+        assert config.protocol.epochs * config.envs["fk"].episode_length == 149_800
+    for task in ("slide_cabinet", "light_switch"):
+        plain, demos = configs[task], configs[f"{task}_demos"]
+        assert plain.training.demo_episodes == 0 and demos.training.demo_episodes == 10
+        assert dataclasses.replace(demos.training, demo_episodes=0) == plain.training
+        assert (demos.agent, demos.envs, demos.evaluation) == (
+            plain.agent,
+            plain.envs,
+            plain.evaluation,
+        )
+    with pytest.raises(SealError, match="unknown kitchen arm 'nope'"):
+        arms(["nope"])
+
+
+def test_tiny_end_to_end(tmp_path) -> None:
+    tiny = [
+        "protocol.epochs=1",
+        "envs.fk.episode_length=5",
+        "training.warmup_steps=0",
+        "training.demo_episodes=1",
+        "training.batch_per_task=4",
+        "training.grad_steps_per_epoch=2",
+        "evaluation.interval=1",
+        "evaluation.episodes=1",
+        "agent.hidden=[8]",
+    ]
+    result = run_kitchen_bench(seeds=1, out=tmp_path, overrides=tiny, only=["slide_cabinet_demos"])
+    arm = result["arms"]["slide_cabinet_demos"]
+    (figures,) = arm["per_seed"]
+    # One epoch of 5 env steps and 2 updates of batch 4: 8 transitions; 5 demonstration steps aside.
+    assert (figures["env_steps"], figures["grad_steps"]) == (5, 2)
+    assert figures["updates_m"] == pytest.approx(8e-6)
+    assert arm["demos"] == [{"episodes": 1, "env_steps": 5, "expert_success": 0.0}]
+    assert not arm["learned_within_budget"] and result["goal"]["met"] is False
+    assert "slide-cabinet + demos" in format_result(result)
+    # A second call takes the finished run instead of running it again.
+    again = run_kitchen_bench(
+        seeds=1, out=tmp_path, overrides=tiny, only=["slide_cabinet_demos"], reuse=True
+    )
+    assert again["reused"] == ["slide_cabinet_demos/seed-0"]
