@@ -715,8 +715,9 @@ def bench_ratio_lever(
     `agent` overrides AgentConfig fields (default widths otherwise).
     """
     from seal.envs import make_adapter
-    from seal.learner import Agent, AgentConfig, EnvSpec, MultiTaskReplay, counts_from_ratio
+    from seal.learner import Agent, AgentConfig, EnvSpec, MultiTaskReplay
     from seal.learner.collection import Collector
+    from seal.schedulers.base import counts_from_ratio
 
     adapters = {"a": make_adapter("point"), "b": make_adapter("point_view")}
     specs = [EnvSpec(name, ad.obs_dim, ad.act_dim, len(ad.tasks)) for name, ad in adapters.items()]

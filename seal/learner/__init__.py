@@ -3,7 +3,7 @@
 from typing import Any
 
 from seal.learner.config import AgentConfig, Batch, EnvSpec
-from seal.learner.replay import MultiTaskReplay, counts_from_ratio
+from seal.learner.replay import MultiTaskReplay
 from seal.learner.sac import Agent
 
 __all__ = [
@@ -13,7 +13,6 @@ __all__ = [
     "Collector",
     "EnvSpec",
     "MultiTaskReplay",
-    "counts_from_ratio",
 ]
 
 

@@ -2,8 +2,8 @@
 
 Each environment's buffers are stored as arrays of shape (num_tasks, capacity_per_task, ...), so
 task t's buffer is the slice [t] and a batch over all tasks is one fancy-indexing gather. The caller
-(a data-ratio scheduler) decides how many transitions each task contributes to an update;
-`counts_from_ratio` turns environment proportions into those per-task counts.
+(a data-ratio scheduler) decides how many transitions each task contributes to an update
+(`seal.schedulers.base.split_counts` rounds proportions into those per-task counts).
 """
 
 from __future__ import annotations
@@ -59,47 +59,6 @@ def _capacity_of(spec: EnvSpec, capacity: int | Mapping[str, int]) -> int:
             f"replay capacity of {spec.name!r} must be an int >= its number of tasks ({spec.num_tasks}), got {value!r}"
         )
     return int(value)
-
-
-def counts_from_ratio(
-    ratios: Mapping[str, float],
-    num_tasks: Mapping[str, int],
-    batch_per_task: int,
-    rng: np.random.Generator | None = None,
-) -> dict[str, np.ndarray]:
-    """Per-task sample counts of one update from environment proportions.
-
-    The update's total is batch_per_task * (total number of tasks of all envs in `num_tasks`),
-    e.g. 128 * 10 = 1280 for MT10 alone. Env e gets total * ratio_e / sum(ratios), rounded by the
-    largest-remainder method so the env counts sum exactly to the total. Within an env the count is
-    split uniformly over its tasks: each gets n // T and the n % T left over go one each to tasks
-    drawn at random without replacement from `rng` (or to the lowest task indices when rng is None),
-    so no task is favoured on average. Envs missing from `ratios` get ratio 0.
-    """
-    unknown = sorted(set(ratios) - set(num_tasks))
-    if unknown:
-        raise UnknownNameError("environment", unknown[0], list(num_tasks))
-    if batch_per_task < 1:
-        raise SealError(f"batch_per_task must be >= 1, got {batch_per_task}")
-    names = list(num_tasks)
-    weights = np.array([float(ratios.get(n, 0.0)) for n in names])
-    if (weights < 0).any() or not np.isfinite(weights).all() or weights.sum() <= 0:
-        raise SealError(f"data ratios must be finite, >= 0 and not all 0, got {dict(ratios)}")
-    total = batch_per_task * sum(num_tasks.values())
-    exact = total * weights / weights.sum()
-    env_counts = np.floor(exact).astype(np.int64)
-    # Largest remainder; ties broken by env order so the split is deterministic.
-    leftover = total - int(env_counts.sum())
-    env_counts[np.argsort(-(exact - env_counts), kind="stable")[:leftover]] += 1
-    counts: dict[str, np.ndarray] = {}
-    for name, n in zip(names, env_counts, strict=True):
-        tasks = num_tasks[name]
-        per_task = np.full(tasks, n // tasks, dtype=np.int64)
-        extra = int(n % tasks)
-        chosen = np.arange(extra) if rng is None else rng.choice(tasks, size=extra, replace=False)
-        per_task[chosen] += 1
-        counts[name] = per_task
-    return counts
 
 
 class MultiTaskReplay:

@@ -38,6 +38,8 @@ from typing import Any, ClassVar, Self
 
 import numpy as np
 
+from seal.errors import SealError, UnknownNameError
+
 TaskKey = tuple[str, str]
 """(environment name, task name): one task instance of one environment."""
 
@@ -120,28 +122,64 @@ class Plan:
         tasks drawn at random so that no task is favoured on average. The counts are what the
         replay consumes, so the update-count metric stays exact either way.
         """
-        envs = list(self.batch_weights)
-        flat = np.concatenate([np.asarray(self.batch_weights[e], dtype=np.float64) for e in envs])
         if total < 0:
             raise ValueError(f"batch total must be >= 0, got {total}")
-        total = int(round(total * self.batch_scale))
-        if flat.size == 0 or flat.sum() <= 0:
-            counts = np.zeros(flat.size, dtype=np.int64)
-        else:
-            exact = flat / flat.sum() * total
-            counts = np.floor(exact).astype(np.int64)
-            remainder = exact - counts
-            # A stable sort keeps the earlier (or, with rng, randomly permuted) task first among ties.
-            perm = rng.permutation(flat.size) if rng is not None else np.arange(flat.size)
-            order = perm[np.argsort(-remainder[perm], kind="stable")]
-            counts[order[: total - int(counts.sum())]] += 1
-        out: dict[str, np.ndarray] = {}
-        start = 0
-        for e in envs:
-            n = len(self.batch_weights[e])
-            out[e] = counts[start : start + n]
-            start += n
-        return out
+        return split_counts(self.batch_weights, int(round(total * self.batch_scale)), rng)
+
+
+def split_counts(
+    weights: Mapping[str, np.ndarray], total: int, rng: np.random.Generator | None = None
+) -> dict[str, np.ndarray]:
+    """Integer per-task counts summing to `total`, proportional to the per-(env, task) `weights`.
+
+    The one ratio -> batch rounding (`Plan.batch_counts`, `counts_from_ratio`): largest remainder
+    over all (env, task) pairs together; equal remainders go to the earlier tasks, or, with
+    `rng`, to tasks drawn at random so that no task is favoured on average.
+    """
+    envs = list(weights)
+    flat = np.concatenate([np.asarray(weights[e], dtype=np.float64) for e in envs])
+    if flat.size == 0 or flat.sum() <= 0:
+        counts = np.zeros(flat.size, dtype=np.int64)
+    else:
+        exact = flat / flat.sum() * total
+        counts = np.floor(exact).astype(np.int64)
+        remainder = exact - counts
+        # A stable sort keeps the earlier (or, with rng, randomly permuted) task first among ties.
+        perm = rng.permutation(flat.size) if rng is not None else np.arange(flat.size)
+        order = perm[np.argsort(-remainder[perm], kind="stable")]
+        counts[order[: total - int(counts.sum())]] += 1
+    out: dict[str, np.ndarray] = {}
+    start = 0
+    for e in envs:
+        n = len(weights[e])
+        out[e] = counts[start : start + n]
+        start += n
+    return out
+
+
+def counts_from_ratio(
+    ratios: Mapping[str, float],
+    num_tasks: Mapping[str, int],
+    batch_per_task: int,
+    rng: np.random.Generator | None = None,
+) -> dict[str, np.ndarray]:
+    """Per-task sample counts of one update from environment proportions.
+
+    The update's total is batch_per_task * (total number of tasks of all envs in `num_tasks`),
+    e.g. 128 * 10 = 1280 for MT10 alone; env e's share ratio_e / sum(ratios) is split uniformly
+    over its tasks and rounded by `split_counts`, as the runner rounds a scheduler's plan.
+    Envs missing from `ratios` get ratio 0.
+    """
+    unknown = sorted(set(ratios) - set(num_tasks))
+    if unknown:
+        raise UnknownNameError("environment", unknown[0], list(num_tasks))
+    if batch_per_task < 1:
+        raise SealError(f"batch_per_task must be >= 1, got {batch_per_task}")
+    values = np.array([float(ratios.get(n, 0.0)) for n in num_tasks])
+    if (values < 0).any() or not np.isfinite(values).all() or values.sum() <= 0:
+        raise SealError(f"data ratios must be finite, >= 0 and not all 0, got {dict(ratios)}")
+    weights = {n: np.full(t, float(ratios.get(n, 0.0)) / t) for n, t in num_tasks.items()}
+    return split_counts(weights, batch_per_task * sum(num_tasks.values()), rng)
 
 
 def normalise_weights(raw: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:

@@ -10,9 +10,10 @@ import pytest
 import torch
 
 from seal.errors import SealError, TrainingDivergedError
-from seal.learner import Agent, AgentConfig, EnvSpec, MultiTaskReplay, counts_from_ratio
+from seal.learner import Agent, AgentConfig, EnvSpec, MultiTaskReplay
 from seal.learner import checkpoint as checkpoint_module
 from seal.learner.checkpoint import NotACheckpointError, read_checkpoint, save_checkpoint
+from seal.schedulers.base import counts_from_ratio
 
 SMALL = {"hidden": (32, 32), "translator_hidden": (32,), "latent_dim": 16, "trunk_hidden": (32, 32)}
 SPECS = [EnvSpec("mw", 5, 2, 3), EnvSpec("fk", 7, 3, 2)]

@@ -17,7 +17,8 @@ _SCRIPT = textwrap.dedent(
     import numpy as np
     import torch
     torch.set_num_threads(1)
-    from seal.learner import Agent, AgentConfig, EnvSpec, MultiTaskReplay, counts_from_ratio
+    from seal.learner import Agent, AgentConfig, EnvSpec, MultiTaskReplay
+    from seal.schedulers.base import counts_from_ratio
 
     seed = int(sys.argv[1])
     specs = [EnvSpec("mw", 6, 2, 3), EnvSpec("fk", 8, 3, 2)]

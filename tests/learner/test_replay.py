@@ -7,8 +7,9 @@ import pytest
 import torch
 
 from seal.errors import SealError, UnknownNameError
-from seal.learner import EnvSpec, MultiTaskReplay, counts_from_ratio
+from seal.learner import EnvSpec, MultiTaskReplay
 from seal.learner import replay as replay_module
+from seal.schedulers.base import counts_from_ratio
 
 
 def _add_tagged(replay: MultiTaskReplay, env: str, task_ids: list[int], step: int) -> None:
@@ -82,8 +83,8 @@ def test_counts_from_ratio_splits_exactly() -> None:
     both = counts_from_ratio({"mw": 0.75, "fk": 0.25}, {"mw": 10, "fk": 10}, batch_per_task=128)
     np.testing.assert_array_equal(both["mw"], [192] * 10)
     np.testing.assert_array_equal(both["fk"], [64] * 10)
-    # total 1 * 5 = 5 at 50/50: 2.5 each, the leftover goes to the first env on a tie -> 3 and 2;
-    # then 3 over 3 tasks = 1 each and 2 over 2 tasks = 1 each
+    # total 1 * 5 = 5 at 50/50, per task a: 2.5 / 3 = 0.83, b: 2.5 / 2 = 1.25; floors 0 and 1, and
+    # the 3 left over go to the largest remainders (a's 0.83 each) -> 1 each everywhere
     odd = counts_from_ratio({"a": 1, "b": 1}, {"a": 3, "b": 2}, batch_per_task=1)
     np.testing.assert_array_equal(odd["a"], [1, 1, 1])
     np.testing.assert_array_equal(odd["b"], [1, 1])
