@@ -1,0 +1,200 @@
+"""Report columns and gathering: which column a run's rows go to, and the groups they come from.
+
+`column_label` names a run's phase and environment as the paper's columns ("Single Env", "50/50",
+"High FK", "Pre-train on X", ...) and `_column_rank` orders them as Table 1 and Tables 6-7 do;
+`_gather` resolves run and group paths into `_Group`s of runs, `_labelled` stacks their rows with
+the column added, and `_disambiguate` tells apart columns that several groups give.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from seal.errors import SealError
+from seal.metrics import format_number
+from seal.reports.load import _EXPECTED, RunData, load_run, run_dirs
+
+BASELINE_COLUMN = "Single Env"
+"""The column every other column's percent change is measured against (Table 1)."""
+
+# Rows list Meta-World's tasks first, then the kitchen's, as Table 1 does.
+_ENV_RANK = {"MW": 0, "FK": 1}
+
+# The paper's column order (Table 1, then Tables 6-7); other columns follow in the order given.
+_PRESET_COLUMNS = {"high_fk": "High FK", "high_mw": "High MW"}
+_COLUMN_ORDER = (BASELINE_COLUMN, "50/50", "High FK", "High MW")
+
+# Scheduler kinds under which a `baseline` protocol is still the plain MTMHSAC baseline.
+_PLAIN_SCHEDULERS = ("", "uniform", "none")
+
+
+# --------------------------------------------------------------------------- columns
+
+
+def _ratio_label(scheduler: dict[str, Any], envs: Sequence[str]) -> str | None:
+    """ "50/50" from a constant scheduler's ratio (a fraction, a list, or {env: weight}), else None."""
+    ratio = next((scheduler[k] for k in ("ratios", "ratio", "weights") if k in scheduler), None)
+    if isinstance(ratio, dict):
+        weights = [float(ratio[e]) for e in envs if e in ratio] or [
+            float(v) for v in ratio.values()
+        ]
+    elif isinstance(ratio, list | tuple):
+        weights = [float(v) for v in ratio]
+    elif isinstance(ratio, int | float) and 0 <= ratio <= 1:
+        weights = [float(ratio), 1.0 - float(ratio)]
+    elif not ratio and len(envs) >= 2:
+        weights = [1.0] * len(envs)  # seal.schedulers: an empty `ratios` means equal shares
+    else:
+        return None
+    total = sum(weights)
+    if total <= 0:
+        return None
+    return "/".join(format_number(100.0 * w / total) for w in weights)
+
+
+def column_label(run: RunData, phase: str, env: str) -> str:
+    """The report column of one run's phase and environment, as the paper names them.
+
+    baseline -> "Single Env"; joint with a constant ratio -> "50/50" (or its ratio); joint with the
+    `high_fk` / `high_mw` presets -> "High FK" / "High MW"; finetune -> "Pre-train on X" for its
+    pretrain phase and "Fine-tune on Y" for its finetune phase (Tables 6-7); anything else, such as
+    a baseline under an SMT or curriculum scheduler, -> its protocol name.
+    """
+    scheduler = run.scheduler()
+    sched_kind = str(scheduler.get("kind", "") or "").lower()
+    if run.kind == "baseline" and sched_kind in _PLAIN_SCHEDULERS:
+        return BASELINE_COLUMN
+    if run.kind == "finetune":
+        if phase == "pretrain":
+            return f"Pre-train on {run.env_label(env)}"
+        if phase == "finetune":
+            return f"Fine-tune on {run.env_label(env)}"
+        return f"{run.protocol} ({phase})"
+    if run.kind == "joint":
+        # `kind = "high_fk"` is seal.schedulers' shorthand for `kind = "stepped", preset = "high_fk"`.
+        preset = str(scheduler.get("preset", "") or sched_kind).lower()
+        if preset in _PRESET_COLUMNS:
+            return _PRESET_COLUMNS[preset]
+        envs = list(run.config.get("envs", {})) or list(dict.fromkeys(run.metrics["env"]))
+        start = scheduler.get("start")
+        if sched_kind == "stepped" and isinstance(start, dict) and start:
+            # A stepped schedule without a preset is named for the env it starts high on.
+            return f"High {run.env_label(max(start, key=lambda e: float(start[e])))}"
+        if sched_kind == "constant":
+            label = _ratio_label(scheduler, envs)
+            if label:
+                return label
+        if sched_kind in _PLAIN_SCHEDULERS:
+            # A uniform batch over all tasks: each env's share is its share of the tasks.
+            tasks = run.metrics.groupby("env", sort=False)["task"].nunique()
+            label = _ratio_label({"ratios": {e: int(tasks.get(e, 0)) for e in envs}}, envs)
+            if label:
+                return label
+    return run.protocol
+
+
+def _column_rank(label: str) -> tuple[int, int, int, str]:
+    """Table 1's columns first, then fine-tune columns by environment (MW, FK, others), then the rest."""
+    if label in _COLUMN_ORDER:
+        return (_COLUMN_ORDER.index(label), 0, 0, "")
+    for step, prefix in enumerate(("Pre-train on ", "Fine-tune on ")):
+        if label.startswith(prefix):
+            env = label.removeprefix(prefix)
+            # Pre-train on X next to Fine-tune on X: the two columns that fill X's rows (Tables 6-7).
+            return (len(_COLUMN_ORDER), _ENV_RANK.get(env, len(_ENV_RANK)), step, env)
+    return (len(_COLUMN_ORDER) + 1, 0, 0, label)
+
+
+# --------------------------------------------------------------------------- gathering
+
+
+@dataclass(frozen=True)
+class _Group:
+    """The runs of one group directory."""
+
+    path: Path
+    runs: list[RunData]
+
+    @property
+    def name(self) -> str:
+        return f"{self.runs[0].protocol}/{self.runs[0].group}"
+
+
+def _gather(paths: Iterable[str | os.PathLike[str]]) -> list[_Group]:
+    """Resolve run and group paths into groups (runs given one by one join their group)."""
+    by_group: dict[Path, dict[Path, RunData]] = {}
+    for given in paths:
+        for run_path in run_dirs(given):
+            resolved = run_path.resolve()
+            by_group.setdefault(resolved.parent, {})
+            if resolved not in by_group[resolved.parent]:
+                by_group[resolved.parent][resolved] = load_run(run_path)
+    if not by_group:
+        raise SealError(f"no run or group directories given; {_EXPECTED}")
+    groups = []
+    for group_path, runs in by_group.items():
+        ordered = sorted(runs.values(), key=lambda r: r.seed)
+        seeds = [r.seed for r in ordered]
+        if len(set(seeds)) != len(seeds):
+            raise SealError(
+                f"{group_path}: several runs claim the same seed {seeds}; each seed-<n>/ must hold its own seed"
+            )
+        groups.append(_Group(path=group_path, runs=ordered))
+    return groups
+
+
+def _labelled(groups: Sequence[_Group], frame_of: str) -> pd.DataFrame:
+    """All runs' metrics (or train) rows with `column`, `env_label` and `source` (group) added."""
+    frames = []
+    for group in groups:
+        for run in group.runs:
+            frame = getattr(run, frame_of)
+            if frame.empty:
+                continue
+            frame = frame.copy()
+            frame["seed"] = run.seed  # the run's identity within the group, whatever the CSV says
+            labels = {
+                (phase, env): column_label(run, phase, env)
+                for phase, env in frame[["phase", "env"]].drop_duplicates().itertuples(index=False)
+            }
+            frame["column"] = [
+                labels[(p, e)] for p, e in zip(frame["phase"], frame["env"], strict=True)
+            ]
+            frame["env_label"] = [
+                run.env_label(e) if isinstance(e, str) else "" for e in frame["env"]
+            ]
+            frame["source"] = group.name
+            frames.append(frame)
+    if not frames:
+        return pd.DataFrame()
+    return pd.concat(frames, ignore_index=True)
+
+
+def _disambiguate(metrics: pd.DataFrame) -> pd.DataFrame:
+    """Columns given by two groups for the same environment get the group appended to their label.
+
+    Two baselines for one environment cannot be told apart as "the" baseline, so that is an error.
+    """
+    owners = metrics.groupby(["column", "env"], sort=False)["source"].unique()
+    clashing = {
+        (column, env): list(srcs) for (column, env), srcs in owners.items() if len(srcs) > 1
+    }
+    for (column, env), sources in clashing.items():
+        if column == BASELINE_COLUMN:
+            raise SealError(
+                f"several baseline groups for environment {env!r}: {sources}; pass one of them "
+                f"so the percent change has a single baseline"
+            )
+    if not clashing:
+        return metrics
+    out = metrics.copy()
+    clash_columns = {column for column, _ in clashing}
+    mask = out["column"].isin(clash_columns)
+    out.loc[mask, "column"] = out.loc[mask, "column"] + " [" + out.loc[mask, "source"] + "]"
+    return out

@@ -1,0 +1,184 @@
+"""Reading run directories: `load_run` turns one `seed-<n>/` directory into a `RunData`.
+
+`RunData` holds a run's metrics.csv and train.csv as DataFrames, its config.toml and
+provenance.json as dicts, and names its protocol, kind, group, seed and environments' short
+labels; `run_dirs` resolves a run or group path into run directories. Only the files are read,
+so every malformed or missing one is a SealError naming its path.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import tomllib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from seal.errors import SealError
+from seal.metrics import REQUIRED_METRICS_COLUMNS
+from seal.protocols.rundir import TRAIN_COLUMNS  # defined once, by the writer
+
+# Short labels the paper uses for its environments, by adapter name.
+ADAPTER_LABELS: dict[str, str] = {"metaworld": "MW", "franka_kitchen_dense": "FK"}
+
+_EXPECTED = (
+    "expected a run directory (seed-<n>/ holding metrics.csv and config.toml) "
+    "or a group directory (reports/<protocol>/<group-id>/ holding seed-<n>/ run directories)"
+)
+
+
+@dataclass(frozen=True)
+class RunData:
+    """One run directory, read: its metrics and training logs as DataFrames, config and provenance."""
+
+    path: Path
+    """The run directory (`.../<protocol>/<group-id>/seed-<n>`)."""
+    metrics: pd.DataFrame
+    """metrics.csv: one row per evaluation and task (columns `seal.protocols.rundir.METRICS_COLUMNS`)."""
+    train: pd.DataFrame
+    """train.csv: seed, phase, epoch, grad_steps, env, key, value (empty if the file is absent)."""
+    config: dict[str, Any]
+    """The resolved protocol config (config.toml) as a dict."""
+    provenance: dict[str, Any] = field(default_factory=dict)
+    """provenance.json (empty if the file is absent)."""
+
+    @property
+    def protocol(self) -> str:
+        """Protocol name: [protocol].name, else provenance, else the grandparent directory's name."""
+        name = self.config.get("protocol", {}).get("name") or self.provenance.get("protocol")
+        return str(name or self.path.parent.parent.name)
+
+    @property
+    def kind(self) -> str:
+        """Protocol kind: baseline, finetune, joint (or a kind added later)."""
+        return str(
+            self.config.get("protocol", {}).get("kind") or self.provenance.get("kind") or "baseline"
+        )
+
+    @property
+    def group(self) -> str:
+        """Group id: provenance's, else the parent directory's name."""
+        return str(self.provenance.get("group") or self.path.parent.name)
+
+    @property
+    def seed(self) -> int:
+        """The run's seed: provenance's, else metrics.csv's, else the `seed-<n>` directory name."""
+        if self.provenance.get("seed") is not None:
+            return int(self.provenance["seed"])
+        if len(self.metrics):
+            return int(self.metrics["seed"].iloc[0])
+        match = re.fullmatch(r"seed-(\d+)", self.path.name)
+        return int(match.group(1)) if match else 0
+
+    def env_label(self, env: str) -> str:
+        """Short label of an environment ("MW", "FK"), from its adapter in [envs.<env>]; else its name."""
+        env_table = self.config.get("envs", {}).get(env, {})
+        adapter = env_table.get("adapter") if isinstance(env_table, dict) else None
+        return ADAPTER_LABELS.get(adapter or env, env)
+
+    def scheduler(self) -> dict[str, Any]:
+        """The data-ratio / task scheduler table ([scheduler], or [schedule] in older configs)."""
+        table = self.config.get("scheduler") or self.config.get("schedule") or {}
+        return table if isinstance(table, dict) else {}
+
+
+def _read_csv(path: Path, required: Sequence[str], text_columns: Sequence[str]) -> pd.DataFrame:
+    try:
+        frame = pd.read_csv(path, dtype={c: str for c in text_columns}, keep_default_na=True)
+    except pd.errors.EmptyDataError:
+        raise SealError(
+            f"{path}: file is empty; expected a CSV header with columns {list(required)}"
+        ) from None
+    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+        raise SealError(f"{path}: not a readable CSV ({exc})") from None
+    missing = [c for c in required if c not in frame.columns]
+    if missing:
+        raise SealError(f"{path}: missing column(s) {missing}; expected columns {list(required)}")
+    for column in required:
+        if column in text_columns:
+            continue
+        try:
+            frame[column] = pd.to_numeric(frame[column])
+        except (ValueError, TypeError):
+            raise SealError(
+                f"{path}: column {column!r} has non-numeric values; expected numbers"
+            ) from None
+    return frame
+
+
+def load_run(path: str | os.PathLike[str]) -> RunData:
+    """Read a run directory: metrics.csv and train.csv as DataFrames, config.toml and provenance.json.
+
+    Raises SealError naming the path when it is not a run directory or a file is malformed.
+    `train.csv` and `provenance.json` may be absent (a run stopped before its first log).
+    """
+    run = Path(path)
+    if not run.is_dir():
+        what = "does not exist" if not run.exists() else "is not a directory"
+        raise SealError(f"{run} {what}; {_EXPECTED}")
+    metrics_path, config_path = run / "metrics.csv", run / "config.toml"
+    for needed in (metrics_path, config_path):
+        if not needed.is_file():
+            raise SealError(f"{run}: no {needed.name}; {_EXPECTED}")
+    metrics = _read_csv(
+        metrics_path, REQUIRED_METRICS_COLUMNS, text_columns=("phase", "env", "task")
+    )
+    train_path = run / "train.csv"
+    if train_path.is_file():
+        train = _read_csv(train_path, TRAIN_COLUMNS, text_columns=("phase", "env", "key"))
+    else:
+        train = pd.DataFrame(
+            {
+                c: pd.Series(dtype=object if c in ("phase", "env", "key") else float)
+                for c in TRAIN_COLUMNS
+            }
+        )
+    try:
+        config = tomllib.loads(config_path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise SealError(f"{config_path}: not valid TOML ({exc})") from None
+    provenance: dict[str, Any] = {}
+    provenance_path = run / "provenance.json"
+    if provenance_path.is_file():
+        try:
+            provenance = json.loads(provenance_path.read_text())
+        except json.JSONDecodeError as exc:
+            raise SealError(f"{provenance_path}: not valid JSON ({exc})") from None
+    return RunData(path=run, metrics=metrics, train=train, config=config, provenance=provenance)
+
+
+def _is_run_dir(path: Path) -> bool:
+    return (path / "metrics.csv").is_file()
+
+
+def run_dirs(path: str | os.PathLike[str]) -> list[Path]:
+    """The run directories a path names: itself if it is a run, else its `seed-<n>/` runs, by seed.
+
+    Seed directories without a metrics.csv yet (a run that has not evaluated) are left out.
+    Raises SealError naming the path when it is neither a run nor a group directory.
+    """
+    where = Path(path)
+    if not where.exists():
+        raise SealError(f"{where} does not exist; {_EXPECTED}")
+    if not where.is_dir():
+        raise SealError(f"{where} is a file, not a directory; {_EXPECTED}")
+    if _is_run_dir(where):
+        return [where]
+    seeds = [d for d in where.iterdir() if d.is_dir() and re.fullmatch(r"seed-\d+", d.name)]
+    runs = sorted((d for d in seeds if _is_run_dir(d)), key=lambda d: int(d.name.split("-")[1]))
+    if runs:
+        return runs
+    if seeds:
+        raise SealError(
+            f"{where}: none of its seed directories {sorted(d.name for d in seeds)} has a metrics.csv yet"
+        )
+    groups = sorted(
+        str(d) for d in where.iterdir() if d.is_dir() and any(d.glob("seed-*/metrics.csv"))
+    )
+    hint = f"; it holds the group directories {groups[:5]}, pass those" if groups else ""
+    raise SealError(f"{where}: neither a run nor a group directory; {_EXPECTED}{hint}")

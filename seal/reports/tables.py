@@ -1,0 +1,282 @@
+"""Tables: the update-count and final-success tables `report` writes, and what it returns.
+
+`ReportResult` is what a report wrote and the numbers behind it. The update-count table (Table 1,
+Tables 6-7) has Task rows and one column per setting, cells from seal.metrics.format_count with
+Appendix B's product beside them where it differs, and a total per environment; the success
+table gives each run's last evaluation. `_write_table` writes a display table as Markdown (notes
+below) and LaTeX (notes in the caption); `_notes` and `_comparability_warnings` say how to read it.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from seal.metrics import NEVER_REACHED, format_count, format_number
+from seal.reports.groups import _ENV_RANK, BASELINE_COLUMN, _Group
+
+
+@dataclass
+class ReportResult:
+    """What `report` wrote and the numbers behind it."""
+
+    out_dir: Path
+    """Where tables/ and plots/ were written."""
+    threshold: float
+    """Success threshold used for the update-count metric."""
+    tables: dict[str, Path]
+    """Table files by name, e.g. "update_counts.md"."""
+    plots: list[Path]
+    """PNG files written."""
+    update_counts: pd.DataFrame
+    """Per (column, env, task): updates_mean/std (millions), grad/env steps, reached, seeds, pct_change."""
+    per_seed: pd.DataFrame
+    """Per (column, env, task, seed): the first evaluation reaching the threshold (seal.metrics.first_reach)."""
+    totals: pd.DataFrame
+    """Per (column, env): updates_total, tasks_reached, tasks."""
+    groups: list[Path]
+    """The group directories reported on."""
+    skipped: list[str] = field(default_factory=list)
+    """Notes on what could not be drawn (e.g. no critic_loss rows in train.csv)."""
+    warnings: list[str] = field(default_factory=list)
+    """Settings that differ between the groups compared (agent.shared_update, critic_sharing, reward versions)."""
+
+    def to_json(self) -> dict[str, Any]:
+        """Paths and update-count numbers as plain JSON values (NaN -> null)."""
+
+        def num(value: Any) -> Any:
+            return (
+                None
+                if value is None or (isinstance(value, float) and not math.isfinite(value))
+                else value
+            )
+
+        counts: dict[str, dict[str, dict[str, dict[str, Any]]]] = {}
+        for row in self.update_counts.itertuples(index=False):
+            counts.setdefault(row.column, {}).setdefault(row.env, {})[row.task] = {
+                "mean": num(float(row.updates_mean)),
+                "std": num(float(row.updates_std)),
+                "reached": int(row.reached),
+                "seeds": int(row.seeds),
+                "grad_steps": num(float(row.grad_steps_mean)),
+                "env_steps": num(float(row.env_steps_mean)),
+                "pct_change": num(float(row.pct_change)),
+                "paper_updates": num(float(row.paper_updates_mean)),
+            }
+        totals: dict[str, dict[str, float]] = {}
+        for row in self.totals.itertuples(index=False):
+            totals.setdefault(row.column, {})[row.env] = float(row.updates_total)
+        return {
+            "out_dir": str(self.out_dir),
+            "threshold": self.threshold,
+            "groups": [str(g) for g in self.groups],
+            "tables": {name: str(p) for name, p in self.tables.items()},
+            "plots": [str(p) for p in self.plots],
+            "update_counts": counts,
+            "update_count_totals": totals,
+            "skipped": self.skipped,
+            "warnings": self.warnings,
+        }
+
+
+def _row_order(frame: pd.DataFrame) -> list[tuple[str, str]]:
+    """(env, task) rows: Meta-World first, then the kitchen, then others; tasks in logged order."""
+    env_labels = dict(zip(frame["env"], frame["env_label"], strict=False))
+    envs = list(dict.fromkeys(frame["env"]))
+    envs.sort(key=lambda e: _ENV_RANK.get(env_labels[e], len(_ENV_RANK)))
+    rows = []
+    for env in envs:
+        tasks = dict.fromkeys(frame.loc[frame["env"] == env, "task"])
+        rows.extend((env, task) for task in tasks)
+    return rows
+
+
+def _escape_latex(text: str) -> str:
+    return re.sub(r"([_&%#$])", r"\\\1", text)
+
+
+def _update_count_table(
+    counts: pd.DataFrame,
+    totals: pd.DataFrame,
+    columns: list[str],
+    rows: list[tuple[str, str]],
+    labels: dict[str, str],
+    style: str,
+) -> pd.DataFrame:
+    """The display table: Task x columns, cells from seal.metrics.format_count, total rows per env."""
+    has_baseline = set(counts.loc[counts["column"] == BASELINE_COLUMN, "env"])
+    cells = {(r.column, r.env, r.task): r for r in counts.itertuples(index=False)}
+    esc = _escape_latex if style == "latex" else (lambda s: s)
+    records = []
+    for env, task in rows:
+        record = {"Task": esc(f"{task} ({labels[env]})")}
+        for column in columns:
+            row = cells.get((column, env, task))
+            if row is None:
+                record[esc(column)] = ""
+                continue
+            show_pct = column != BASELINE_COLUMN and env in has_baseline
+            pct = None if math.isnan(row.pct_change) else float(row.pct_change)
+            record[esc(column)] = format_count(
+                row.updates_mean,
+                row.updates_std,
+                int(row.reached),
+                int(row.seeds),
+                pct,
+                show_pct,
+                style,
+            ) + _paper_suffix(row.updates_mean, row.paper_updates_mean, int(row.reached), style)
+        records.append(record)
+    for env in dict.fromkeys(env for env, _ in rows):
+        record = {"Task": esc(f"Total ({labels[env]})")}
+        for column in columns:
+            total = totals[(totals["column"] == column) & (totals["env"] == env)]
+            record[esc(column)] = (
+                ""
+                if total.empty
+                else f"{format_number(float(total['updates_total'].iloc[0]))} "
+                f"({int(total['tasks_reached'].iloc[0])}/{int(total['tasks'].iloc[0])} tasks)"
+            )
+        records.append(record)
+    return pd.DataFrame.from_records(records)
+
+
+PAPER_GAP = 0.005
+"""Show C x GS x BS beside the exact count when they differ by more than this fraction."""
+
+
+def _paper_suffix(exact: float, paper: float, reached: int, style: str) -> str:
+    """ " {C×GS×BS: x}" when the paper's product differs from the exact count (changing batches)."""
+    if (
+        reached == 0
+        or not math.isfinite(paper)
+        or abs(paper - exact) <= PAPER_GAP * max(exact, 1e-12)
+    ):
+        return ""
+    times = r"$\times$" if style == "latex" else "×"
+    open_, close = (r"\{", r"\}") if style == "latex" else ("{", "}")
+    return f" {open_}C{times}GS{times}BS: {format_number(paper)}{close}"
+
+
+# Settings that change what an update count measures: a report comparing groups that differ in
+# them compares different experiments, and says so.
+COMPARABILITY_KEYS: tuple[tuple[str, str], ...] = (
+    ("agent", "shared_update"),
+    ("agent", "critic_sharing"),
+)
+
+
+def _comparability_warnings(groups: Sequence[_Group]) -> list[str]:
+    """One line per setting (agent.shared_update, agent.critic_sharing, reward versions) that differs between groups."""
+    seen: dict[str, dict[str, list[str]]] = {}
+    for group in groups:
+        run = group.runs[0]
+        for table, key in COMPARABILITY_KEYS:
+            value = run.config.get(table, {}).get(key)
+            if value is not None:
+                seen.setdefault(f"{table}.{key}", {}).setdefault(str(value), []).append(group.name)
+        versions = run.provenance.get("reward_versions") or {}
+        for env, version in versions.items() if isinstance(versions, dict) else ():
+            seen.setdefault(f"reward version of {env}", {}).setdefault(str(version), []).append(
+                group.name
+            )
+    return [
+        f"groups differ in {what}: "
+        + "; ".join(f"{value} in {', '.join(names)}" for value, names in values.items())
+        for what, values in seen.items()
+        if len(values) > 1
+    ]
+
+
+def _notes(threshold: float, with_change: bool) -> list[str]:
+    pct = f"{threshold:.0%}"
+    notes = [
+        f"Millions of each task's transitions consumed by gradient updates until its first evaluation "
+        f"with success >= {pct} (Appendix B). Mean ± sample std over the seeds that reached it; "
+        f"[k/n] = seeds that reached it / seeds run.",
+        f"{NEVER_REACHED} = never reached {pct} in any seed; counted as 0 in the totals and in update_counts.csv.",
+        "Total = sum of the per-task means (never-reached tasks count 0); (k/N tasks) = tasks reached by any seed.",
+    ]
+    if with_change:
+        notes.insert(
+            2,
+            f"(±x%) = change against {BASELINE_COLUMN} for the same task; bold = fewer updates; "
+            f"n/a = the baseline or this column never reached it.",
+        )
+    return notes
+
+
+def _success_tables(
+    metrics: pd.DataFrame, columns: list[str], rows: list[tuple[str, str]], labels: dict[str, str]
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Final success per (column, env, task): numbers (long) and display (Task x columns)."""
+    last_epoch = metrics.groupby(["column", "env", "seed"])["epoch"].transform("max")
+    final = metrics[metrics["epoch"] == last_epoch]
+    long = (
+        final.groupby(["column", "env", "task"], sort=False)["success"]
+        .agg(success_mean="mean", success_std="std", seeds="count")
+        .reset_index()
+    )
+    cells = {(r.column, r.env, r.task): r for r in long.itertuples(index=False)}
+    records = []
+    for env, task in rows:
+        record = {"Task": f"{task} ({labels[env]})"}
+        for column in columns:
+            row = cells.get((column, env, task))
+            if row is None:
+                record[column] = ""
+                continue
+            text = f"{row.success_mean:.2f}"
+            if math.isfinite(row.success_std):
+                text += f" ± {row.success_std:.2f}"
+            record[column] = text
+        records.append(record)
+    for env in dict.fromkeys(env for env, _ in rows):
+        record = {"Task": f"Mean ({labels[env]})"}
+        for column in columns:
+            env_rows = long[(long["column"] == column) & (long["env"] == env)]
+            record[column] = (
+                "" if env_rows.empty else f"{float(env_rows['success_mean'].mean()):.2f}"
+            )
+        records.append(record)
+    return long, pd.DataFrame.from_records(records)
+
+
+def _write_table(
+    display: pd.DataFrame,
+    stem: Path,
+    title: str,
+    notes: list[str],
+    latex: pd.DataFrame | None = None,
+) -> dict[str, Path]:
+    """Markdown (with notes) and LaTeX (notes in the caption) versions of a display table."""
+    md = stem.with_suffix(".md")
+    md.write_text(
+        f"# {title}\n\n{display.to_markdown(index=False, disable_numparse=True)}\n\n"
+        + "".join(f"- {n}\n" for n in notes)
+    )
+    tex = stem.with_suffix(".tex")
+    latex_frame = (
+        latex if latex is not None else display.map(_escape_latex).rename(columns=_escape_latex)
+    )
+    caption = (
+        _escape_latex(title + ". " + " ".join(notes))
+        .replace("±", r"$\pm$")
+        .replace(">=", r"$\geq$")
+    )
+    caption = caption.replace(NEVER_REACHED, "---")
+    tex.write_text(
+        latex_frame.to_latex(
+            index=False,
+            escape=False,
+            caption=caption,
+            column_format="l" + "r" * (latex_frame.shape[1] - 1),
+        )
+    )
+    return {md.name: md, tex.name: tex}
