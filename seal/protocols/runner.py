@@ -450,231 +450,7 @@ class Run:
 
     # ------------------------------------------------------------ the epoch loop
     def _run_phase(self, phase: Phase, payload: Mapping[str, Any] | None) -> PhaseState:
-        cfg = self.config
-        model = PhaseModel(cfg, phase, self.adapters, self.alignment)
-        agent = self._initial_agent(phase, model, resuming=payload is not None)
-        replay = self._new_replay(model)
-        scheduler = scheduling.build(
-            cfg.scheduler,
-            model.env_tasks,
-            {e: cfg.envs[e].adapter for e in phase.envs},
-            cfg.path,
-            seed=derive_seed(self.seed, "scheduler", phase.index),
-            episode_lengths={e: self.adapters[e].episode_length for e in phase.envs},
-        )
-        state = PhaseState(env_steps={e: [0] * len(t) for e, t in model.env_tasks.items()})
-        np_rng = np.random.default_rng(derive_seed(self.seed, "runner", phase.index))
-        if payload is not None:
-            agent.load_state_dict(payload["agent"])
-            if payload.get("replay") is None:
-                raise SealError(
-                    f"{self.rundir.path}: the checkpoint holds no replay (checkpoint.save_replay = false), so the run cannot resume exactly"
-                )
-            replay.load_state_dict(payload["replay"])
-            scheduler.load_state_dict(payload["scheduler"])
-            state = PhaseState(**payload["runner"]["state"])
-            np_rng.bit_generator.state = payload["runner"]["np_rng"]
-            torch.set_rng_state(payload["runner"]["torch_rng"])
-            random.setstate(_tuple_state(payload["runner"]["py_rng"]))
-        collector = self._collector(model, state.anchor_epoch)
-        if payload is None and cfg.training.demo_episodes:
-            since = time.perf_counter()
-            state.demos = self._demonstrations(model, replay, collector)
-            state.add_time("demos", since)
-        id_maps = {
-            model.agent_env[e]: torch.as_tensor(model.aligned_ids(e), dtype=torch.long)
-            for e in phase.envs
-        }
-        total_tasks = sum(len(t) for t in model.env_tasks.values())
-        train_policy = model.policy(agent, deterministic=False)
-        eval_policy = model.policy(agent, deterministic=True)
-        bar = None if self.quiet else _progress_bar(phase, state.epoch)
-        tick_time, tick_env, tick_grad = (
-            time.monotonic(),
-            sum(map(sum, state.env_steps.values())),
-            state.grad_steps,
-        )
-        started = time.monotonic() - state.wall_s
-        every = cfg.evaluation.every_grad_steps
-        batch_now: dict[str, np.ndarray] = {}
-
-        def evaluate_now() -> None:
-            since = time.perf_counter()
-            self._evaluate(
-                phase,
-                model,
-                agent,
-                replay,
-                scheduler,
-                eval_policy,
-                collector,
-                state,
-                started,
-                batch_now,
-            )
-            state.add_time("evaluate", since)
-
-        stop_when_reached = cfg.evaluation.stop_when_reached
-
-        def all_reached() -> bool:
-            return stop_when_reached and all(
-                t in state.reached.get(e, {}) for e, ts in model.env_tasks.items() for t in ts
-            )
-
-        try:
-            while state.epoch < phase.epochs and not all_reached():
-                from seal.schedulers import Progress
-
-                task_steps = {
-                    (e, t): state.env_steps[e][i]
-                    for e, ts in model.env_tasks.items()
-                    for i, t in enumerate(ts)
-                }
-                plan = scheduler.plan(
-                    Progress(
-                        epoch=state.epoch,
-                        env_steps=sum(task_steps.values()),
-                        grad_steps=state.grad_steps,
-                        task_env_steps=task_steps,
-                    )
-                )
-                if plan.reset_agent:
-                    agent.reset_parameters()
-                # ---- collect: warm-up envs act uniformly at random, the others with the policy
-                since = time.perf_counter()
-                warm = {e: sum(state.env_steps[e]) < cfg.training.warmup_steps for e in phase.envs}
-                collected_lengths: dict[str, int] = {}
-                for random_actions in (True, False):
-                    active = {
-                        e: (
-                            np.asarray(plan.collect[e], dtype=bool)
-                            if warm[e] == random_actions
-                            else np.zeros(len(model.env_tasks[e]), dtype=bool)
-                        )
-                        for e in phase.envs
-                    }
-                    if not any(m.any() for m in active.values()):
-                        continue
-                    stats = collector.collect_episodes(
-                        None if random_actions else train_policy,
-                        active=active,
-                        random_actions=random_actions,
-                        sink=_ReplaySink(replay, model),
-                    )
-                    for e in phase.envs:
-                        mask = active[e]
-                        if not mask.any():
-                            continue
-                        idx = np.flatnonzero(mask)
-                        for i in idx:
-                            state.env_steps[e][i] += int(stats.lengths[e][i])
-                        collected_lengths[e] = int(stats.lengths[e][idx].max())
-                        scheduler.observe_episodes(
-                            e,
-                            [model.env_tasks[e][i] for i in idx],
-                            [float(stats.returns[e][i]) for i in idx],
-                            [float(stats.successes[e][i]) for i in idx],
-                            [int(stats.lengths[e][i]) for i in idx],
-                        )
-                state.add_time("collect", since)
-                # ---- update: only once every env has finished its warm-up
-                batch_now = {e: np.zeros(len(model.env_tasks[e]), np.int64) for e in phase.envs}
-                if (
-                    all(sum(state.env_steps[e]) >= cfg.training.warmup_steps for e in phase.envs)
-                    and collected_lengths
-                ):
-                    steps = self._grad_steps(plan, collected_lengths)
-                    counts = plan.batch_counts(cfg.training.batch_per_task * total_tasks)
-                    sample_counts = {
-                        model.agent_env[e]: np.asarray(c, dtype=np.int64)
-                        for e, c in counts.items()
-                        if int(np.sum(c)) > 0
-                    }
-                    batch_now = {e: np.asarray(c, dtype=np.int64) for e, c in counts.items()}
-                    for _ in range(steps):
-                        since = time.perf_counter()
-                        batches = replay.sample(sample_counts, np_rng)
-                        batches = (
-                            {
-                                k: b._replace(task_ids=id_maps[k].to(b.task_ids.device)[b.task_ids])
-                                for k, b in batches.items()
-                            }
-                            if model.alignment is not None
-                            else batches
-                        )
-                        try:
-                            losses = agent.update(batches)
-                        except TrainingDivergedError as exc:
-                            last = self.rundir.latest_checkpoint()
-                            raise SealError(
-                                f"{self.rundir.path}: training diverged in phase {phase.name!r} at gradient step {state.grad_steps + 1} ({exc}); last good checkpoint: {last or 'none yet'}"
-                            ) from None
-                        state.grad_steps += 1
-                        state.log_updates += 1
-                        for k, v in losses.items():
-                            state.log_sums[k] = state.log_sums.get(k, 0.0) + float(v)
-                        state.add_time("update", since)
-                        if every and state.grad_steps % every == 0:
-                            evaluate_now()  # mid-epoch: the update-count grid is K x batch
-                state.epoch += 1
-                epoch = state.epoch
-                last_epoch = epoch >= phase.epochs or scheduler.done
-                # ---- training curves: the mean of every logged value over the interval's updates
-                if state.log_updates and (epoch % cfg.logging.train_interval == 0 or last_epoch):
-                    self.rundir.log_train(
-                        self._train_rows(
-                            phase,
-                            model,
-                            epoch,
-                            state.grad_steps,
-                            {k: v / state.log_updates for k, v in state.log_sums.items()},
-                        )
-                    )
-                    state.log_sums, state.log_updates = {}, 0
-                # ---- evaluation (Appendix B): every `interval` epochs, or every K gradient steps above
-                due = not every and epoch % cfg.evaluation.interval == 0
-                if due or (last_epoch and not (every and state.evaluated_at == state.grad_steps)):
-                    evaluate_now()
-                request = scheduler.wants_scores()
-                if request is not None:
-                    scheduler.observe_scores(self._scores(request, model, agent, epoch))
-                last_epoch = last_epoch or all_reached()
-                # ---- scheduler timeline and checkpoint
-                timeline = scheduler.timeline()
-                if len(timeline) > state.timeline_rows:
-                    self.rundir.log_scheduler(
-                        [{"phase": phase.name, **r} for r in timeline[state.timeline_rows :]]
-                    )
-                    state.timeline_rows = len(timeline)
-                if epoch % cfg.checkpoint.interval == 0 or last_epoch:
-                    state.wall_s = time.monotonic() - started
-                    state.anchor_epoch = epoch
-                    since = time.perf_counter()
-                    self._checkpoint(phase, agent, replay, scheduler, state, np_rng)
-                    state.add_time("checkpoint", since)
-                    if not last_epoch:
-                        # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
-                        collector.close()
-                        collector = self._collector(model, epoch)
-                if bar is not None:
-                    now = time.monotonic()
-                    env_now = sum(map(sum, state.env_steps.values()))
-                    dt = max(now - tick_time, 1e-9)
-                    bar.set_postfix_str(
-                        _postfix(
-                            env_now - tick_env, state.grad_steps - tick_grad, dt, state.last_success
-                        ),
-                        refresh=False,
-                    )
-                    bar.update(1)
-                    tick_time, tick_env, tick_grad = now, env_now, state.grad_steps
-                if scheduler.done or all_reached():
-                    break
-        finally:
-            collector.close()
-            if bar is not None:
-                bar.close()
-        return state
+        return PhaseLoop(self, phase, payload).run()
 
     def _demonstrations(
         self, model: PhaseModel, replay: Any, collector: Any
@@ -908,6 +684,291 @@ class Run:
             self._fields(phase, scheduler, state, np_rng),
         )
         self.rundir.prune(self.config.checkpoint.keep_last)
+
+
+class LoopCallback:
+    """Hooks a `PhaseLoop` calls; subclasses override what they need (progress bar, loggers, Ray Tune)."""
+
+    def on_evaluation(self, loop: PhaseLoop) -> None:
+        """After each evaluation (its rows are in metrics.csv, `loop.state.last_success` holds them)."""
+
+    def on_epoch_end(self, loop: PhaseLoop) -> None:
+        """After each epoch's collection, updates, evaluation and checkpoint."""
+
+    def on_phase_end(self, loop: PhaseLoop) -> None:
+        """When the phase ends, normally or not."""
+
+
+class ProgressBar(LoopCallback):
+    """tqdm over the phase's epochs, with env steps/s, updates/s and the last success per env."""
+
+    def __init__(self, loop: PhaseLoop) -> None:
+        self.bar = _progress_bar(loop.phase, loop.state.epoch)
+        self.tick = (time.monotonic(), loop.env_steps(), loop.state.grad_steps)
+
+    def on_epoch_end(self, loop: PhaseLoop) -> None:
+        now, env_now, grad_now = time.monotonic(), loop.env_steps(), loop.state.grad_steps
+        then, env_then, grad_then = self.tick
+        dt = max(now - then, 1e-9)
+        postfix = _postfix(env_now - env_then, grad_now - grad_then, dt, loop.state.last_success)
+        self.bar.set_postfix_str(postfix, refresh=False)
+        self.bar.update(1)
+        self.tick = (now, env_now, grad_now)
+
+    def on_phase_end(self, loop: PhaseLoop) -> None:
+        self.bar.close()
+
+
+class PhaseLoop:
+    """One phase's epochs: plan, collect, update, evaluate, checkpoint, then the callbacks.
+
+    Holds the phase's parts (agent, replay, scheduler, collector) and its counters (`state`,
+    saved in every checkpoint); `run` (the `Run`) owns the run directory and the file formats.
+    """
+
+    def __init__(self, run: Run, phase: Phase, payload: Mapping[str, Any] | None) -> None:
+        from seal.learner.collection import Collector
+        from seal.learner.replay import MultiTaskReplay
+        from seal.learner.sac import Agent
+        from seal.schedulers.base import Scheduler
+
+        cfg = self.cfg = run.config
+        self.owner, self.phase = run, phase
+        model = self.model = PhaseModel(cfg, phase, run.adapters, run.alignment)
+        self.agent: Agent = run._initial_agent(phase, model, resuming=payload is not None)
+        self.replay: MultiTaskReplay = run._new_replay(model)
+        self.scheduler: Scheduler = scheduling.build(
+            cfg.scheduler,
+            model.env_tasks,
+            {e: cfg.envs[e].adapter for e in phase.envs},
+            cfg.path,
+            seed=derive_seed(run.seed, "scheduler", phase.index),
+            episode_lengths={e: run.adapters[e].episode_length for e in phase.envs},
+        )
+        self.state = PhaseState(env_steps={e: [0] * len(t) for e, t in model.env_tasks.items()})
+        self.np_rng = np.random.default_rng(derive_seed(run.seed, "runner", phase.index))
+        if payload is not None:
+            self._restore(payload)
+        self.collector: Collector = run._collector(model, self.state.anchor_epoch)
+        if payload is None and cfg.training.demo_episodes:
+            since = time.perf_counter()
+            self.state.demos = run._demonstrations(model, self.replay, self.collector)
+            self.state.add_time("demos", since)
+        self.id_maps = {
+            model.agent_env[e]: torch.as_tensor(model.aligned_ids(e), dtype=torch.long)
+            for e in phase.envs
+        }
+        self.total_tasks = sum(len(t) for t in model.env_tasks.values())
+        self.train_policy = model.policy(self.agent, deterministic=False)
+        self.eval_policy = model.policy(self.agent, deterministic=True)
+        self.started = time.monotonic() - self.state.wall_s
+        self.batch_now: dict[str, np.ndarray] = {}
+        """The per-task batch of the latest update (metrics.csv's `batch`)."""
+        self.callbacks: list[LoopCallback] = [] if run.quiet else [ProgressBar(self)]
+
+    def _restore(self, payload: Mapping[str, Any]) -> None:
+        """Agent, replay, scheduler, counters and RNG streams from a checkpoint's payload."""
+        self.agent.load_state_dict(payload["agent"])
+        if payload.get("replay") is None:
+            raise SealError(
+                f"{self.owner.rundir.path}: the checkpoint holds no replay (checkpoint.save_replay = false), so the run cannot resume exactly"
+            )
+        self.replay.load_state_dict(payload["replay"])
+        self.scheduler.load_state_dict(payload["scheduler"])
+        self.state = PhaseState(**payload["runner"]["state"])
+        self.np_rng.bit_generator.state = payload["runner"]["np_rng"]
+        torch.set_rng_state(payload["runner"]["torch_rng"])
+        random.setstate(_tuple_state(payload["runner"]["py_rng"]))
+
+    def env_steps(self) -> int:
+        """All env steps of the phase so far (demonstrations excluded)."""
+        return sum(map(sum, self.state.env_steps.values()))
+
+    def all_reached(self) -> bool:
+        """evaluation.stop_when_reached is on and every task has reached the threshold."""
+        reached = self.state.reached
+        return self.cfg.evaluation.stop_when_reached and all(
+            t in reached.get(e, {}) for e, ts in self.model.env_tasks.items() for t in ts
+        )
+
+    def run(self) -> PhaseState:
+        """Run the phase's remaining epochs; its counters."""
+        try:
+            while self.state.epoch < self.phase.epochs and not self.all_reached():
+                plan = self._plan()
+                if plan.reset_agent:
+                    self.agent.reset_parameters()
+                lengths = self._collect(plan)
+                self._train(plan, lengths)
+                last_epoch = self._end_epoch()
+                for callback in self.callbacks:
+                    callback.on_epoch_end(self)
+                if last_epoch:
+                    break
+        finally:
+            self.collector.close()
+            for callback in self.callbacks:
+                callback.on_phase_end(self)
+        return self.state
+
+    def _plan(self) -> Any:
+        from seal.schedulers import Progress
+
+        state = self.state
+        task_steps = {
+            (e, t): state.env_steps[e][i]
+            for e, ts in self.model.env_tasks.items()
+            for i, t in enumerate(ts)
+        }
+        return self.scheduler.plan(
+            Progress(
+                epoch=state.epoch,
+                env_steps=sum(task_steps.values()),
+                grad_steps=state.grad_steps,
+                task_env_steps=task_steps,
+            )
+        )
+
+    def _collect(self, plan: Any) -> dict[str, int]:
+        """One episode per planned task: warm-up envs act uniformly at random, the others with the policy.
+
+        Returns env -> the longest episode it collected (envs that collected nothing are absent).
+        """
+        state, model, envs = self.state, self.model, self.phase.envs
+        since = time.perf_counter()
+        warm = {e: sum(state.env_steps[e]) < self.cfg.training.warmup_steps for e in envs}
+        lengths: dict[str, int] = {}
+        for random_actions in (True, False):
+            active = {
+                e: np.asarray(plan.collect[e], dtype=bool) & (warm[e] == random_actions)
+                for e in envs
+            }
+            if not any(m.any() for m in active.values()):
+                continue
+            stats = self.collector.collect_episodes(
+                None if random_actions else self.train_policy,
+                active=active,
+                random_actions=random_actions,
+                sink=_ReplaySink(self.replay, model),
+            )
+            for e in envs:
+                idx = np.flatnonzero(active[e])
+                if not idx.size:
+                    continue
+                for i in idx:
+                    state.env_steps[e][i] += int(stats.lengths[e][i])
+                lengths[e] = int(stats.lengths[e][idx].max())
+                self.scheduler.observe_episodes(
+                    e,
+                    [model.env_tasks[e][i] for i in idx],
+                    [float(stats.returns[e][i]) for i in idx],
+                    [float(stats.successes[e][i]) for i in idx],
+                    [int(stats.lengths[e][i]) for i in idx],
+                )
+        state.add_time("collect", since)
+        return lengths
+
+    def _train(self, plan: Any, lengths: Mapping[str, int]) -> None:
+        """The epoch's gradient steps, once every env has finished its warm-up (evaluating every K steps)."""
+        state, model, cfg = self.state, self.model, self.cfg
+        self.batch_now = {e: np.zeros(len(model.env_tasks[e]), np.int64) for e in self.phase.envs}
+        warm = any(sum(state.env_steps[e]) < cfg.training.warmup_steps for e in self.phase.envs)
+        if warm or not lengths:
+            return
+        counts = plan.batch_counts(cfg.training.batch_per_task * self.total_tasks)
+        sample_counts = {
+            model.agent_env[e]: np.asarray(c, dtype=np.int64)
+            for e, c in counts.items()
+            if int(np.sum(c)) > 0
+        }
+        self.batch_now = {e: np.asarray(c, dtype=np.int64) for e, c in counts.items()}
+        every = cfg.evaluation.every_grad_steps
+        for _ in range(self.owner._grad_steps(plan, lengths)):
+            since = time.perf_counter()
+            batches = self.replay.sample(sample_counts, self.np_rng)
+            if model.alignment is not None:
+                batches = {
+                    k: b._replace(task_ids=self.id_maps[k].to(b.task_ids.device)[b.task_ids])
+                    for k, b in batches.items()
+                }
+            try:
+                losses = self.agent.update(batches)
+            except TrainingDivergedError as exc:
+                rundir = self.owner.rundir
+                raise SealError(
+                    f"{rundir.path}: training diverged in phase {self.phase.name!r} at gradient step {state.grad_steps + 1} ({exc}); last good checkpoint: {rundir.latest_checkpoint() or 'none yet'}"
+                ) from None
+            state.grad_steps += 1
+            state.log_updates += 1
+            for k, v in losses.items():
+                state.log_sums[k] = state.log_sums.get(k, 0.0) + float(v)
+            state.add_time("update", since)
+            if every and state.grad_steps % every == 0:
+                self._evaluate()  # mid-epoch: the update-count grid is K x batch
+
+    def _evaluate(self) -> None:
+        since = time.perf_counter()
+        self.owner._evaluate(
+            self.phase,
+            self.model,
+            self.agent,
+            self.replay,
+            self.scheduler,
+            self.eval_policy,
+            self.collector,
+            self.state,
+            self.started,
+            self.batch_now,
+        )
+        self.state.add_time("evaluate", since)
+        for callback in self.callbacks:
+            callback.on_evaluation(self)
+
+    def _end_epoch(self) -> bool:
+        """Training curves, evaluation, scheduler scores and timeline, checkpoint; whether the phase ends."""
+        run, state, cfg, scheduler = self.owner, self.state, self.cfg, self.scheduler
+        state.epoch += 1
+        epoch = state.epoch
+        last_epoch = epoch >= self.phase.epochs or scheduler.done
+        # Training curves: the mean of every logged value over the interval's updates.
+        if state.log_updates and (epoch % cfg.logging.train_interval == 0 or last_epoch):
+            means = {k: v / state.log_updates for k, v in state.log_sums.items()}
+            run.rundir.log_train(
+                run._train_rows(self.phase, self.model, epoch, state.grad_steps, means)
+            )
+            state.log_sums, state.log_updates = {}, 0
+        # Evaluation (Appendix B): every `interval` epochs, or every K gradient steps (in _train).
+        every = cfg.evaluation.every_grad_steps
+        due = not every and epoch % cfg.evaluation.interval == 0
+        if due or (last_epoch and not (every and state.evaluated_at == state.grad_steps)):
+            self._evaluate()
+        request = scheduler.wants_scores()
+        if request is not None:
+            scheduler.observe_scores(run._scores(request, self.model, self.agent, epoch))
+        last_epoch = last_epoch or self.all_reached()
+        timeline = scheduler.timeline()
+        if len(timeline) > state.timeline_rows:
+            run.rundir.log_scheduler(
+                [{"phase": self.phase.name, **r} for r in timeline[state.timeline_rows :]]
+            )
+            state.timeline_rows = len(timeline)
+        if epoch % cfg.checkpoint.interval == 0 or last_epoch:
+            self._checkpoint(reseed=not last_epoch)
+        return last_epoch
+
+    def _checkpoint(self, reseed: bool) -> None:
+        state = self.state
+        state.wall_s = time.monotonic() - self.started
+        state.anchor_epoch = state.epoch
+        since = time.perf_counter()
+        self.owner._checkpoint(
+            self.phase, self.agent, self.replay, self.scheduler, state, self.np_rng
+        )
+        state.add_time("checkpoint", since)
+        if reseed:
+            # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
+            self.collector.close()
+            self.collector = self.owner._collector(self.model, state.epoch)
 
 
 def _tuple_state(state: Any) -> Any:
