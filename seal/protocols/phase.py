@@ -1,0 +1,695 @@
+"""One phase of a run: the phase plan, how its agent meets the envs, its counters and its loop.
+
+`PhaseLoop` runs a phase's epochs in steps (plan, collect, train, evaluate, end of epoch,
+checkpoint) over typed parts (agent, replay, scheduler, collector) and calls its
+`LoopCallback`s (the progress bar; loggers and Ray Tune reporting can hook in the same way).
+The `Run` that owns it (`seal.protocols.runner`) keeps the run directory and the file formats.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import random
+import sys
+import time
+import zlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+
+from seal.envs.base import EnvAdapter
+from seal.errors import SealError, TrainingDivergedError
+from seal.evaluation import AgentPolicy, evaluate, mean_success, reaches
+from seal.learner.checkpoint import save_checkpoint
+from seal.protocols import scheduling
+from seal.protocols.config import ProtocolConfig
+
+if TYPE_CHECKING:
+    from seal.protocols.runner import Run
+
+ALIGNED_ENV = "aligned"
+"""The agent's name for the single padded pseudo-environment of pad-and-fine-tune."""
+
+
+@dataclass(frozen=True)
+class Phase:
+    """One training phase of a run: which envs it trains on, for how long, and how the agent sees them."""
+
+    name: str
+    index: int
+    envs: tuple[str, ...]
+    epochs: int
+    aligned: bool = False
+
+
+def derive_seed(*parts: int | str) -> int:
+    """A 32-bit seed from a run seed and labels, stable across processes (crc32, not hash())."""
+    ints = [p if isinstance(p, int) else zlib.crc32(p.encode()) for p in parts]
+    return int(np.random.SeedSequence(ints).generate_state(1, np.uint32)[0])
+
+
+class PhaseModel:
+    """How the agent of one phase meets the envs: its specs, names, and the obs/id transforms."""
+
+    def __init__(
+        self,
+        config: ProtocolConfig,
+        phase: Phase,
+        adapters: Mapping[str, EnvAdapter],
+        alignment: Any,
+    ) -> None:
+        from seal.learner import EnvSpec
+
+        self.phase = phase
+        self.adapters = {e: adapters[e] for e in phase.envs}
+        self.alignment = alignment if phase.aligned else None
+        if self.alignment is None:
+            self.agent_env = {e: e for e in phase.envs}
+            self.specs = [
+                EnvSpec(e, a.obs_dim, a.act_dim, len(a.tasks)) for e, a in self.adapters.items()
+            ]
+        else:
+            (env,) = phase.envs
+            a = self.adapters[env]
+            self.agent_env = {env: ALIGNED_ENV}
+            # The policy outputs the env's own action size (its last layer is per env and is
+            # re-initialised at transfer); the critic's action input is padded to the widest env.
+            self.specs = [
+                EnvSpec(
+                    ALIGNED_ENV,
+                    alignment.obs_dim,
+                    a.act_dim,
+                    alignment.num_ids,
+                    act_pad_to=alignment.act_dim,
+                )
+            ]
+        # The replay keeps one buffer per task of the env even where tasks share an aligned id
+        # (the three kitchen doors), so the per-task update counts stay separate; sampled task
+        # ids are mapped to aligned ids before the update.
+        self.replay_specs = [
+            dataclasses.replace(s, num_tasks=len(self.env_tasks_of(s.name))) for s in self.specs
+        ]
+        self.env_of_agent = {v: k for k, v in self.agent_env.items()}
+        self.env_tasks = {e: tuple(a.tasks) for e, a in self.adapters.items()}
+
+    def env_tasks_of(self, agent_env: str) -> tuple[str, ...]:
+        """The tasks of the env the agent calls `agent_env`."""
+        env = {v: k for k, v in self.agent_env.items()}[agent_env]
+        return tuple(self.adapters[env].tasks)
+
+    def aligned_names(self) -> dict[str, str]:
+        """protocol env -> alignment env name (the adapter's name)."""
+        return {e: a.name for e, a in self.adapters.items()}
+
+    def policy(self, agent: Any, deterministic: bool) -> AgentPolicy:
+        """The agent as a collector policy over this phase's raw envs."""
+        return AgentPolicy(
+            agent,
+            deterministic=deterministic,
+            alignment=self.alignment,
+            agent_env=self.agent_env,
+            alignment_names=self.aligned_names(),
+        )
+
+    def aligned_ids(self, env: str) -> np.ndarray:
+        """Local task index -> the id the agent's heads use."""
+        if self.alignment is None:
+            return np.arange(len(self.env_tasks[env]))
+        return self.alignment.task_ids(self.adapters[env].name)
+
+
+# ---------------------------------------------------------------- one phase
+
+
+@dataclass
+class PhaseState:
+    """Counters of one phase (saved in every checkpoint)."""
+
+    epoch: int = 0
+    grad_steps: int = 0
+    env_steps: dict[str, list[int]] = field(default_factory=dict)
+    best_mean_success: float = -1.0
+    wall_s: float = 0.0
+    anchor_epoch: int = 0
+    """Epoch of the last checkpoint: the collectors' seeds derive from it (exact resume)."""
+    last_success: dict[str, dict[str, float]] = field(default_factory=dict)
+    reached: dict[str, dict[str, float]] = field(default_factory=dict)
+    """env -> task -> updates (millions) at the first evaluation at or above the threshold."""
+    timeline_rows: int = 0
+    """Scheduler timeline records already written to scheduler.csv."""
+    log_sums: dict[str, float] = field(default_factory=dict)
+    """Sums of the agent's log values over the updates since the last train.csv row."""
+    log_updates: int = 0
+    """Updates since the last train.csv row (a checkpoint between two rows keeps both)."""
+    seconds: dict[str, float] = field(default_factory=dict)
+    """Wall seconds spent in each part of the loop: collect, update, evaluate, checkpoint."""
+    calls: dict[str, int] = field(default_factory=dict)
+    """How many times each part ran (update: gradient steps; evaluate: evaluations)."""
+    demos: dict[str, dict[str, float]] = field(default_factory=dict)
+    """env -> demonstration figures (episodes, env steps, expert success rate) put in the replay at the phase's start."""
+    evaluated_at: int = -1
+    """Gradient steps at the last evaluation (an evaluation every K steps that falls on the last
+    update of the run is not repeated at its end)."""
+
+    def add_time(self, part: str, since: float) -> None:
+        """Count one run of `part` that started at time.perf_counter() `since`."""
+        self.seconds[part] = self.seconds.get(part, 0.0) + time.perf_counter() - since
+        self.calls[part] = self.calls.get(part, 0) + 1
+
+
+class LoopCallback:
+    """Hooks a `PhaseLoop` calls; subclasses override what they need (progress bar, loggers, Ray Tune)."""
+
+    def on_evaluation(self, loop: PhaseLoop) -> None:
+        """After each evaluation (its rows are in metrics.csv, `loop.state.last_success` holds them)."""
+
+    def on_epoch_end(self, loop: PhaseLoop) -> None:
+        """After each epoch's collection, updates, evaluation and checkpoint."""
+
+    def on_phase_end(self, loop: PhaseLoop) -> None:
+        """When the phase ends, normally or not."""
+
+
+class ProgressBar(LoopCallback):
+    """tqdm over the phase's epochs, with env steps/s, updates/s and the last success per env."""
+
+    def __init__(self, loop: PhaseLoop) -> None:
+        self.bar = _progress_bar(loop.phase, loop.state.epoch)
+        self.tick = (time.monotonic(), loop.env_steps(), loop.state.grad_steps)
+
+    def on_epoch_end(self, loop: PhaseLoop) -> None:
+        now, env_now, grad_now = time.monotonic(), loop.env_steps(), loop.state.grad_steps
+        then, env_then, grad_then = self.tick
+        dt = max(now - then, 1e-9)
+        postfix = _postfix(env_now - env_then, grad_now - grad_then, dt, loop.state.last_success)
+        self.bar.set_postfix_str(postfix, refresh=False)
+        self.bar.update(1)
+        self.tick = (now, env_now, grad_now)
+
+    def on_phase_end(self, loop: PhaseLoop) -> None:
+        self.bar.close()
+
+
+class PhaseLoop:
+    """One phase's epochs: plan, collect, update, evaluate, checkpoint, then the callbacks.
+
+    Holds the phase's parts (agent, replay, scheduler, collector) and its counters (`state`,
+    saved in every checkpoint); `run` (the `Run`) owns the run directory and the file formats.
+    """
+
+    def __init__(self, run: Run, phase: Phase, payload: Mapping[str, Any] | None) -> None:
+        from seal.learner.collection import Collector
+        from seal.learner.replay import MultiTaskReplay
+        from seal.learner.sac import Agent
+        from seal.schedulers.base import Scheduler
+
+        cfg = self.cfg = run.config
+        self.owner, self.phase = run, phase
+        model = self.model = PhaseModel(cfg, phase, run.adapters, run.alignment)
+        self.agent: Agent = run._initial_agent(phase, model, resuming=payload is not None)
+        self.replay: MultiTaskReplay = run._new_replay(model)
+        self.scheduler: Scheduler = scheduling.build(
+            cfg.scheduler,
+            model.env_tasks,
+            {e: cfg.envs[e].adapter for e in phase.envs},
+            cfg.path,
+            seed=derive_seed(run.seed, "scheduler", phase.index),
+            episode_lengths={e: run.adapters[e].episode_length for e in phase.envs},
+        )
+        self.state = PhaseState(env_steps={e: [0] * len(t) for e, t in model.env_tasks.items()})
+        self.np_rng = np.random.default_rng(derive_seed(run.seed, "runner", phase.index))
+        if payload is not None:
+            self._restore(payload)
+        self.collector: Collector = run._collector(model, self.state.anchor_epoch)
+        if payload is None and cfg.training.demo_episodes:
+            since = time.perf_counter()
+            self.state.demos = self._demonstrations()
+            self.state.add_time("demos", since)
+        self.id_maps = {
+            model.agent_env[e]: torch.as_tensor(model.aligned_ids(e), dtype=torch.long)
+            for e in phase.envs
+        }
+        self.total_tasks = sum(len(t) for t in model.env_tasks.values())
+        self.train_policy = model.policy(self.agent, deterministic=False)
+        self.eval_policy = model.policy(self.agent, deterministic=True)
+        self.started = time.monotonic() - self.state.wall_s
+        self.batch_now: dict[str, np.ndarray] = {}
+        """The per-task batch of the latest update (metrics.csv's `batch`)."""
+        self.callbacks: list[LoopCallback] = [] if run.quiet else [ProgressBar(self)]
+
+    def _restore(self, payload: Mapping[str, Any]) -> None:
+        """Agent, replay, scheduler, counters and RNG streams from a checkpoint's payload."""
+        self.agent.load_state_dict(payload["agent"])
+        if payload.get("replay") is None:
+            raise SealError(
+                f"{self.owner.rundir.path}: the checkpoint holds no replay (checkpoint.save_replay = false), so the run cannot resume exactly"
+            )
+        self.replay.load_state_dict(payload["replay"])
+        self.scheduler.load_state_dict(payload["scheduler"])
+        self.state = PhaseState(**payload["runner"]["state"])
+        self.np_rng.bit_generator.state = payload["runner"]["np_rng"]
+        torch.set_rng_state(payload["runner"]["torch_rng"])
+        random.setstate(_tuple_state(payload["runner"]["py_rng"]))
+
+    def env_steps(self) -> int:
+        """All env steps of the phase so far (demonstrations excluded)."""
+        return sum(map(sum, self.state.env_steps.values()))
+
+    def all_reached(self) -> bool:
+        """evaluation.stop_when_reached is on and every task has reached the threshold."""
+        reached = self.state.reached
+        return self.cfg.evaluation.stop_when_reached and all(
+            t in reached.get(e, {}) for e, ts in self.model.env_tasks.items() for t in ts
+        )
+
+    def run(self) -> PhaseState:
+        """Run the phase's remaining epochs; its counters."""
+        try:
+            while self.state.epoch < self.phase.epochs and not self.all_reached():
+                plan = self._plan()
+                if plan.reset_agent:
+                    self.agent.reset_parameters()
+                lengths = self._collect(plan)
+                self._train(plan, lengths)
+                last_epoch = self._end_epoch()
+                for callback in self.callbacks:
+                    callback.on_epoch_end(self)
+                if last_epoch:
+                    break
+        finally:
+            self.collector.close()
+            for callback in self.callbacks:
+                callback.on_phase_end(self)
+        return self.state
+
+    def _plan(self) -> Any:
+        from seal.schedulers import Progress
+
+        state = self.state
+        task_steps = {
+            (e, t): state.env_steps[e][i]
+            for e, ts in self.model.env_tasks.items()
+            for i, t in enumerate(ts)
+        }
+        return self.scheduler.plan(
+            Progress(
+                epoch=state.epoch,
+                env_steps=sum(task_steps.values()),
+                grad_steps=state.grad_steps,
+                task_env_steps=task_steps,
+            )
+        )
+
+    def _collect(self, plan: Any) -> dict[str, int]:
+        """One episode per planned task: warm-up envs act uniformly at random, the others with the policy.
+
+        Returns env -> the longest episode it collected (envs that collected nothing are absent).
+        """
+        state, model, envs = self.state, self.model, self.phase.envs
+        since = time.perf_counter()
+        warm = {e: sum(state.env_steps[e]) < self.cfg.training.warmup_steps for e in envs}
+        lengths: dict[str, int] = {}
+        for random_actions in (True, False):
+            active = {
+                e: np.asarray(plan.collect[e], dtype=bool) & (warm[e] == random_actions)
+                for e in envs
+            }
+            if not any(m.any() for m in active.values()):
+                continue
+            stats = self.collector.collect_episodes(
+                None if random_actions else self.train_policy,
+                active=active,
+                random_actions=random_actions,
+                sink=_ReplaySink(self.replay, model),
+            )
+            for e in envs:
+                idx = np.flatnonzero(active[e])
+                if not idx.size:
+                    continue
+                for i in idx:
+                    state.env_steps[e][i] += int(stats.lengths[e][i])
+                lengths[e] = int(stats.lengths[e][idx].max())
+                self.scheduler.observe_episodes(
+                    e,
+                    [model.env_tasks[e][i] for i in idx],
+                    [float(stats.returns[e][i]) for i in idx],
+                    [float(stats.successes[e][i]) for i in idx],
+                    [int(stats.lengths[e][i]) for i in idx],
+                )
+        state.add_time("collect", since)
+        return lengths
+
+    def _train(self, plan: Any, lengths: Mapping[str, int]) -> None:
+        """The epoch's gradient steps, once every env has finished its warm-up (evaluating every K steps)."""
+        state, model, cfg = self.state, self.model, self.cfg
+        self.batch_now = {e: np.zeros(len(model.env_tasks[e]), np.int64) for e in self.phase.envs}
+        warm = any(sum(state.env_steps[e]) < cfg.training.warmup_steps for e in self.phase.envs)
+        if warm or not lengths:
+            return
+        counts = plan.batch_counts(cfg.training.batch_per_task * self.total_tasks)
+        sample_counts = {
+            model.agent_env[e]: np.asarray(c, dtype=np.int64)
+            for e, c in counts.items()
+            if int(np.sum(c)) > 0
+        }
+        self.batch_now = {e: np.asarray(c, dtype=np.int64) for e, c in counts.items()}
+        every = cfg.evaluation.every_grad_steps
+        for _ in range(self._grad_steps(plan, lengths)):
+            since = time.perf_counter()
+            batches = self.replay.sample(sample_counts, self.np_rng)
+            if model.alignment is not None:
+                batches = {
+                    k: b._replace(task_ids=self.id_maps[k].to(b.task_ids.device)[b.task_ids])
+                    for k, b in batches.items()
+                }
+            try:
+                losses = self.agent.update(batches)
+            except TrainingDivergedError as exc:
+                rundir = self.owner.rundir
+                raise SealError(
+                    f"{rundir.path}: training diverged in phase {self.phase.name!r} at gradient step {state.grad_steps + 1} ({exc}); last good checkpoint: {rundir.latest_checkpoint() or 'none yet'}"
+                ) from None
+            state.grad_steps += 1
+            state.log_updates += 1
+            for k, v in losses.items():
+                state.log_sums[k] = state.log_sums.get(k, 0.0) + float(v)
+            state.add_time("update", since)
+            if every and state.grad_steps % every == 0:
+                self._evaluate()  # mid-epoch: the update-count grid is K x batch
+
+    def _demonstrations(self) -> dict[str, dict[str, float]]:
+        """Put `training.demo_episodes` episodes per task of each adapter's scripted expert in the replay."""
+        model = self.model
+        experts = {
+            e: [model.adapters[e].expert(t) for t in tasks] for e, tasks in model.env_tasks.items()
+        }
+
+        def act(env: str, obs: np.ndarray, task_ids: np.ndarray) -> np.ndarray:
+            return np.stack([experts[env][i](o) for o, i in zip(obs, task_ids, strict=True)])
+
+        episodes = self.cfg.training.demo_episodes
+        steps = {e: 0 for e in experts}
+        successes = {e: 0.0 for e in experts}
+        sink = _ReplaySink(self.replay, model)
+        for _ in range(episodes):
+            stats = self.collector.collect_episodes(act, sink=sink)
+            for e in experts:
+                steps[e] += int(stats.lengths[e].sum())
+                successes[e] += float(stats.successes[e].sum())
+        figures = {
+            e: {
+                "episodes": episodes * len(experts[e]),
+                "env_steps": steps[e],
+                "expert_success": successes[e] / (episodes * len(experts[e])),
+            }
+            for e in experts
+        }
+        if not self.owner.quiet:
+            for e, f in figures.items():
+                print(
+                    f"[seal] {e}: {f['episodes']} demonstration episodes, {f['env_steps']} env steps "
+                    f"in the replay (expert success {f['expert_success']:.2f})",
+                    file=sys.stderr,
+                )
+        return figures
+
+    def _grad_steps(self, plan: Any, collected_lengths: Mapping[str, int]) -> int:
+        from seal.schedulers import GRAD_STEPS_COLLECTED
+
+        if plan.grad_steps is not None:
+            if plan.grad_steps == GRAD_STEPS_COLLECTED:
+                return int(sum(collected_lengths.values()))
+            return int(plan.grad_steps)
+        n = self.cfg.training.grad_steps_per_epoch
+        # -1: the longest episode collected this epoch (see TrainingConfig.grad_steps_per_epoch).
+        return int(max(collected_lengths.values())) if n == -1 else int(n)
+
+    def _train_rows(
+        self, epoch: int, grad_steps: int, values: Mapping[str, float]
+    ) -> list[dict[str, Any]]:
+        """train.csv rows of the mean logged values (`train_rows_for` names them)."""
+        return [
+            {
+                "seed": self.owner.seed,
+                "phase": self.phase.name,
+                "epoch": epoch,
+                "grad_steps": grad_steps,
+                "env": env,
+                "key": name,
+                "value": float(v),
+            }
+            for key, value in values.items()
+            for env, name, v in train_rows_for(key, value, self.model)
+        ]
+
+    def _evaluate(self) -> None:
+        """Appendix B's evaluation: metrics.csv rows, first crossings, best.pt, then the callbacks."""
+        since = time.perf_counter()
+        cfg, state, model, phase, owner = self.cfg, self.state, self.model, self.phase, self.owner
+        state.evaluated_at = state.grad_steps
+        results = evaluate(
+            self.eval_policy,
+            model.adapters,
+            episodes=cfg.evaluation.episodes,
+            seed=0,
+            collector=self.collector,
+        )
+        wall = time.monotonic() - self.started
+        batch = self.batch_now
+        rows = []
+        success_by_key: dict[tuple[str, str], float] = {}
+        for env in phase.envs:
+            consumed = np.asarray(self.replay.consumed[model.agent_env[env]], dtype=np.int64)
+            for i, task in enumerate(model.env_tasks[env]):
+                r = results[env][task]
+                updates = float(consumed[i]) / 1e6
+                rows.append(
+                    {
+                        "seed": owner.seed,
+                        "phase": phase.name,
+                        "epoch": state.epoch,
+                        "env": env,
+                        "task": task,
+                        "success": r["success"],
+                        "return": r["return"],
+                        "grad_steps": state.grad_steps,
+                        "env_steps": state.env_steps[env][i],
+                        "updates": updates,
+                        "batch": int(batch[env][i]) if env in batch else 0,
+                        "wall_s": round(wall, 3),
+                    }
+                )
+                success_by_key[(env, task)] = r["success"]
+                if reaches(
+                    r["success"], cfg.evaluation.threshold
+                ) and task not in state.reached.get(env, {}):
+                    state.reached.setdefault(env, {})[task] = updates
+        owner.rundir.log_eval(rows)
+        state.last_success = {
+            e: {t: results[e][t]["success"] for t in model.env_tasks[e]} for e in phase.envs
+        }
+        owner.rundir.log_charts(
+            {
+                f"{e}/mean_success": float(np.mean(list(v.values())))
+                for e, v in state.last_success.items()
+            },
+            state.grad_steps,
+        )
+        self.scheduler.observe_eval(state.epoch, success_by_key)
+        mean = mean_success(results)
+        if mean > state.best_mean_success:
+            state.best_mean_success = mean
+            save_checkpoint(
+                owner.rundir.best_path(phase.name if len(owner.phases) > 1 else None),
+                self.agent,
+                fields=owner._fields(phase, None, state, None, best=True),
+            )
+        state.add_time("evaluate", since)
+        for callback in self.callbacks:
+            callback.on_evaluation(self)
+
+    def _scores(self, request: Any, epoch: int) -> dict[tuple[str, str], float]:
+        """SMT Eq. 5 scores: mean over episodes of sum_t gamma^t r_t - log pi(a_t|s_t) (stochastic policy).
+
+        The entropy term needs `agent.log_prob(env, obs, actions, task_ids)`; an agent without it
+        is scored by discounted return alone (said in the scheduler's docs).
+        """
+        from seal.learner.collection import Collector
+
+        model, agent = self.model, self.agent
+        keys = list(request.tasks)
+        tasks = {e: [t for (e2, t) in keys if e2 == e] for e in model.env_tasks}
+        tasks = {e: ts for e, ts in tasks.items() if ts}
+        totals = {k: 0.0 for k in keys}
+        policy = model.policy(agent, deterministic=False)
+        log_prob = getattr(agent, "log_prob", None)
+        with Collector(
+            {e: model.adapters[e] for e in tasks},
+            seed=derive_seed(self.owner.seed, "score", model.phase.index, epoch),
+            tasks=tasks,
+            backend="sync",
+        ) as col:
+            for _ in range(request.episodes):
+                t_of: dict[str, np.ndarray] = {}
+
+                def sink(
+                    env: str,
+                    task_ids: np.ndarray,
+                    obs: np.ndarray,
+                    actions: np.ndarray,
+                    rewards: np.ndarray,
+                    *_: Any,
+                    _t: dict[str, np.ndarray] = t_of,
+                ) -> None:
+                    names = model.adapters[env].tasks
+                    steps = _t.setdefault(env, np.zeros(len(names), dtype=np.int64))
+                    term = rewards * request.discount ** steps[task_ids]
+                    if log_prob is not None:
+                        name, agent_obs, ids = policy.agent_inputs(env, obs, task_ids)
+                        term = term - np.asarray(
+                            log_prob(name, agent_obs, actions, ids), dtype=np.float64
+                        )
+                    for j, tid in enumerate(task_ids):
+                        totals[(env, names[tid])] += float(term[j]) / request.episodes
+                    steps[task_ids] += 1
+
+                col.collect_episodes(policy, sink=sink)
+        return totals
+
+    def _end_epoch(self) -> bool:
+        """Training curves, evaluation, scheduler scores and timeline, checkpoint; whether the phase ends."""
+        run, state, cfg, scheduler = self.owner, self.state, self.cfg, self.scheduler
+        state.epoch += 1
+        epoch = state.epoch
+        last_epoch = epoch >= self.phase.epochs or scheduler.done
+        # Training curves: the mean of every logged value over the interval's updates.
+        if state.log_updates and (epoch % cfg.logging.train_interval == 0 or last_epoch):
+            means = {k: v / state.log_updates for k, v in state.log_sums.items()}
+            run.rundir.log_train(self._train_rows(epoch, state.grad_steps, means))
+            state.log_sums, state.log_updates = {}, 0
+        # Evaluation (Appendix B): every `interval` epochs, or every K gradient steps (in _train).
+        every = cfg.evaluation.every_grad_steps
+        due = not every and epoch % cfg.evaluation.interval == 0
+        if due or (last_epoch and not (every and state.evaluated_at == state.grad_steps)):
+            self._evaluate()
+        request = scheduler.wants_scores()
+        if request is not None:
+            scheduler.observe_scores(self._scores(request, epoch))
+        last_epoch = last_epoch or self.all_reached()
+        timeline = scheduler.timeline()
+        if len(timeline) > state.timeline_rows:
+            run.rundir.log_scheduler(
+                [{"phase": self.phase.name, **r} for r in timeline[state.timeline_rows :]]
+            )
+            state.timeline_rows = len(timeline)
+        if epoch % cfg.checkpoint.interval == 0 or last_epoch:
+            self._checkpoint(reseed=not last_epoch)
+        return last_epoch
+
+    def _checkpoint(self, reseed: bool) -> None:
+        state = self.state
+        state.wall_s = time.monotonic() - self.started
+        state.anchor_epoch = state.epoch
+        since = time.perf_counter()
+        self.owner._checkpoint(
+            self.phase, self.agent, self.replay, self.scheduler, state, self.np_rng
+        )
+        state.add_time("checkpoint", since)
+        if reseed:
+            # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
+            self.collector.close()
+            self.collector = self.owner._collector(self.model, state.epoch)
+
+
+def _tuple_state(state: Any) -> Any:
+    """random.getstate() after a round trip through torch.save (lists back to tuples)."""
+    if isinstance(state, list):
+        return tuple(_tuple_state(s) for s in state)
+    return state
+
+
+# The agent's log keys ("losses/<env>/critic", "charts/<env>/alpha/<id>") -> train.csv keys.
+_TRAIN_KEYS = {
+    "losses/critic": "critic_loss",
+    "losses/actor": "actor_loss",
+    "losses/qf1": "qf1_loss",
+    "losses/qf2": "qf2_loss",
+    "losses/alpha": "alpha_loss",
+    "charts/mean_q": "mean_q",
+    "charts/entropy": "entropy",
+}
+
+
+def train_rows_for(key: str, value: float, model: PhaseModel) -> list[tuple[str, str, float]]:
+    """(env, train.csv key, value) rows for one of the agent's log values.
+
+    "losses/<agent env>/critic" becomes (env, "critic_loss"); "charts/<agent env>/alpha/<id>"
+    becomes one "alpha/<task>" row for every task of env whose head id is <id> (under
+    pad-and-fine-tune several kitchen tasks share an aligned id, so they share a temperature).
+    """
+    parts = key.split("/")
+    if len(parts) < 3 or parts[1] not in model.env_of_agent:
+        return [("", key, value)]
+    env = model.env_of_agent[parts[1]]
+    if len(parts) == 4 and parts[2] == "alpha" and parts[3].isdigit():
+        ids = model.aligned_ids(env)
+        return [
+            (env, f"alpha/{task}", value)
+            for task, i in zip(model.env_tasks[env], ids, strict=True)
+            if int(i) == int(parts[3])
+        ]
+    short = f"{parts[0]}/{'/'.join(parts[2:])}"
+    return [(env, _TRAIN_KEYS.get(short, "/".join(parts[2:])), value)]
+
+
+def _progress_bar(phase: Phase, initial: int) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(
+        total=phase.epochs,
+        initial=initial,
+        desc=f"{phase.name}",
+        unit="epoch",
+        dynamic_ncols=True,
+        file=sys.stderr,
+    )
+
+
+def _postfix(
+    env_steps: int, grad_steps: int, dt: float, success: Mapping[str, Mapping[str, float]]
+) -> str:
+    parts = [f"env {env_steps / dt:,.0f}/s", f"upd {grad_steps / dt:,.0f}/s"]
+    for env, per_task in success.items():
+        if per_task:
+            parts.append(f"{env} {np.mean(list(per_task.values())):.2f}")
+    return " ".join(parts)
+
+
+class _ReplaySink:
+    """Feeds collector transitions to the replay, aligning observations for pad-and-fine-tune."""
+
+    def __init__(self, replay: Any, model: PhaseModel) -> None:
+        self.replay = replay
+        self.model = model
+
+    def __call__(
+        self,
+        env: str,
+        task_ids: np.ndarray,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminations: np.ndarray,
+    ) -> None:
+        model = self.model
+        if model.alignment is not None:
+            name = model.adapters[env].name
+            obs = model.alignment.transform_obs(name, obs, task_ids)
+            next_obs = model.alignment.transform_obs(name, next_obs, task_ids)
+        self.replay.add(
+            model.agent_env[env], task_ids, obs, actions, rewards, next_obs, terminations
+        )
