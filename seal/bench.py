@@ -9,6 +9,9 @@ machine load affects both sides (the load is recorded with the results):
 - ``mt10_update_flops_fraction``: matmul FLOPs an ideal MT10 MTMHSAC update needs
   (`ideal_update_gemms`), per second of our update, / the FLOP/s torch.mm reaches on exactly those
   GEMM shapes. Equivalently: time of the update's GEMMs alone / time of the whole update.
+- ``small_update_flops_fraction``: the same for the quickstart's SEAL update (protocols/quickstart.toml:
+  its two envs' real sizes, 128 samples per task, 128-wide networks), always on one torch thread;
+  eager and with agent.compile side by side (the compiled figure is the headline when it compiles).
 - ``ratio_lever``: at a 90/10 data ratio, the 90% environment's share of the shared policy trunk's
   step (`Agent.ratio_lever`) under the default ``shared_update = "weighted"``; the details list
   every mode with the ratio of the two environments' trunk gradient norms. Not a timing.
@@ -23,11 +26,13 @@ SAC on Meta-World reach-v3); it is slow and not part of CI.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import os
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -367,6 +372,7 @@ class UpdateShape:
     actor_heads: int = 1
     critic_heads: int = 1
     critic_input_grad: int | None = None  # None: act_dim
+    critic_hidden: tuple[int, ...] | None = None  # None: hidden (SEAL per-env critics differ)
 
     @property
     def actor_dims(self) -> list[int]:
@@ -380,7 +386,8 @@ class UpdateShape:
     @property
     def critic_dims(self) -> list[int]:
         """Layer widths of one critic, input to output."""
-        return [self.actor_dims[0] + self.act_dim, *self.hidden, self.critic_heads]
+        hidden = self.hidden if self.critic_hidden is None else self.critic_hidden
+        return [self.actor_dims[0] + self.act_dim, *hidden, self.critic_heads]
 
 
 Gemm = tuple[int, int, int]  # (m, k, n): an (m, k) @ (k, n) product, 2 m k n FLOPs
@@ -538,6 +545,179 @@ def bench_mt10_flops(updates: int = 50, repeats: int = 3, seed: int = 0) -> dict
         "matmul_gflops_same_shapes": flops / t_mm / 1e9,
         "mt10_update_flops_fraction": t_mm / t_update,
         "updates_timed": updates,
+    }
+
+
+# ---------------------------------------------------------------- small (quickstart) update FLOPs
+
+QUICKSTART = Path(__file__).resolve().parents[1] / "protocols" / "quickstart.toml"
+
+
+def agent_update_shapes(specs: Sequence[Any], config: Any, per_task: int) -> list[UpdateShape]:
+    """One UpdateShape per env of an agent's update (ideal: only each sample's task head).
+
+    SEAL env i's policy is one chain of layers, translator_i -> shared trunk -> head_i, so as
+    GEMMs it is an MLP with hidden widths (*translator_hidden, latent_dim, *trunk_hidden); its
+    critic is its own MLP over critic_hidden (critic_sharing = "per_env") or the same chain
+    (shared). The shared trunk is counted once per env's rows: an ideal implementation that ran
+    both envs' rows through it in one product does the same multiply-adds. act_pad_to is ignored.
+    """
+    if config.architecture == "seal":
+        actor_hidden = (*config.translator_hidden, config.latent_dim, *config.trunk_hidden)
+        critic_hidden = config.critic_hidden if config.critic_sharing == "per_env" else actor_hidden
+    else:
+        actor_hidden = critic_hidden = config.hidden
+    return [
+        UpdateShape(
+            obs_dim=s.obs_dim,
+            act_dim=s.act_dim,
+            num_tasks=s.num_tasks,
+            hidden=tuple(actor_hidden),
+            critic_hidden=tuple(critic_hidden),
+            batch=per_task * s.num_tasks,
+            one_hot=config.one_hot,
+        )
+        for s in specs
+    ]
+
+
+def agent_update_gemms(shapes: Sequence[UpdateShape]) -> list[Gemm]:
+    """`ideal_update_gemms` of every env's shape, env after env."""
+    return [g for shape in shapes for g in ideal_update_gemms(shape)]
+
+
+def as_implemented(shape: UpdateShape) -> UpdateShape:
+    """`shape` set to what our update computes: every policy and Q head, the critic's full input gradient."""
+    return dataclasses.replace(
+        shape,
+        actor_heads=shape.num_tasks,
+        critic_heads=shape.num_tasks,
+        critic_input_grad=shape.actor_dims[0] + shape.act_dim,
+    )
+
+
+def quickstart_setup(protocol: str | Path = QUICKSTART) -> tuple[list[Any], Any, int]:
+    """The quickstart's EnvSpecs (its envs' real obs/action sizes and task counts), its resolved
+    AgentConfig on CPU and its batch_per_task; SealError when an env's adapter is not installed."""
+    from seal.learner import EnvSpec
+    from seal.protocols import load_protocol
+    from seal.protocols.runner import agent_config, build_adapters
+
+    config = load_protocol(str(protocol))
+    try:
+        adapters = build_adapters(config)
+    except ImportError as exc:  # an env's simulator is missing
+        raise SealError(f"{protocol}: cannot build its envs ({exc})") from None
+    specs = [EnvSpec(n, a.obs_dim, a.act_dim, len(a.tasks)) for n, a in adapters.items()]
+    agent_cfg = dataclasses.replace(agent_config(config), device="cpu")
+    return specs, agent_cfg, int(config.training.batch_per_task)
+
+
+def _agent_batches(specs: Sequence[Any], per_task: int, seed: int) -> dict[str, Any]:
+    return {
+        s.name: _random_batch(s.num_tasks, per_task, seed + i, s.obs_dim, s.act_dim)
+        for i, s in enumerate(specs)
+    }
+
+
+def agent_flop_formula_check(
+    specs: Sequence[Any], config: Any, per_task: int, seed: int = 0
+) -> dict[str, Any]:
+    """FlopCounterMode's count of one real update of any agent vs the `as_implemented` formula (and the ideal count).
+
+    The update counted is the second one (the first measures the ratio lever on copies). Give
+    every env >= 2 tasks: a single-task ensemble Q head is a multiply-and-sum, not a matmul, so
+    FlopCounterMode does not see it (`run_bench` checks the quickstart's shapes with 2 tasks each).
+    """
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from seal.learner import Agent
+
+    agent = Agent(specs, config, seed)
+    batches = _agent_batches(specs, per_task, seed)
+    agent.update(batches)
+    with FlopCounterMode(display=False) as counter:
+        agent.update(batches)
+    counted = int(counter.get_total_flops())
+    shapes = agent_update_shapes(specs, config, per_task)
+    formula = gemm_flops(agent_update_gemms([as_implemented(s) for s in shapes]))
+    return {
+        "flop_counter": counted,
+        "formula_as_implemented": formula,
+        "formula_ideal": gemm_flops(agent_update_gemms(shapes)),
+        "equal": counted == formula,
+    }
+
+
+def bench_small_update_flops(
+    updates: int = 30, repeats: int = 3, seed: int = 0, compile: bool = True
+) -> dict[str, Any]:
+    """FLOP/s of the quickstart-shape SEAL update / torch.mm FLOP/s at its ideal GEMM shapes, one thread.
+
+    The agent is the quickstart protocol's (`quickstart_setup`): two envs, batch_per_task samples
+    per task, its widths. Ideal FLOPs as `mt10_update_flops_fraction` counts them, per env
+    (`agent_update_shapes`). Measured for the eager update and, with `compile`, for the same agent
+    with agent.compile on (its repeats interleaved with eager's, same batches and seed); the
+    headline `small_update_flops_fraction` is the compiled one when it compiled, else eager's.
+    `loss_max_rel_diff` compares the two agents' losses at updates 1 and 5.
+    """
+    from seal.learner import Agent
+
+    specs, config, per_task = quickstart_setup()
+    shapes = agent_update_shapes(specs, config, per_task)
+    gemms = agent_update_gemms(shapes)
+    flops = gemm_flops(gemms)
+    with torch_threads(1):
+        agents = {"eager": Agent(specs, config, seed)}
+        if compile:
+            agents["compiled"] = Agent(specs, dataclasses.replace(config, compile=True), seed)
+        batches = _agent_batches(specs, per_task, seed)
+        losses: dict[str, list[dict[str, float]]] = {k: [] for k in agents}
+        for _ in range(5):  # the first also measures the ratio lever (every 1000 updates)
+            for name, agent in agents.items():
+                metrics = agent.update(batches)
+                losses[name].append({k: v for k, v in metrics.items() if k.startswith("losses")})
+        best = dict.fromkeys(agents, math.inf)
+        for _ in range(repeats):
+            for name, agent in agents.items():
+
+                def run(agent: Any = agent) -> None:
+                    for _ in range(updates):
+                        agent.update(batches)
+
+                best[name] = min(best[name], _timeit(run, 1) / updates)
+        t_mm = _time_gemms(gemms, repeats)
+    paths: dict[str, Any] = {}
+    for name in agents:
+        paths[name] = {
+            "update_s": best[name],
+            "update_gflops": flops / best[name] / 1e9,
+            "small_update_flops_fraction": t_mm / best[name],
+        }
+    if "compiled" in agents:
+        compiled = agents["compiled"]
+        paths["compiled"]["compiled"] = compiled.compiled
+        paths["compiled"]["compile_seconds"] = compiled.compile_seconds
+        paths["compiled"]["loss_max_rel_diff"] = {
+            f"update_{i + 1}": max(
+                abs(losses["compiled"][i][k] - v) / max(abs(v), 1e-12)
+                for k, v in losses["eager"][i].items()
+            )
+            for i in (0, 4)
+        }
+    headline = "compiled" if compile and agents["compiled"].compiled else "eager"
+    return {
+        "envs": {s.name: dataclasses.asdict(s) for s in specs},
+        "batch_per_task": per_task,
+        "ideal_flops_per_update": flops,
+        "matmul_gflops_same_shapes": flops / t_mm / 1e9,
+        "paths": paths,
+        "headline_path": headline,
+        "update_s": best[headline],
+        "update_gflops": paths[headline]["update_gflops"],
+        "small_update_flops_fraction": paths[headline]["small_update_flops_fraction"],
+        "updates_timed": updates,
+        "threads": 1,
     }
 
 
@@ -993,6 +1173,7 @@ def run_bench(
     keys = (
         "sac_vs_sb3",
         "mt10_update_flops_fraction",
+        "small_update_flops_fraction",
         "collect_mt10_speedup",
         "collect_fk_speedup",
         "ratio_lever",
@@ -1021,6 +1202,21 @@ def run_bench(
         d = bench_mt10_flops(settings.flops_updates, settings.repeats)
         out["details"]["mt10_update_flops"] = d
         out["mt10_update_flops_fraction"] = d["mt10_update_flops_fraction"]
+    if "small_update_flops_fraction" in chosen:
+        log("small_update_flops_fraction")
+        try:
+            specs, config, per_task = quickstart_setup()
+        except SealError as exc:
+            out["details"]["small_update_flops"] = {"skipped": str(exc)}
+            out["small_update_flops_fraction"] = None
+        else:
+            two_tasks = [dataclasses.replace(sp, num_tasks=max(2, sp.num_tasks)) for sp in specs]
+            out["details"]["small_flop_formula_check"] = agent_flop_formula_check(
+                two_tasks, config, per_task
+            )
+            d = bench_small_update_flops(settings.flops_updates, settings.repeats)
+            out["details"]["small_update_flops"] = d
+            out["small_update_flops_fraction"] = d["small_update_flops_fraction"]
     for key, adapter, length in (
         ("collect_mt10_speedup", "metaworld", settings.mt10_episode_length),
         ("collect_fk_speedup", "franka_kitchen_dense", settings.fk_episode_length),
@@ -1066,10 +1262,27 @@ def run_learn(log: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
 GOALS = {
     "sac_vs_sb3": 1.3,
     "mt10_update_flops_fraction": 0.75,
+    "small_update_flops_fraction": 0.6,
     "collect_mt10_speedup": 1.7,
     "collect_fk_speedup": 1.7,
     "ratio_lever": 0.8,
 }
+
+
+def _small_detail(small: Mapping[str, Any], check: Mapping[str, Any]) -> str:
+    parts = []
+    for name, p in small["paths"].items():
+        text = f"{name} {p['small_update_flops_fraction']:.2f} ({p['update_s'] * 1e3:.1f} ms, {p['update_gflops']:.1f} GFLOP/s"
+        if name == "compiled":
+            diff = max(p["loss_max_rel_diff"].values())
+            text += f"; compiled {p['compile_seconds']:.0f} s; losses vs eager {diff:.0e} rel"
+            if not p["compiled"]:
+                text += "; FELL BACK TO EAGER"
+        parts.append(text + ")")
+    return (
+        f"{small['headline_path']} shown; {', '.join(parts)}; mm {small['matmul_gflops_same_shapes']:.1f} GFLOP/s, "
+        f"{small['ideal_flops_per_update'] / 1e6:.0f} MFLOP, 1 thread; formula==FlopCounter: {check['equal']}"
+    )
 
 
 def format_table(result: Mapping[str, Any]) -> str:
@@ -1088,6 +1301,13 @@ def format_table(result: Mapping[str, Any]) -> str:
             f"({d['mt10_update_flops']['update_s'] * 1e3:.1f} ms/update); formula==FlopCounter: {d['flop_formula_check']['equal']}"
         ),
     }
+    small = d.get("small_update_flops", {})
+    if "skipped" in small:
+        detail["small_update_flops_fraction"] = lambda: f"skipped: {small['skipped']}"
+    elif small:
+        detail["small_update_flops_fraction"] = lambda: _small_detail(
+            small, d["small_flop_formula_check"]
+        )
     if "ratio_lever" in d:
         detail["ratio_lever"] = lambda: (
             "; ".join(

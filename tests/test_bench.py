@@ -44,6 +44,49 @@ def test_flop_formula_equals_flop_counter_on_our_update() -> None:
     assert check["formula_ideal"] < check["flop_counter"]
 
 
+def test_seal_update_flop_formula_by_hand() -> None:
+    from seal.bench import agent_update_gemms, agent_update_shapes
+    from seal.learner import AgentConfig, EnvSpec
+
+    # SEAL, obs 2, act 1, one task without one-hot, translator (3,) -> latent 3 -> trunk (3,),
+    # per-env critic (3,), batch 1. Policy chain [2, 3, 3, 3, 2]: forward 2 * (6 + 9 + 9 + 6) = 60;
+    # critic [3, 3, 1]: forward 2 * (9 + 3) = 24.
+    # critic step: 60 + 2 x 24 + 2 x (24 + dW 24 + dX of 3->1 layer 6) = 216
+    # actor step: 60 + 2 x (24 + 6 + dX to the action column 2*3*1 = 6) + dW 60
+    #             + dX of the 3->3, 3->3, 3->2 layers 2 * (9 + 9 + 6) = 48  -> 240.   Per env 456.
+    config = AgentConfig(
+        architecture="seal",
+        translator_hidden=(3,),
+        latent_dim=3,
+        trunk_hidden=(3,),
+        critic_hidden=(3,),
+        one_hot=False,
+    )
+    shapes = agent_update_shapes([EnvSpec("a", 2, 1, 1), EnvSpec("b", 2, 1, 1)], config, 1)
+    assert shapes[0].actor_dims == [2, 3, 3, 3, 2] and shapes[0].critic_dims == [3, 3, 1]
+    assert gemm_flops(agent_update_gemms(shapes)) == 2 * 456
+
+
+@pytest.mark.parametrize("critic_sharing", ["per_env", "shared"])
+def test_seal_flop_formula_equals_flop_counter_on_a_seal_update(critic_sharing: str) -> None:
+    from seal.bench import agent_flop_formula_check
+    from seal.learner import AgentConfig, EnvSpec
+
+    config = AgentConfig(
+        architecture="seal",
+        translator_hidden=(16,),
+        latent_dim=12,
+        trunk_hidden=(16, 16),
+        critic_hidden=(16, 8),
+        critic_sharing=critic_sharing,
+        device="cpu",
+    )
+    specs = [EnvSpec("mw", 39, 4, 2), EnvSpec("fk", 62, 9, 3)]
+    check = agent_flop_formula_check(specs, config, per_task=4)
+    assert check["equal"], check
+    assert check["formula_ideal"] < check["flop_counter"]
+
+
 def test_collection_bench_on_point_ends_on_identical_observations(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

@@ -117,8 +117,10 @@ class AgentConfig:
     """Pad-and-fine-tune: also re-initialise the critics (not only the policy's last layer) when loading the other env's agent."""
     device: str = "auto"
     """Torch device: "auto" (CUDA when present, else CPU), "cpu", "cuda" or "cuda:<index>"."""
+    # Off by default: compiling costs ~35 s at the quickstart's widths (more at MT10's); the
+    # quickstart-shape update ran ~1.4x faster compiled (`seal bench --only small_update_flops_fraction`).
     compile: bool = False
-    """torch.compile the loss computations (eager fallback if compilation fails); off: no gain measured at MT10 defaults on CPU, ~90 s to compile."""
+    """torch.compile each update stage (the critic's, then the actor's losses with their gradients, forward and backward in one graph); optimiser steps stay eager. Eager fallback, with one warning, if compilation fails; `Agent.compile_seconds` says what it cost."""
 
     def __post_init__(self) -> None:
         for key in ("hidden", "translator_hidden", "trunk_hidden", "critic_hidden"):

@@ -19,8 +19,8 @@ SMALL = {"hidden": (32, 32), "translator_hidden": (32,), "latent_dim": 16, "trun
 SPECS = [EnvSpec("mw", 5, 2, 3), EnvSpec("fk", 7, 3, 2)]
 
 
-def _filled(seed: int = 0) -> tuple[Agent, MultiTaskReplay]:
-    agent = Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=seed)
+def _filled(seed: int = 0, compile: bool = False) -> tuple[Agent, MultiTaskReplay]:
+    agent = Agent(SPECS, AgentConfig(architecture="seal", compile=compile, **SMALL), seed=seed)
     replay = MultiTaskReplay(SPECS, capacity=60)
     rng = np.random.default_rng(seed)
     for spec in SPECS:
@@ -51,10 +51,11 @@ def _params(agent: Agent) -> list[torch.Tensor]:
     ]
 
 
+@pytest.mark.parametrize("compile", [False, True], ids=["eager", "compiled"])
 def test_resume_then_update_is_bitwise_identical_to_updating_without_the_round_trip(
-    tmp_path: Path,
+    tmp_path: Path, compile: bool
 ) -> None:
-    agent, replay = _filled()
+    agent, replay = _filled(compile=compile)
     rng = np.random.default_rng(1)
     counts = counts_from_ratio({"mw": 0.5, "fk": 0.5}, {"mw": 3, "fk": 2}, batch_per_task=4)
     for _ in range(3):
@@ -70,7 +71,7 @@ def test_resume_then_update_is_bitwise_identical_to_updating_without_the_round_t
     expected_params = _params(agent)
 
     resumed, resumed_replay = (
-        Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=99),
+        Agent(SPECS, AgentConfig(architecture="seal", compile=compile, **SMALL), seed=99),
         MultiTaskReplay(SPECS, capacity=60),
     )
     extra = read_checkpoint(path)
@@ -81,6 +82,9 @@ def test_resume_then_update_is_bitwise_identical_to_updating_without_the_round_t
     resumed_rng.bit_generator.state = extra["rng"]
     got = resumed.update(resumed_replay.sample(counts, resumed_rng))
     assert got == expected  # exact float equality of every loss and temperature
+    if compile and not agent.compiled:  # no C++ compiler here (it fell back to eager)
+        pytest.skip("torch.compile unavailable")
+    assert resumed.compiled == agent.compiled == compile
     for a, b in zip(expected_params, _params(resumed), strict=True):
         assert torch.equal(a, b)
     for env in ("mw", "fk"):

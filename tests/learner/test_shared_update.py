@@ -64,7 +64,12 @@ def test_ratio_lever_by_hand(monkeypatch: pytest.MonkeyPatch) -> None:
     coefficient = {"a": 1.0, "b": -2.0}
 
     def actor_loss(
-        self: Agent, name: str, obs_in: torch.Tensor, task_ids: torch.Tensor, alpha: torch.Tensor
+        self: Agent,
+        name: str,
+        obs_in: torch.Tensor,
+        task_ids: torch.Tensor,
+        alpha: torch.Tensor,
+        noise: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         weight = self.actor.trunk.weights[0]
         # (weight * ones) gives a dense gradient: the gradient of a bare sum is a stride-0
