@@ -115,6 +115,8 @@ def _adam_step(optimizers: Sequence[torch.optim.Optimizer]) -> None:
     gradient are left alone, as Adam does. Falls back to plain step() for a first step (no
     state yet) or any setting this does not cover (amsgrad, weight decay, maximize, ...).
     """
+    if not hasattr(torch, "_fused_adam_"):  # a private op: a torch without it steps plainly
+        return _plain_steps(optimizers)
     calls: dict[tuple[float, float, float, float], list[list[torch.Tensor]]] = {}
     for optimizer in optimizers:
         for group in optimizer.param_groups:
