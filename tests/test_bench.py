@@ -136,8 +136,10 @@ def test_ratio_lever_bench_reports_every_mode_with_gradient_norm_ratios() -> Non
         "critic_hidden": (16,),
     }
     result = bench_ratio_lever(warmup_updates=2, batch_per_task=4, episodes=1, agent=small)
-    # point (4 tasks) and point_view at 90/10 of 4 x 8 tasks' samples: 29 and 3 (largest remainder)
-    assert result["batch"] == {"a": 29, "b": 3}
+    # point (4 tasks) and point_view at 90/10 of 4 x 8 tasks' samples, rounded per task as the
+    # runner rounds a plan (split_counts): a's tasks 7.2 -> 7, b's 0.8 -> 0, and the 4 left over go
+    # to the largest remainders, b's 0.8 each: 28 and 4 (env-level rounding would give 29 and 3)
+    assert result["batch"] == {"a": 28, "b": 4}
     assert list(result["modes"]) == ["weighted", "sequential", "per_env"]
     for mode in result["modes"].values():
         assert mode["env"] == "a" and 0.0 < mode["lever"] < 1.0
