@@ -33,7 +33,6 @@ import json
 import math
 import os
 import sys
-import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -51,6 +50,7 @@ from seal.protocols.loader import (
     dumps_toml,
     load_protocol,
 )
+from seal.protocols.phase import LoopCallback, PhaseLoop
 from seal.protocols.rundir import atomic_write_text, new_group_id, seed_dir
 from seal.protocols.sweep_tables import (
     SEARCH_OPTIONS,
@@ -63,7 +63,6 @@ MANIFEST = "sweep.json"
 """The file in a sweep directory that records what was asked and every trial's status."""
 
 Status = Literal["finished", "failed", "stopped", "pending"]
-POLL_S = 0.5  # how often a search trial reads its metrics.csv for new evaluations
 
 
 # ---------------------------------------------------------------- [resources] and [search]
@@ -764,73 +763,81 @@ class SearchPlan:
 
 
 def search_trainable(tune_config: Mapping[str, Any], plan: SearchPlan) -> None:
-    """The Ray Tune function trainable of one sample: run it and report mean success per evaluation.
+    """The Ray Tune function trainable of one sample: run it, reporting mean success per evaluation.
 
-    The run goes on in a thread while this one reads metrics.csv and reports every new complete
-    evaluation to Tune (`training_iteration` counts evaluations, which ASHA's grace period uses).
-    A finished run directory (resume) is not run again: its evaluations are reported as they are.
+    The run reports from its phase loop (`TuneReporter`, a `LoopCallback`), so each evaluation
+    reaches Tune as it is made (`training_iteration` counts evaluations, which ASHA's grace period
+    uses) and ASHA stops the trial at its report. A continued run first reports the evaluations it
+    kept; a finished run directory (resume) is not run again: its evaluations are reported as they are.
     """
-    from ray import tune
-
     from seal.protocols import run_seed
-    from seal.protocols.runner import plan_phases
 
     index = int(tune_config["sample"])
     config, record = plan.configs[index], plan.records[index]
     run_dir = Path(record.run_dir)
-    per_eval = {p.name: sum(len(config.envs[e].tasks) for e in p.envs) for p in plan_phases(config)}
-    reported = 0
-
-    def report_new(final: bool) -> None:
-        nonlocal reported
-        evals = read_evaluations(run_dir)
-        complete = [e for e in evals if final or e.rows >= per_eval.get(e.phase, 1)]
-        reported = min(
-            reported, len(complete)
-        )  # a continued run cut its CSV back to its checkpoint
-        for e in complete[reported:]:
-            tune.report(
-                {
-                    "mean_success": e.mean_success,
-                    "mean_return": e.mean_return,
-                    "epoch": e.epoch,
-                    "grad_steps": e.grad_steps,
-                    "phase": e.phase,
-                }
-            )
-        reported = len(complete)
-
+    reporter = TuneReporter(run_dir)
     if is_finished(run_dir):
-        report_new(final=True)
+        reporter.report_kept()
         return
     resume = is_started(run_dir)
     (run_dir / "error.txt").unlink(missing_ok=True)
-    failure: list[BaseException] = []
+    try:
+        _set_threads(plan.threads)
+        run_seed(
+            config,
+            record.seed,
+            run_dir.parent,
+            quiet=True,
+            resume=resume,
+            command=list(plan.command),
+            callbacks=[reporter],
+        )
+    except Exception as exc:
+        _write_error(run_dir, exc)
+        raise
 
-    def work() -> None:
-        try:
-            _set_threads(plan.threads)
-            run_seed(
-                config,
-                record.seed,
-                run_dir.parent,
-                quiet=True,
-                resume=resume,
-                command=list(plan.command),
-            )
-        except BaseException as exc:  # noqa: BLE001 - handed to the reporting thread
-            _write_error(run_dir, exc)
-            failure.append(exc)
 
-    # daemon: when ASHA stops this trial, Ray ends the actor process and the run thread with it.
-    worker = threading.Thread(target=work, name=f"seal-search-{index}", daemon=True)
-    worker.start()
-    while worker.is_alive():
-        worker.join(POLL_S)
-        report_new(final=False)
-    report_new(final=True)
-    if failure:
-        raise failure[0]
+class TuneReporter(LoopCallback):
+    """Reports each evaluation's means to Ray Tune from the phase loop (`tune.report`)."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.run_dir = run_dir
+        self.kept_reported = False
+
+    def report_kept(self) -> None:
+        """The evaluations metrics.csv already holds (a finished or continued run), once."""
+        if not self.kept_reported:
+            self.kept_reported = True
+            for e in read_evaluations(self.run_dir):
+                self._report(e.mean_success, e.mean_return, e.epoch, e.grad_steps, e.phase)
+
+    def on_phase_start(self, loop: PhaseLoop) -> None:
+        # Run.run has cut metrics.csv back to the checkpoint it continues from.
+        self.report_kept()
+
+    def on_evaluation(self, loop: PhaseLoop) -> None:
+        rows = loop.last_rows
+        self._report(
+            sum(float(r["success"]) for r in rows) / len(rows),
+            sum(float(r["return"]) for r in rows) / len(rows),
+            loop.state.epoch,
+            loop.state.grad_steps,
+            loop.phase.name,
+        )
+
+    @staticmethod
+    def _report(success: float, ret: float, epoch: int, grad_steps: int, phase: str) -> None:
+        from ray import tune
+
+        tune.report(
+            {
+                "mean_success": success,
+                "mean_return": ret,
+                "epoch": epoch,
+                "grad_steps": grad_steps,
+                "phase": phase,
+            }
+        )
 
 
 def search(
@@ -1015,7 +1022,7 @@ def _run_tune(
             max_concurrent_trials=spec.max_concurrent,
             trial_dirname_creator=lambda trial: f"sample-{int(trial.config['sample']):03d}",
             # Reusing actors saves a Python + torch start per trial; only safe when no trial is
-            # stopped early, since a stopped trial's run thread would live on in the reused actor.
+            # stopped early, since a stopped trial's run (Tune's function thread) would live on in the reused actor.
             reuse_actors=scheduler is None,
         ),
         run_config=tune.RunConfig(

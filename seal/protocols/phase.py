@@ -163,6 +163,9 @@ class PhaseState:
 class LoopCallback:
     """Hooks a `PhaseLoop` calls; subclasses override what they need (progress bar, loggers, Ray Tune)."""
 
+    def on_phase_start(self, loop: PhaseLoop) -> None:
+        """Before the phase's first (or, resumed, next) epoch; metrics.csv holds what came before."""
+
     def on_evaluation(self, loop: PhaseLoop) -> None:
         """After each evaluation (its rows are in metrics.csv, `loop.state.last_success` holds them)."""
 
@@ -238,7 +241,12 @@ class PhaseLoop:
         self.started = time.monotonic() - self.state.wall_s
         self.batch_now: dict[str, np.ndarray] = {}
         """The per-task batch of the latest update (metrics.csv's `batch`)."""
-        self.callbacks: list[LoopCallback] = [] if run.quiet else [ProgressBar(self)]
+        self.last_rows: list[dict[str, Any]] = []
+        """metrics.csv rows of the latest evaluation, one per (env, task)."""
+        self.callbacks: list[LoopCallback] = [
+            *([] if run.quiet else [ProgressBar(self)]),
+            *run.callbacks,
+        ]
 
     def _restore(self, payload: Mapping[str, Any]) -> None:
         """Agent, replay, scheduler, counters and RNG streams from a checkpoint's payload."""
@@ -267,6 +275,8 @@ class PhaseLoop:
 
     def run(self) -> PhaseState:
         """Run the phase's remaining epochs; its counters."""
+        for callback in self.callbacks:
+            callback.on_phase_start(self)
         try:
             while self.state.epoch < self.phase.epochs and not self.all_reached():
                 plan = self._plan()
@@ -488,6 +498,7 @@ class PhaseLoop:
                 ) and task not in state.reached.get(env, {}):
                     state.reached.setdefault(env, {})[task] = updates
         owner.rundir.log_eval(rows)
+        self.last_rows = rows
         state.last_success = {
             e: {t: results[e][t]["success"] for t in model.env_tasks[e]} for e in phase.envs
         }

@@ -44,6 +44,7 @@ from seal.learner.checkpoint import read_checkpoint, save_checkpoint
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
 from seal.protocols.phase import (
+    LoopCallback,
     Phase,
     PhaseLoop,
     PhaseModel,
@@ -172,8 +173,11 @@ class Run:
         quiet: bool = True,
         resume: bool = False,
         command: list[str] | None = None,
+        callbacks: Sequence[LoopCallback] = (),
     ) -> None:
         self.config = config
+        self.callbacks = tuple(callbacks)
+        """Called by every phase's loop, after the progress bar (e.g. a sweep's Ray Tune reporter)."""
         self.seed = int(seed)
         self.quiet = quiet
         self.phases = plan_phases(config)
@@ -386,8 +390,9 @@ def run_seed(
     quiet: bool = True,
     resume: bool = False,
     command: list[str] | None = None,
+    callbacks: Sequence[LoopCallback] = (),
 ) -> RunResult:
-    """Run one seed of `config` into `group_dir/seed-<seed>`.
+    """Run one seed of `config` into `group_dir/seed-<seed>` (`callbacks`: see `LoopCallback`).
 
     With `resume=True` an existing run directory continues from its last checkpoint with the
     config saved in it (a finished run returns at once); a missing one starts fresh, so a sweep
@@ -396,9 +401,9 @@ def run_seed(
     path = seed_dir(Path(group_dir), seed)
     if resume and (path / "config.toml").is_file():
         saved = _saved_config(path)
-        run = Run(saved, seed, path, quiet=quiet, resume=True, command=command)
+        run = Run(saved, seed, path, quiet=quiet, resume=True, command=command, callbacks=callbacks)
     else:
-        run = Run(config, seed, path, quiet=quiet, command=command)
+        run = Run(config, seed, path, quiet=quiet, command=command, callbacks=callbacks)
     return run.run()
 
 
