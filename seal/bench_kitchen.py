@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from seal.bench_transfer import Arm, finished_run, run_all
+from seal.bench_transfer import Arm, run_or_reuse
 from seal.errors import SealError, UnknownNameError
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
@@ -85,15 +85,7 @@ def run_kitchen_bench(
     load_before = machine_load()
     started = time.monotonic()
     jobs = [(arm, seed) for seed in range(seeds) for arm in chosen]
-    reused: dict[tuple[str, int], Path] = {}
-    if reuse:
-        for arm, seed in jobs:
-            found = finished_run(arm, seed, Path(out), overrides)
-            if found is not None:
-                reused[(arm.name, seed)] = found
-                log(f"reuse {arm.name} seed {seed}: {found}")
-        jobs = [(a, s) for a, s in jobs if (a.name, s) not in reused]
-    run_dirs = {**reused, **run_all(jobs, Path(out), overrides, parallel, log)}
+    run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
     result_arms: dict[str, Any] = {}
     for arm in chosen:
         runs = [load_run(run_dirs[(arm.name, s)]) for s in range(seeds)]

@@ -200,6 +200,27 @@ def run_all(
     return done
 
 
+def run_or_reuse(
+    jobs: list[tuple[Arm, int]],
+    out: Path,
+    overrides: Sequence[str],
+    parallel: int,
+    log: Callable[[str], None],
+    reuse: bool,
+) -> tuple[dict[tuple[str, int], Path], dict[tuple[str, int], Path]]:
+    """(every job's run directory, the reused ones): with `reuse`, finished runs under `out`
+    whose resolved config is today's (`finished_run`) are taken; the rest are run (`run_all`)."""
+    reused: dict[tuple[str, int], Path] = {}
+    if reuse:
+        for arm, seed in jobs:
+            found = finished_run(arm, seed, out, overrides)
+            if found is not None:
+                reused[(arm.name, seed)] = found
+                log(f"reuse {arm.name} seed {seed}: {found}")
+        jobs = [(a, s) for a, s in jobs if (a.name, s) not in reused]
+    return {**reused, **run_all(jobs, out, overrides, parallel, log)}, reused
+
+
 # ---------------------------------------------------------------- reuse and consistency
 
 COMPARED_TABLES = ("envs", "agent", "replay", "training", "evaluation", "scheduler")
@@ -405,15 +426,7 @@ def run_transfer_bench(
     # Longest arms first, so the last process does not run alone while a core idles.
     order = sorted(chosen, key=lambda a: a.alone is None)
     jobs = [(arm, seed) for arm in order for seed in range(seeds)]
-    reused: dict[tuple[str, int], Path] = {}
-    if reuse:
-        for arm, seed in jobs:
-            found = finished_run(arm, seed, Path(out), overrides)
-            if found is not None:
-                reused[(arm.name, seed)] = found
-                log(f"reuse {arm.name} seed {seed}: {found}")
-        jobs = [(a, s) for a, s in jobs if (a.name, s) not in reused]
-    run_dirs = {**reused, **run_all(jobs, Path(out), overrides, parallel, log)}
+    run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
     wall = time.monotonic() - started
     loaded = {key: load_run(path) for key, path in run_dirs.items()}
     costs = {
