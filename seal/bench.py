@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 import torch
 
 from seal.errors import SealError
@@ -936,82 +937,38 @@ def bench_ratio_lever(
 # ---------------------------------------------------------------- learning evidence
 
 
-def train_multitask(
-    adapter: Any,
-    config: Any,
-    env_steps: int,
-    seed: int = 0,
-    warmup_steps: int = 4000,
-    batch_per_task: int = 128,
-    updates_per_round: int | None = None,
-    eval_episodes: int = 10,
-    eval_every_rounds: int = 0,
-    stop_at_success: float | None = None,
-    backend: str = "auto",
-    log: Callable[[str], None] | None = None,
+LEARN = Path(__file__).resolve().parents[1] / "protocols" / "learn"
+"""The learning-evidence protocols (point with and without the one-hot, reach-v3)."""
+
+
+def learn_protocol(
+    name: str, seed: int = 0, overrides: Sequence[str] = (), out: Path | None = None
 ) -> dict[str, Any]:
-    """A plain MTMHSAC/SAC run on one adapter: random warm-up, then per round one episode of every
-    task followed by `updates_per_round` (default: the episode length, i.e. one update per
-    vector step, as metaworld-algorithms) updates of `batch_per_task` per task; then evaluation.
+    """Run `protocols/learn/<name>.toml` (one seed, this process, the runner's phase loop).
 
-    `warmup_steps` counts env steps over all tasks. Returns env steps, updates, wall time and the
-    deterministic success rate per task (`eval_episodes` episodes each, separately seeded envs).
-    `stop_at_success` ends early once every task's evaluated success reaches it. `backend` is
-    the training Collector's (evaluation always steps in-process: it is short).
+    Into `out` (default: a temporary directory, removed after). Returns the env steps and
+    gradient steps the run took (it may stop early: `evaluation.stop_when_reached`), its epochs,
+    wall time, the last evaluation's success per task and which tasks ever reached the threshold.
     """
-    from seal.learner import Agent, EnvSpec, MultiTaskReplay
-    from seal.learner.collection import Collector
+    import tempfile
 
-    name = adapter.name
-    n = len(adapter.tasks)
-    spec = EnvSpec(name, adapter.obs_dim, adapter.act_dim, n)
-    agent = Agent([spec], config, seed)
-    replay = MultiTaskReplay([spec], capacity=max(env_steps + n * adapter.episode_length, 1000))
-    rng = np.random.default_rng(seed)
-    rounds = updates_per_round or adapter.episode_length
-    counts = {name: np.full(n, batch_per_task)}
+    from seal.protocols import load_protocol, run_seed
+
+    config = load_protocol(LEARN / f"{name}.toml", list(overrides))
+    (env,) = config.envs
     start = time.perf_counter()
-    updates, evaluated = 0, None
-    with (
-        Collector({name: adapter}, seed=seed, backend=backend) as train,
-        Collector({name: adapter}, seed=seed + 1_000_003, backend="sync") as evaluation,
-    ):
-
-        def act(env: str, obs: np.ndarray, ids: np.ndarray) -> np.ndarray:
-            return agent.act(env, obs, ids, deterministic=False)
-
-        def act_det(env: str, obs: np.ndarray, ids: np.ndarray) -> np.ndarray:
-            return agent.act(env, obs, ids, deterministic=True)
-
-        round_no = 0
-        while train.total_env_steps < env_steps:
-            warm = train.total_env_steps < warmup_steps
-            train.collect_episodes(act, random_actions=warm, sink=replay.add)
-            round_no += 1
-            if train.total_env_steps >= warmup_steps:
-                for _ in range(rounds):
-                    agent.update(replay.sample(counts, rng))
-                    updates += 1
-            if eval_every_rounds and round_no % eval_every_rounds == 0 and not warm:
-                evaluated = evaluation.evaluate(act_det, eval_episodes)[name]
-                if log is not None:
-                    rates = {t: v["success_rate"] for t, v in evaluated.items()}
-                    log(
-                        f"{name}: {train.total_env_steps} env steps, {updates} updates, {time.perf_counter() - start:.0f} s: success {rates}"
-                    )
-                if (
-                    stop_at_success is not None
-                    and min(v["success_rate"] for v in evaluated.values()) >= stop_at_success
-                ):
-                    break
-        if evaluated is None or not eval_every_rounds or round_no % eval_every_rounds:
-            evaluated = evaluation.evaluate(act_det, eval_episodes)[name]
-        env_steps_done = train.total_env_steps
+    with tempfile.TemporaryDirectory() as tmp:
+        result = run_seed(config, seed, (out or Path(tmp)) / name)
+        metrics = pd.read_csv(result.run_dir / "metrics.csv")
+    (timing,) = result.timing.values()
+    last = metrics[metrics["epoch"] == metrics["epoch"].max()]
     return {
-        "env_steps": env_steps_done,
-        "gradient_updates": updates,
+        "env_steps": int(last["env_steps"].sum()),
+        "gradient_updates": int(timing["grad_steps"]),
+        "epochs": int(timing["epochs"]),
         "wall_s": time.perf_counter() - start,
-        "success": {task: v["success_rate"] for task, v in evaluated.items()},
+        "success": result.final_success[env],
+        "reached": {t: v > 0 for t, v in result.update_counts[env].items()},
     }
 
 
@@ -1027,109 +984,24 @@ def random_success(adapter: Any, episodes: int = 20, seed: int = 0) -> dict[str,
     }
 
 
-# Small nets for the point check: the env is 4-d with 4 goals; 3 x 400 would only cost time.
-# One update per vector step (50 per round of 4 x 50 env steps). Measured with these settings:
-# seeds 0 and 1 reach 100% on every task at 8,000 env steps (1,550 updates), seed 2 at 10,000
-# (2,050); ~10-13 s of CPU each. Batch 32 per task or lr 1e-3 were no faster.
-POINT_LEARN = {
-    "hidden": (64, 64),
-    "env_steps": 12_000,
-    "warmup_steps": 2_000,
-    "batch_per_task": 64,
-    "updates_per_round": 50,
-    "lr": 3e-4,
-}
-
-
-def learn_point(one_hot: bool = True, seed: int = 0, **overrides: Any) -> dict[str, Any]:
-    """MTMHSAC on `point` (4 tasks) with small nets, stopping once every task succeeds.
-
-    With one_hot=False neither the one-hot nor per-task heads are used, so the agent cannot tell
-    the tasks apart (the observation hides the goal), and the run goes on to its full step
-    budget. `agent={...}` passes further AgentConfig fields (e.g. init, adam_eps).
-    """
-    from seal.envs.point import PointAdapter
-    from seal.learner import AgentConfig
-
-    settings = {**POINT_LEARN, **overrides}
-    lr = settings.pop("lr")
-    # Without the one-hot the control must also lose the per-task heads: task-indexed policy and
-    # Q heads alone tell the tasks apart (measured: all four point tasks at 100% with heads on).
-    config = AgentConfig(
-        hidden=settings.pop("hidden"),
-        actor_lr=lr,
-        critic_lr=lr,
-        one_hot=one_hot,
-        multi_head_policy=one_hot,
-        multi_head_critic=one_hot,
-        device="cpu",
-        **settings.pop("agent", {}),
-    )
-    # Point steps cost microseconds and the nets are tiny: worker processes would only add pipe
-    # latency, and a second torch thread only synchronisation (8 ms per addmm on a loaded machine).
-    with torch_threads(1):
-        return train_multitask(
-            PointAdapter(),
-            config,
-            seed=seed,
-            eval_every_rounds=5,
-            eval_episodes=5,
-            stop_at_success=1.0 if one_hot else None,
-            backend="sync",
-            **settings,
-        )
-
-
-def point_evidence(seed: int = 0, log: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Random baseline, MTMHSAC with the one-hot, and the same run (same env steps) without it."""
+def point_evidence(seed: int = 0) -> dict[str, Any]:
+    """Random baseline, `protocols/learn/point.toml`, and its no-one-hot control for as many epochs."""
     from seal.envs.point import PointAdapter
 
     random = random_success(PointAdapter(), seed=seed)
-    with_one_hot = learn_point(True, seed=seed, log=log)
-    without = learn_point(False, seed=seed, env_steps=with_one_hot["env_steps"], log=log)
+    with_one_hot = learn_protocol("point", seed)
+    epochs = f"protocol.epochs={with_one_hot['epochs']}"
+    without = learn_protocol("point_no_one_hot", seed, [epochs])
     return {
         "random": random,
         "one_hot": with_one_hot,
         "no_one_hot": without,
         "checks": {
-            "one_hot_all_tasks_100pct": all(v == 1.0 for v in with_one_hot["success"].values()),
+            "one_hot_all_tasks_100pct": all(with_one_hot["reached"].values()),
             "random_le_20pct": all(v <= 0.2 for v in random.values()),
             "no_one_hot_fails_a_task": any(v < 1.0 for v in without["success"].values()),
         },
     }
-
-
-def learn_reach(
-    seed: int = 0,
-    env_steps: int = 100_000,
-    hidden: tuple[int, ...] = (256, 256),
-    threads: int | None = 1,
-    log: Callable[[str], None] | None = None,
-) -> dict[str, Any]:
-    """SAC (the one-task MTMHSAC: one head, one-hot of width 1) on Meta-World reach-v3, 200-step episodes.
-
-    Widths (256, 256), the SAC default of cleanrl and stable-baselines3, rather than MTMHSAC's
-    3 x 400: one task needs no more, and each update costs ~4x less on this 2-core machine.
-    Stops once the deterministic policy succeeds on >= 90% of 10 evaluation episodes.
-    """
-    from seal.envs.metaworld import MetaWorldAdapter
-    from seal.learner import AgentConfig
-
-    config = AgentConfig(hidden=hidden, device="cpu")
-    adapter = MetaWorldAdapter(tasks=["reach-v3"], episode_length=200)
-    with torch_threads(threads):
-        return train_multitask(
-            adapter,
-            config,
-            env_steps=env_steps,
-            seed=seed,
-            warmup_steps=4000,
-            batch_per_task=256,
-            eval_every_rounds=10,
-            stop_at_success=0.9,
-            backend="sync",
-            log=log,
-        )
 
 
 # ---------------------------------------------------------------- the command
@@ -1245,17 +1117,17 @@ def run_bench(
 
 
 def run_learn(log: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
-    """The learning evidence of issue 3: point with and without one-hot, random baseline, reach-v3."""
-    log("learn: point (random, MTMHSAC, MTMHSAC without one-hot)")
-    point = point_evidence(log=log)
-    log("learn: reach-v3 SAC")
-    reach = learn_reach(log=log)
+    """The learning evidence: point with and without one-hot and a random baseline, then reach-v3."""
+    log("learn: point (random, MTMHSAC, MTMHSAC without one-hot): protocols/learn/point*.toml")
+    point = point_evidence()
+    log("learn: reach-v3 SAC: protocols/learn/reach.toml")
+    reach = learn_protocol("reach")
     return {
         "point_random": point["random"],
         "point_mtmhsac": point["one_hot"],
         "point_no_one_hot": point["no_one_hot"],
         "reach_v3_sac": reach,
-        "checks": {**point["checks"], "reach_v3_ge_90pct": reach["success"]["reach-v3"] >= 0.9},
+        "checks": {**point["checks"], "reach_v3_ge_90pct": reach["reached"]["reach-v3"]},
     }
 
 
