@@ -101,7 +101,7 @@ class AgentConfig:
     """How the envs of one update step the shared parameters (policy trunk; critic trunk when critic_sharing = "shared"): "weighted" = one step of one Adam on sum_i (n_i / N) L_i, so an env's share of the batch is its share of the trunk's signal; "sequential" = one step per env on its own mean loss through one shared Adam (the authors' prototype); "per_env" = one Adam per env over its translator, the trunk and its head, stepped in turn (SEAL §3.3 read literally; the ratio then changes only gradient noise, since Adam ignores a loss's scale)."""
     max_grad_norm: float = 1.0
     """Clip the global gradient norm of every actor and critic optimiser step to this (metaworld-algorithms' MT10 MTMHSAC and the prototype: 1.0); 0 turns clipping off. Temperatures are never clipped."""
-    # Default "metaworld_algorithms": on `point` (bench.learn_point, seeds 0-2) it reached 100% on
+    # Default "metaworld_algorithms": on `point` (protocols/learn/point.toml before it was a protocol, seeds 0-2) it reached 100% on
     # every task in 8,000 / 11,000 / 8,000 env steps against 12,000 / 11,000 / 10,000 with "torch".
     init: Literal["torch", "metaworld_algorithms"] = "metaworld_algorithms"
     """Weight init: "torch" = nn.Linear's default U(+-1/sqrt(fan_in)) everywhere; "metaworld_algorithms" = He-uniform kernels and zero biases in hidden layers, policy head U(+-1e-3), Q head U(+-3e-3)."""
