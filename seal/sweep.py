@@ -49,6 +49,7 @@ from seal.protocols.loader import (
     config_to_dict,
     dumps_toml,
     load_protocol,
+    toml_value,
 )
 from seal.protocols.phase import LoopCallback, PhaseLoop
 from seal.protocols.rundir import atomic_write_text, new_group_id, seed_dir
@@ -114,30 +115,9 @@ def _plain(value: Any) -> Any:
     return item() if callable(item) and not isinstance(value, list | tuple | dict | str) else value
 
 
-def toml_literal(value: Any) -> str:
-    """A value as TOML text for a `table.key=value` override."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        if not math.isfinite(value):
-            return "nan" if value != value else ("inf" if value > 0 else "-inf")
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)  # a JSON string is a valid TOML basic string
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(toml_literal(v) for v in value) + "]"
-    if isinstance(value, Mapping):
-        return (
-            "{"
-            + ", ".join(f"{json.dumps(str(k))} = {toml_literal(v)}" for k, v in value.items())
-            + "}"
-        )
-    raise SealError(f"cannot write {value!r} ({type(value).__name__}) as a TOML value")
-
-
 def sample_overrides(sample: Mapping[str, Any]) -> list[str]:
     """A sample as --set strings, e.g. {"agent.actor_lr": 1e-4} -> ["agent.actor_lr=0.0001"]."""
-    return [f"{key}={toml_literal(value)}" for key, value in sample.items()]
+    return [f"{key}={toml_value(value)}" for key, value in sample.items()]
 
 
 def with_overrides(
@@ -156,7 +136,7 @@ def describe_sample(sample: Mapping[str, Any]) -> str:
     """A short one-line form of a sample, e.g. "agent.actor_lr=0.000123, agent.tau=0.01"."""
     parts = []
     for key, value in sample.items():
-        shown = f"{value:.3g}" if isinstance(value, float) else toml_literal(value)
+        shown = f"{value:.3g}" if isinstance(value, float) else toml_value(value)
         parts.append(f"{key}={shown}")
     return ", ".join(parts)
 
@@ -712,7 +692,7 @@ def _write_trials_table(stem: Path, trials: Sequence[TrialRecord], *, ranked: bo
     shown = frame.drop(columns=["run_dir"]).copy()
     for key in keys:
         shown[key] = [
-            f"{v:.4g}" if isinstance(v, float) else toml_literal(v) if v is not None else ""
+            f"{v:.4g}" if isinstance(v, float) else toml_value(v) if v is not None else ""
             for v in shown[key]
         ]
     for column in ("mean_success", "mean_return"):

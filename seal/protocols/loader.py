@@ -14,6 +14,7 @@ import copy
 import dataclasses
 import functools
 import inspect
+import json
 import math
 import textwrap
 import tomllib
@@ -452,7 +453,7 @@ def _validate_search(raw: dict[str, Any], spec: sweep_tables.SearchSpec, file: s
         if param.dist == "int":
             values = tuple(int(v) for v in values)  # type: ignore[arg-type]
         for value in values:
-            override = f"{param.key}={_toml_value(value)}"
+            override = f"{param.key}={toml_value(value)}"
             trial = apply_overrides(copy.deepcopy(base), [override], f"{file}: search")
             config_from_dict(trial, f"{file} (search.{param.key} = {value!r})")
 
@@ -572,10 +573,14 @@ def config_to_dict(config: ProtocolConfig) -> dict[str, Any]:
 
 
 def _toml_key(key: str) -> str:
-    return key if key and all(c.isalnum() or c in "-_" for c in key) else _toml_value(key)
+    return key if key and all(c.isalnum() or c in "-_" for c in key) else json.dumps(key)
 
 
-def _toml_value(value: Any) -> str:
+def toml_value(value: Any) -> str:
+    """One value as inline TOML (`seal protocol explain`, a sweep sample's `--set` overrides).
+
+    Documents are written by tomli-w (`dumps_toml`); it has no public inline-value writer.
+    """
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, (int, float)):
@@ -583,49 +588,27 @@ def _toml_value(value: Any) -> str:
             return ("-inf" if value < 0 else "inf") if math.isinf(value) else "nan"
         return repr(value)
     if isinstance(value, str):
-        escaped = (
-            value.replace("\\", "\\\\")
-            .replace('"', '\\"')
-            .replace("\n", "\\n")
-            .replace("\t", "\\t")
-        )
-        return f'"{escaped}"'
+        return json.dumps(value)  # a JSON string is a valid TOML basic string
     if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    if isinstance(value, dict):
-        return (
-            "{"
-            + ", ".join(
-                f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items() if v is not None
-            )
-            + "}"
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    if isinstance(value, Mapping):
+        items = (
+            f"{_toml_key(str(k))} = {toml_value(v)}" for k, v in value.items() if v is not None
         )
-    raise TypeError(f"cannot write {value!r} ({type(value).__name__}) as TOML")
+        return "{" + ", ".join(items) + "}"
+    raise SealError(f"cannot write {value!r} ({type(value).__name__}) as TOML")
 
 
 def dumps_toml(data: Mapping[str, Any]) -> str:
-    """Nested dicts as TOML text: scalars and arrays inline, dicts as [tables]; None values are omitted.
+    """Nested dicts as a TOML document (tomli-w), dicts as [tables]; None values are omitted."""
+    import tomli_w
 
-    Hand-written so no extra dependency is needed; `tomllib.loads(dumps_toml(d)) == d` for the
-    value types a protocol uses (tested).
-    """
-    lines: list[str] = []
+    def without_none(node: Any) -> Any:
+        if isinstance(node, Mapping):
+            return {k: without_none(v) for k, v in node.items() if v is not None}
+        return node
 
-    def table(prefix: str, node: Mapping[str, Any]) -> None:
-        scalars = {k: v for k, v in node.items() if not isinstance(v, dict) and v is not None}
-        subtables = {k: v for k, v in node.items() if isinstance(v, dict)}
-        if prefix and (scalars or not subtables):
-            lines.append(f"[{prefix}]")
-        for k, v in scalars.items():
-            lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
-        if prefix and (scalars or not subtables):
-            lines.append("")
-        for k, v in subtables.items():
-            # Dicts whose values are all scalars under a field (e.g. finetune.alignment) stay tables too.
-            table(f"{prefix}.{_toml_key(k)}" if prefix else _toml_key(k), v)
-
-    table("", data)
-    return "\n".join(lines).rstrip() + "\n"
+    return tomli_w.dumps(without_none(data))
 
 
 def explain(config: ProtocolConfig) -> str:
@@ -641,11 +624,7 @@ def explain(config: ProtocolConfig) -> str:
             else dict(obj)
         )
         for key, value in values.items():
-            shown = (
-                _toml_value(list(value) if isinstance(value, tuple) else value)
-                if value is not None
-                else "(none)"
-            )
+            shown = toml_value(value) if value is not None else "(none)"
             doc = docs.get(key, "").splitlines()[0] if docs.get(key) else ""
             out.append(f"{key} = {shown}" + (f"    # {doc}" if doc else ""))
         out.append("")
