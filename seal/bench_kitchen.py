@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from seal.bench_transfer import Arm, run_or_reuse
+from seal.bench_transfer import Arm, code_versions, run_or_reuse
 from seal.errors import SealError, UnknownNameError
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
@@ -100,8 +100,10 @@ def run_kitchen_bench(
             "learned_within_budget": all(within),
             "demos": [_demos(run_dirs[(arm.name, s)]) for s in range(seeds)],
         }
+    shas = {key: load_run(path).provenance.get("git_sha") for key, path in run_dirs.items()}
     return {
         "arms": result_arms,
+        "code_versions": code_versions(shas),
         "goal": {
             "env_steps_le": ENV_STEP_BUDGET,
             "met": all(a["learned_within_budget"] for a in result_arms.values()),
@@ -145,6 +147,10 @@ def format_result(result: Mapping[str, Any]) -> str:
         lines.append(f"{a['label']:<24} {a['reached']:>7}  {cells:<38} {success}")
     goal = result["goal"]
     load = result["load_before"]
+    versions = result["code_versions"]
+    if len(versions) > 1:
+        listed = "; ".join(f"{sha}: {', '.join(runs)}" for sha, runs in versions.items())
+        lines.append(f"note, runs made with {len(versions)} code versions: {listed}")
     reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
     lines += [
         "env steps: the learner's own (demonstrations excluded) at the first evaluation >= 90%; "
