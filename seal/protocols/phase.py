@@ -467,36 +467,7 @@ class PhaseLoop:
             seed=0,
             collector=self.collector,
         )
-        wall = time.monotonic() - self.started
-        batch = self.batch_now
-        rows = []
-        success_by_key: dict[tuple[str, str], float] = {}
-        for env in phase.envs:
-            consumed = np.asarray(self.replay.consumed[model.agent_env[env]], dtype=np.int64)
-            for i, task in enumerate(model.env_tasks[env]):
-                r = results[env][task]
-                updates = float(consumed[i]) / 1e6
-                rows.append(
-                    {
-                        "seed": owner.seed,
-                        "phase": phase.name,
-                        "epoch": state.epoch,
-                        "env": env,
-                        "task": task,
-                        "success": r["success"],
-                        "return": r["return"],
-                        "grad_steps": state.grad_steps,
-                        "env_steps": state.env_steps[env][i],
-                        "updates": updates,
-                        "batch": int(batch[env][i]) if env in batch else 0,
-                        "wall_s": round(wall, 3),
-                    }
-                )
-                success_by_key[(env, task)] = r["success"]
-                if reaches(
-                    r["success"], cfg.evaluation.threshold
-                ) and task not in state.reached.get(env, {}):
-                    state.reached.setdefault(env, {})[task] = updates
+        rows = self._eval_rows(results)
         owner.rundir.log_eval(rows)
         self.last_rows = rows
         state.last_success = {
@@ -509,7 +480,9 @@ class PhaseLoop:
             },
             state.grad_steps,
         )
-        self.scheduler.observe_eval(state.epoch, success_by_key)
+        self.scheduler.observe_eval(
+            state.epoch, {(r["env"], r["task"]): r["success"] for r in rows}
+        )
         mean = mean_success(results)
         if mean > state.best_mean_success:
             state.best_mean_success = mean
@@ -521,6 +494,37 @@ class PhaseLoop:
         state.add_time("evaluate", since)
         for callback in self.callbacks:
             callback.on_evaluation(self)
+
+    def _eval_rows(self, results: Mapping[str, Mapping[str, Any]]) -> list[dict[str, Any]]:
+        """metrics.csv rows of one evaluation; records each task's first crossing in `state.reached`."""
+        state, model, batch = self.state, self.model, self.batch_now
+        wall = time.monotonic() - self.started
+        rows = []
+        for env in self.phase.envs:
+            consumed = np.asarray(self.replay.consumed[model.agent_env[env]], dtype=np.int64)
+            for i, task in enumerate(model.env_tasks[env]):
+                r = results[env][task]
+                updates = float(consumed[i]) / 1e6
+                rows.append(
+                    {
+                        "seed": self.owner.seed,
+                        "phase": self.phase.name,
+                        "epoch": state.epoch,
+                        "env": env,
+                        "task": task,
+                        "success": r["success"],
+                        "return": r["return"],
+                        "grad_steps": state.grad_steps,
+                        "env_steps": state.env_steps[env][i],
+                        "updates": updates,
+                        "batch": int(batch[env][i]) if env in batch else 0,
+                        "wall_s": round(wall, 3),
+                    }
+                )
+                first = task not in state.reached.get(env, {})
+                if first and reaches(r["success"], self.cfg.evaluation.threshold):
+                    state.reached.setdefault(env, {})[task] = updates
+        return rows
 
     def _scores(self, request: Any, epoch: int) -> dict[tuple[str, str], float]:
         """SMT Eq. 5 scores: mean over episodes of sum_t gamma^t r_t - log pi(a_t|s_t) (stochastic policy).
