@@ -1,6 +1,6 @@
 """Ten dense single-task Franka kitchens (SEAL Table 2), as gymnasium envs and a SEAL adapter.
 
-Importing the package registers `seal/FrankaKitchenDense-<task>-v1` for every task; the heavy
+Importing the package registers `seal/FrankaKitchenDense-<task>-v2` for every task; the heavy
 modules (gymnasium-robotics, MuJoCo) load only when an env is made.
 """
 

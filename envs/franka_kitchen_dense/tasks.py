@@ -98,10 +98,11 @@ DEFAULT_EPISODE_LENGTH = 280  # upstream FrankaKitchen-v1 max_episode_steps
 
 # Bumped whenever a reward changes, with the gymnasium ids' version; recorded in run provenance.
 # v0: Meta-World's push / pick-place object radius 0.015 and 2 cm "near" gate;
-# v1: both from the measured handle geometry (see README, "Departures from Meta-World's constants").
-REWARD_VERSION = "v1"
+# v1: both from the measured handle geometry (see README, "Departures from Meta-World's constants");
+# v2: dial-turn (burners) pays reach with open fingers: (reach + H(reach, closed)) / 2, not H(reach, closed).
+REWARD_VERSION = "v2"
 
 
 def gym_id(task: str) -> str:
-    """The gymnasium id registered for `task`, e.g. "seal/FrankaKitchenDense-kettle-v1"."""
+    """The gymnasium id registered for `task`, e.g. "seal/FrankaKitchenDense-kettle-v2"."""
     return f"seal/FrankaKitchenDense-{task}-{REWARD_VERSION}"

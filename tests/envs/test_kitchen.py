@@ -253,11 +253,13 @@ def test_dial_turn_reward_by_hand() -> None:
     c = _constants(distance_init=0.88, threshold=0.3)
     # reach = 1 (on the knob), closed = 1; in_place at margin |0.88 - 0.3|: 0.1 -> 10 * 0.1 = 1
     assert compute_reward("dial-turn", _reading(0.88, 1.0), c)[0] == pytest.approx(1.0)
-    # half closed: hamacher(1, 0.5) = 0.5; at the goal in_place = 1: 10 * hamacher(0.5, 1) = 5
-    assert compute_reward("dial-turn", _reading(0.0, 0.5), c)[0] == pytest.approx(5.0)
+    # half closed: reach term (1 + hamacher(1, 0.5)) / 2 = 0.75; at the goal in_place = 1:
+    # 10 * hamacher(0.75, 1) = 7.5
+    assert compute_reward("dial-turn", _reading(0.0, 0.5), c)[0] == pytest.approx(7.5)
     assert compute_reward("dial-turn", _reading(0.0, 1.0), c)[0] == pytest.approx(10.0)
-    # fingers not closing: reach 0 -> reward 0, even at the goal (dial-turn has no success override)
-    assert compute_reward("dial-turn", _reading(0.0, -1.0), c)[0] == 0.0
+    # fingers opening (reward v2): reach term (1 + 0) / 2 = 0.5 -> 10 * hamacher(0.5, 1) = 5, even at
+    # the goal (dial-turn has no success override); Meta-World's gate H(reach, closed) gave 0 here
+    assert compute_reward("dial-turn", _reading(0.0, -1.0), c)[0] == pytest.approx(5.0)
 
 
 def test_push_reward_by_hand() -> None:
@@ -364,8 +366,8 @@ def test_unknown_task_names_the_valid_ones() -> None:
 def test_gymnasium_ids_are_registered() -> None:
     ids = {gym_id(t) for t in TASK_NAMES}
     assert ids <= set(gym.registry)
-    assert gym_id("light-switch") == "seal/FrankaKitchenDense-light-switch-v1"
-    env = gym.make("seal/FrankaKitchenDense-light-switch-v1", episode_length=2)
+    assert gym_id("light-switch") == "seal/FrankaKitchenDense-light-switch-v2"
+    env = gym.make("seal/FrankaKitchenDense-light-switch-v2", episode_length=2)
     assert (
         isinstance(env.unwrapped, FrankaKitchenDenseEnv)
         and env.unwrapped.task.joint == "light_switch"

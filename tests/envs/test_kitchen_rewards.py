@@ -65,8 +65,11 @@ def test_each_task_uses_its_seal_table_2_reward_family() -> None:
 #     near 0.1062: LT = 1 / ((3 * 0.0462 / 0.5)^2 + 1) = 0.928644 -> 1.857288 + 0.795706 = 2.6530.
 #     on |tcp - obj| 0.1061 (LT 0.928930), d 0.23164 (LT 0.387472): 1.857860 + 8 * (0.2 + 0.8 *
 #     0.387472) = 5.9377.
-# dial-turn: 10 H(H(G(|tcp - knob|, 0.005, |knob0 - tcp0| - 0.005), closed), LT(d, 0.3, d0 - 0.3))
-#   away: closed 0 -> 0 for every burner (no success override, as Meta-World's dial-turn).
+# dial-turn (reward v2): 10 H(R, LT(d, 0.3, d0 - 0.3)), R = (G + H(G, closed)) / 2,
+#   G = G(|tcp - knob|, 0.005, |knob0 - tcp0| - 0.005); with closed = 1, R = G.
+#   away: |tcp - knob| = |knob0 - tcp0| (no step taken), so G = 0.1 (the margin); closed 0:
+#     R = (0.1 + 0) / 2 = 0.05; d = d0: LT = 0.1 -> 10 H(0.05, 0.1) = 10 * 0.005 / 0.145 = 0.3448
+#     for every burner (reward v1, Meta-World's gate H(G, closed), gave 0).
 #   top-right |knob0 - tcp0| 0.6786. near |tcp - knob| 0.05: G = exp(-(0.045 / 0.6736)^2 ln 10)
 #     = 0.989776; LT(0.92, 0.3, 0.62) = 0.1 -> 10 H(0.989776, 0.1) = 10 * 0.0989776 / 0.990798
 #     = 0.9990. on d 0.46: LT = 1 / ((3 * 0.16 / 0.62)^2 + 1) = 0.625244, G(0) = 1 -> 6.2524.
@@ -106,10 +109,10 @@ EXPECTED = {
     "right-hinge-door": (0.9007, 2.7948, 6.0732),
     "left-hinge-door": (0.8927, 2.6532, 5.9381),
     "light-switch": (0.1969, 2.1520, 5.7589),
-    "top-right-burner": (0.0, 0.9990, 6.2524),
-    "top-left-burner": (0.0, 0.9988, 6.2520),
-    "bottom-right-burner": (0.0, 0.9989, 6.5615),
-    "bottom-left-burner": (0.0, 0.9986, 6.5598),
+    "top-right-burner": (0.3448, 0.9990, 6.2524),
+    "top-left-burner": (0.3448, 0.9988, 6.2520),
+    "bottom-right-burner": (0.3448, 0.9989, 6.5615),
+    "bottom-left-burner": (0.3448, 0.9986, 6.5598),
     "slide-cabinet": (0.0357, 0.9692, 7.2743),
     "kettle": (0.0049, 0.1066, 0.4399),
 }
