@@ -37,6 +37,8 @@ ARMS: tuple[Arm, ...] = (
     _arm("slide_cabinet_demos", "slide-cabinet + demos"),
     _arm("light_switch", "light-switch"),
     _arm("light_switch_demos", "light-switch + demos"),
+    _arm("bottom_left_burner", "bottom-left-burner"),
+    _arm("bottom_left_burner_demos", "bottom-left-burner + demos"),
 )
 
 

@@ -60,7 +60,7 @@ def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() ->
         assert config.evaluation.stop_when_reached, name
         # 535 epochs x 280 steps = 149,800 env steps: within the 150k budget.
         assert config.protocol.epochs * config.envs["fk"].episode_length == 149_800
-    for task in ("slide_cabinet", "light_switch"):
+    for task in ("slide_cabinet", "light_switch", "bottom_left_burner"):
         plain, demos = configs[task], configs[f"{task}_demos"]
         assert plain.training.demo_episodes == 0 and demos.training.demo_episodes == 10
         assert dataclasses.replace(demos.training, demo_episodes=0) == plain.training
