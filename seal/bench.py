@@ -14,7 +14,9 @@ machine load affects both sides (the load is recorded with the results):
   eager and with agent.compile side by side (the compiled figure is the headline when it compiles).
 - ``ratio_lever``: at a 90/10 data ratio, the 90% environment's share of the shared policy trunk's
   step (`Agent.ratio_lever`) under the default ``shared_update = "weighted"``; the details list
-  every mode with the ratio of the two environments' trunk gradient norms. Not a timing.
+  every mode with the ratio of the two environments' trunk gradient norms, the weighted mode's
+  share of the raw (pre-Adam, unclipped) gradient, and the share that a noise-dominated gradient
+  allows any sample-count weighting. Not a timing.
 - ``collect_mt10_speedup`` / ``collect_fk_speedup``: env steps/s of `Collector` over the 10 tasks /
   a plain single-process loop over envs built by the same adapter (same wrappers), with the same
   actions; both must end on identical observations.
@@ -825,6 +827,16 @@ def bench_ratio_lever(
         lever = learner.ratio_lever(replay.sample(counts, rng))
         g = lever["grad_norm"]
         out["modes"][mode] = {**lever, "grad_norm_ratio_a_over_b": g["a"] / g["b"]}
+    n = out["batch"]
+    # Where the optimiser's lever comes from, for "weighted": the same share of the raw gradient
+    # sum_X (n_X / N) g_X (no Adam, no clip), and that share were every per-sample gradient
+    # independent noise, when ||(n_X / N) g_X|| grows as sqrt(n_X) (the ceiling of any weighting by
+    # sample counts while gradients are noise-dominated): sqrt(n_A) / (sqrt(n_A) + sqrt(n_B)).
+    weighted = out["modes"].get("weighted")
+    if weighted is not None:
+        part = {x: n[x] * weighted["grad_norm"][x] for x in ("a", "b")}
+        out["gradient_lever"] = part["a"] / (part["a"] + part["b"])
+    out["noise_ceiling"] = math.sqrt(n["a"]) / (math.sqrt(n["a"]) + math.sqrt(n["b"]))
     out["ratio_lever"] = out["modes"].get("weighted", {}).get("lever")
     return out
 
@@ -1079,6 +1091,12 @@ def format_table(result: Mapping[str, Any]) -> str:
                 for mode, m in d["ratio_lever"]["modes"].items()
             )
             + f"; {d['ratio_lever']['ratio']:.0%} of the batch from A, after {d['ratio_lever']['warmup_updates']} updates"
+            + (
+                f"; weighted raw-gradient share {d['ratio_lever']['gradient_lever']:.2f}"
+                if "gradient_lever" in d["ratio_lever"]
+                else ""
+            )
+            + f", pure-noise ceiling {d['ratio_lever']['noise_ceiling']:.2f}"
         )
     for key in ("collect_mt10_speedup", "collect_fk_speedup"):
         if key in d and "backends" in d[key]:

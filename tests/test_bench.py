@@ -134,6 +134,11 @@ def test_ratio_lever_bench_reports_every_mode_with_gradient_norm_ratios() -> Non
         g = mode["grad_norm"]
         assert mode["grad_norm_ratio_a_over_b"] == g["a"] / g["b"]
     assert result["ratio_lever"] == result["modes"]["weighted"]["lever"]
+    # raw-gradient share of A under "weighted": 28 |g_a| / (28 |g_a| + 4 |g_b|)
+    g = result["modes"]["weighted"]["grad_norm"]
+    assert result["gradient_lever"] == pytest.approx(28 * g["a"] / (28 * g["a"] + 4 * g["b"]))
+    # pure-noise ceiling: sqrt(28) / (sqrt(28) + sqrt(4)) = 5.2915 / 7.2915 = 0.72571
+    assert result["noise_ceiling"] == pytest.approx(0.72571, abs=1e-5)
     table = format_table(
         {
             "ratio_lever": result["ratio_lever"],
@@ -143,3 +148,4 @@ def test_ratio_lever_bench_reports_every_mode_with_gradient_norm_ratios() -> Non
         }
     )
     assert "ratio_lever" in table and ">=0.8" in table and "per_env" in table
+    assert "pure-noise ceiling 0.73" in table
