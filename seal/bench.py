@@ -499,7 +499,7 @@ def quickstart_setup(protocol: str | Path = QUICKSTART) -> tuple[list[Any], Any,
     AgentConfig on CPU and its batch_per_task; SealError when an env's adapter is not installed."""
     from seal.learner import EnvSpec
     from seal.protocols import load_protocol
-    from seal.protocols.runner import agent_config, build_adapters
+    from seal.protocols.runner import build_adapters
 
     config = load_protocol(str(protocol))
     try:
@@ -507,7 +507,7 @@ def quickstart_setup(protocol: str | Path = QUICKSTART) -> tuple[list[Any], Any,
     except ImportError as exc:  # an env's simulator is missing
         raise SealError(f"{protocol}: cannot build its envs ({exc})") from None
     specs = [EnvSpec(n, a.obs_dim, a.act_dim, len(a.tasks)) for n, a in adapters.items()]
-    agent_cfg = dataclasses.replace(agent_config(config), device="cpu")
+    agent_cfg = dataclasses.replace(config.agent, device="cpu")
     return specs, agent_cfg, int(config.training.batch_per_task)
 
 

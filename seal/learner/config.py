@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
 import torch
+from pydantic import with_config
 
 from seal.errors import ConfigError
+from seal.typed_config import SCHEMA
 
 ARCHITECTURES = ("mtmhsac", "seal")
 SHARED_UPDATES = ("weighted", "sequential", "per_env")
@@ -57,6 +59,7 @@ class EnvSpec:
         return self.act_dim if self.act_pad_to is None else self.act_pad_to
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class AgentConfig:
     """Multi-task SAC learner settings: MTMHSAC (Yu et al. 2019) or the SEAL policy (SEAL §3.3)."""
@@ -180,25 +183,6 @@ class AgentConfig:
     def critic_multi_head(self) -> bool:
         """Whether critics have one Q head per task."""
         return self.multi_head_critic
-
-    @classmethod
-    def field_help(cls) -> dict[str, str]:
-        """Each field's one-line docstring, for --help and `explain` text."""
-        import ast
-        import inspect
-        import textwrap
-
-        tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
-        body = tree.body[0].body  # type: ignore[attr-defined]
-        docs: dict[str, str] = {}
-        for node, after in zip(body, body[1:], strict=False):
-            if (
-                isinstance(node, ast.AnnAssign)
-                and isinstance(after, ast.Expr)
-                and isinstance(after.value, ast.Constant)
-            ):
-                docs[node.target.id] = str(after.value.value)  # type: ignore[union-attr]
-        return {f.name: docs.get(f.name, "") for f in fields(cls)}
 
 
 class Batch(NamedTuple):

@@ -4,7 +4,8 @@ A protocol file has one table per dataclass below (`[protocol]`, `[envs.<name>]`
 `[replay]`, `[training]`, `[evaluation]`, `[scheduler]`, `[finetune]`, `[checkpoint]`,
 `[transfer]`, `[logging]`, and the pass-through tables `[search]` and `[resources]`). Loading validates every
 key and value and raises `ConfigError` naming the file, `table.key`, the bad value and what is
-valid, before anything is written. Defaults are the paper-scale values of issue 4.
+valid, before anything is written (`seal.typed_config.build`: pydantic, with each field's bounds
+in its annotation). Defaults are the paper-scale values of issue 4.
 
 `[agent]` is validated against `seal.learner.AgentConfig` and `[scheduler]` against the scheduler
 configs of `seal.schedulers`, so those layers own their own fields and docs.
@@ -14,11 +15,20 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
+
+from pydantic import Field, with_config
+
+from seal.typed_config import SCHEMA
+
+if TYPE_CHECKING:  # the learner (and torch) load only when an agent is built
+    from seal.learner.config import AgentConfig
+    from seal.schedulers.base import SchedulerConfig
 
 Kind = Literal["baseline", "finetune", "joint"]
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class ProtocolTable:
     """[protocol]: what is run and how often."""
@@ -29,18 +39,19 @@ class ProtocolTable:
     """baseline (MTMHSAC on one env), finetune (pre-train on A, fine-tune on B) or joint (SEAL on all envs)."""
     description: str = ""
     """One line saying what the protocol is for."""
-    seeds: int = 2
+    seeds: Annotated[int, Field(ge=1)] = 2
     """Number of seeds, run one after another into one group (Appendix B: 2)."""
-    first_seed: int = 0
+    first_seed: Annotated[int, Field(ge=0)] = 0
     """Seeds are first_seed, first_seed + 1, ..., first_seed + seeds - 1."""
-    epochs: int = 10_000
+    epochs: Annotated[int, Field(ge=1)] = 10_000
     """Epochs per phase (Appendix D: 10,000). An epoch collects one episode per task, then trains."""
     device: str = "auto"
     """Torch device: "auto" (CUDA if present, else CPU), "cpu", "cuda", "cuda:1", ..."""
-    threads: int = 0
+    threads: Annotated[int, Field(ge=0)] = 0
     """torch intra-op CPU threads; 0 keeps torch's default. 1 is far faster for small networks on a busy machine."""
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class EnvConfig:
     """[envs.<name>]: one environment; <name> is how the run's tables and files refer to it."""
@@ -49,29 +60,31 @@ class EnvConfig:
     """Built-in adapter name (metaworld, franka_kitchen_dense, point, point_view, point_diagonal) or "package.module:Class" (default: <name>)."""
     tasks: tuple[str, ...] = ()
     """Task names or set names (e.g. "mt10"); empty means all of the adapter's tasks."""
-    episode_length: int = 0
+    episode_length: Annotated[int, Field(ge=0)] = 0
     """Steps per episode (truncation); 0 means the adapter's default (Meta-World 500, kitchen 280)."""
     options: dict[str, Any] = field(default_factory=dict)
     """Adapter options, validated by the adapter, e.g. { gravity_compensation = true } for the kitchen."""
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class ReplayConfig:
     """[replay]: the per-(env, task) replay buffers."""
 
-    capacity_per_env: int = 1_000_000
+    capacity_per_env: Annotated[int, Field(ge=1)] = 1_000_000
     """Transitions kept per environment, split evenly over its tasks (Meta-World: 1e6)."""
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class TrainingConfig:
     """[training]: the epoch loop (garage MTSAC convention)."""
 
-    warmup_steps: int = 4_000
+    warmup_steps: Annotated[int, Field(ge=0)] = 4_000
     """Env steps per environment with uniform random actions before the first gradient update."""
-    batch_per_task: int = 128
+    batch_per_task: Annotated[int, Field(ge=1)] = 128
     """Transitions per task in one update at uniform composition (MT10: 10 x 128 = 1280)."""
-    grad_steps_per_epoch: int = -1
+    grad_steps_per_epoch: Annotated[int, Field(ge=-1)] = -1
     """Gradient steps after each epoch's collection; -1 = as many as the env steps of one collected episode.
 
     With environments of different episode lengths, -1 means the longest episode among the
@@ -80,7 +93,7 @@ class TrainingConfig:
     """
     collector: Literal["auto", "sync", "subproc-batched", "inline-batched", "gym-async"] = "auto"
     """Collection backend (seal.learner.collection.BACKENDS): "auto" measures one step and picks "inline-batched" or "sync"."""
-    demo_episodes: int = 0
+    demo_episodes: Annotated[int, Field(ge=0)] = 0
     """Episodes per task of the adapter's scripted expert put in the replay at the start of each phase (0 = none).
 
     Demonstrations are data: their env steps count neither toward `warmup_steps` (the random
@@ -89,27 +102,29 @@ class TrainingConfig:
     """
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class EvaluationConfig:
     """[evaluation]: Appendix B's evaluation procedure."""
 
-    interval: int = 100
+    interval: Annotated[int, Field(ge=1)] = 100
     """Evaluate every this many epochs (and after the last epoch); unused when every_grad_steps > 0."""
-    every_grad_steps: int = 0
+    every_grad_steps: Annotated[int, Field(ge=0)] = 0
     """Evaluate whenever the phase's gradient steps reach a multiple of this (mid-epoch), and after the last epoch; 0 = use `interval`.
 
     The update-count metric can only be as fine as the evaluations: at 128 samples per task,
     K = 16,667 gives the paper's grid of ~2.133 M (6.4 M / 3), which no whole number of 500-step
     epochs gives (a choice; see docs/hyperparameters.md for its evaluation cost).
     """
-    episodes: int = 50
+    episodes: Annotated[int, Field(ge=1)] = 50
     """Deterministic episodes per task per evaluation (paper: 100; 50 halves the cost)."""
-    threshold: float = 0.9
+    threshold: Annotated[float, Field(ge=0.0, le=1.0)] = 0.9
     """Success rate at which a task counts as learned for the update-count metric."""
     stop_when_reached: bool = False
     """End each phase at the first evaluation at which every task has reached `threshold` (its update count is then fixed); for learning checks."""
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class FinetuneConfig:
     """[finetune]: pre-train on `source`, fine-tune on `target` (kind = "finetune" only)."""
@@ -118,11 +133,11 @@ class FinetuneConfig:
     """The [envs.<name>] pre-trained on (phase "pretrain")."""
     target: str = ""
     """The [envs.<name>] fine-tuned on (phase "finetune")."""
-    pretrain_epochs: int = 0
+    pretrain_epochs: Annotated[int, Field(ge=0)] = 0
     """Epochs of pre-training; 0 means [protocol].epochs."""
-    finetune_epochs: int = 0
+    finetune_epochs: Annotated[int, Field(ge=0)] = 0
     """Epochs of fine-tuning; 0 means [protocol].epochs."""
-    lr_factor: float = 1.0
+    lr_factor: Annotated[float, Field(gt=0.0)] = 1.0
     """Learning-rate multiplier while fine-tuning; 1.0 because Appendix D trains all parameters as before."""
     reinit_critic: bool = False
     """Also re-initialise the critic (Appendix D keeps it)."""
@@ -130,6 +145,7 @@ class FinetuneConfig:
     """Overrides of the aligned one-hot table, task -> task it shares an id with (default: the paper's Table 3)."""
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class TransferConfig:
     """[transfer]: start a baseline or joint run from another run's checkpoint (issue 5, e.g. MT1 -> MT3).
@@ -140,29 +156,31 @@ class TransferConfig:
 
     checkpoint: str = ""
     """A checkpoint written by `seal run` (e.g. reports/<protocol>/<group>/seed-0/checkpoints/best.pt), relative to the working directory."""
-    lr_factor: float = 0.1
+    lr_factor: Annotated[float, Field(gt=0.0)] = 0.1
     """Actor and critic learning rates are multiplied by this after the transfer (issue 5: 0.1)."""
     reinit_critic: bool = False
     """Keep the fresh critic instead of the transferred one."""
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class CheckpointConfig:
     """[checkpoint]: what is saved for resume and for `seal eval`."""
 
-    interval: int = 100
+    interval: Annotated[int, Field(ge=1)] = 100
     """Save a checkpoint every this many epochs (and after the last)."""
-    keep_last: int = 2
+    keep_last: Annotated[int, Field(ge=1)] = 2
     """Keep the last K epoch checkpoints (ckpt-<epoch>.pt); best.pt is kept besides."""
     save_replay: bool = True
     """Store the replay in epoch checkpoints; resume needs it (best.pt never holds it)."""
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class LoggingConfig:
     """[logging]: training-curve logs (train.csv and TensorBoard)."""
 
-    train_interval: int = 10
+    train_interval: Annotated[int, Field(ge=1)] = 10
     """Log losses, mean Q and temperatures every this many epochs."""
     tensorboard: bool = True
     """Also write TensorBoard events under tb/."""
@@ -176,13 +194,13 @@ class ProtocolConfig:
     """The protocol file (for error messages and provenance)."""
     protocol: ProtocolTable
     envs: dict[str, EnvConfig]
-    agent: Any = None
-    """The resolved seal.learner.AgentConfig (or the raw [agent] table when the learner is absent)."""
+    agent: AgentConfig
+    """The resolved [agent] table."""
     replay: ReplayConfig = field(default_factory=ReplayConfig)
     training: TrainingConfig = field(default_factory=TrainingConfig)
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
-    scheduler: dict[str, Any] = field(default_factory=dict)
-    """The [scheduler] table as given, validated by seal.schedulers (empty: every task collects, uniform batch)."""
+    scheduler: SchedulerConfig | None = None
+    """The [scheduler] table's config (seal.schedulers); None: every task collects, uniform batch."""
     finetune: FinetuneConfig | None = None
     transfer: TransferConfig | None = None
     """[transfer] if given (baseline and joint only)."""
@@ -212,35 +230,6 @@ class ProtocolConfig:
         """A copy with some top-level fields changed."""
         return dataclasses.replace(self, **changes)
 
-
-# Valid ranges: (min, max) inclusive, None = unbounded. Checked at load time.
-BOUNDS: dict[tuple[type, str], tuple[float | None, float | None]] = {
-    (ProtocolTable, "seeds"): (1, None),
-    (ProtocolTable, "first_seed"): (0, None),
-    (ProtocolTable, "epochs"): (1, None),
-    (ProtocolTable, "threads"): (0, None),
-    (EnvConfig, "episode_length"): (0, None),
-    (ReplayConfig, "capacity_per_env"): (1, None),
-    (TrainingConfig, "warmup_steps"): (0, None),
-    (TrainingConfig, "batch_per_task"): (1, None),
-    (TrainingConfig, "grad_steps_per_epoch"): (-1, None),
-    (TrainingConfig, "demo_episodes"): (0, None),
-    (EvaluationConfig, "interval"): (1, None),
-    (EvaluationConfig, "every_grad_steps"): (0, None),
-    (EvaluationConfig, "episodes"): (1, None),
-    (EvaluationConfig, "threshold"): (0.0, 1.0),
-    (FinetuneConfig, "pretrain_epochs"): (0, None),
-    (FinetuneConfig, "finetune_epochs"): (0, None),
-    (CheckpointConfig, "interval"): (1, None),
-    (CheckpointConfig, "keep_last"): (1, None),
-    (LoggingConfig, "train_interval"): (1, None),
-}
-
-# Fields that must be strictly above a bound (checked at load time, like BOUNDS).
-ABOVE: dict[tuple[type, str], float] = {
-    (FinetuneConfig, "lr_factor"): 0.0,  # 0 would freeze fine-tuning; fails only after pre-training
-    (TransferConfig, "lr_factor"): 0.0,
-}
 
 # Tables that map one-to-one onto a dataclass.
 SIMPLE_TABLES: dict[str, type] = {

@@ -9,27 +9,21 @@ Every user mistake raises `ConfigError` naming the file, `table.key`, the value 
 
 from __future__ import annotations
 
-import ast
 import copy
 import dataclasses
 import functools
-import inspect
 import json
 import math
-import textwrap
 import tomllib
-import types
-import typing
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from seal import typed_config
 from seal.errors import ConfigError, SealError
 from seal.protocols import scheduling, sweep_tables
 from seal.protocols.config import (
-    ABOVE,
     ALL_TABLES,
-    BOUNDS,
     SIMPLE_TABLES,
     EnvConfig,
     FinetuneConfig,
@@ -37,6 +31,10 @@ from seal.protocols.config import (
     ProtocolTable,
     TransferConfig,
 )
+
+if TYPE_CHECKING:
+    from seal.learner.config import AgentConfig
+    from seal.schedulers.base import SchedulerConfig
 
 # ---------------------------------------------------------------- reading and overrides
 
@@ -93,174 +91,7 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
 
 
-# ---------------------------------------------------------------- generic dataclass validation
-
-
-@functools.cache
-def field_docs(cls: type) -> dict[str, str]:
-    """Attribute docstrings (the string literal under each field) of a dataclass, by field name."""
-    docs: dict[str, str] = {}
-    for klass in reversed(cls.__mro__):
-        try:
-            tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
-        except (OSError, TypeError, SyntaxError):
-            continue
-        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
-        for node, nxt in zip(body, body[1:], strict=False):
-            if (
-                isinstance(node, ast.AnnAssign)
-                and isinstance(node.target, ast.Name)
-                and isinstance(nxt, ast.Expr)
-                and isinstance(nxt.value, ast.Constant)
-                and isinstance(nxt.value.value, str)
-            ):
-                docs[node.target.id] = inspect.cleandoc(nxt.value.value)
-    return docs
-
-
-def _type_name(tp: Any) -> str:
-    origin = typing.get_origin(tp)
-    if origin is typing.Literal:
-        return " | ".join(repr(a) for a in typing.get_args(tp))
-    if origin in (typing.Union, types.UnionType):
-        return " | ".join(_type_name(a) for a in typing.get_args(tp))
-    if origin is not None:
-        args = ", ".join("..." if a is Ellipsis else _type_name(a) for a in typing.get_args(tp))
-        return f"{getattr(origin, '__name__', str(origin))}[{args}]"
-    if tp is type(None):
-        return "none"
-    return getattr(tp, "__name__", str(tp))
-
-
-def coerce(value: Any, tp: Any, where: str) -> Any:
-    """`value` checked against the annotation `tp` (TOML ints are accepted as floats; lists as tuples).
-
-    Raises ConfigError mentioning `where` ("file: table.key") and the expected type.
-    """
-    origin = typing.get_origin(tp)
-    args = typing.get_args(tp)
-    bad = ConfigError(f"{where} = {value!r} has the wrong type; expected {_type_name(tp)}")
-    if tp is Any or tp is object:
-        return value
-    if origin is typing.Literal:
-        if value in args and not isinstance(value, bool):
-            return value
-        raise ConfigError(
-            f"{where} = {value!r} is not valid; valid: {', '.join(repr(a) for a in args)}"
-        )
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        errors = []
-        for arg in args:
-            if arg is type(None):
-                continue
-            try:
-                return coerce(value, arg, where)
-            except ConfigError as exc:
-                errors.append(exc)
-        if len(errors) == 1:
-            raise errors[0]
-        raise bad
-    if tp is bool:
-        if isinstance(value, bool):
-            return value
-        raise bad
-    if tp is int:
-        if isinstance(value, int) and not isinstance(value, bool):
-            return value
-        raise bad
-    if tp is float:
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            if not math.isfinite(value):
-                raise ConfigError(f"{where} = {value!r} is not valid; expected a finite number")
-            return float(value)
-        raise bad
-    if tp is str:
-        if isinstance(value, str):
-            return value
-        raise bad
-    if origin in (tuple, list):
-        if isinstance(value, str) and origin is tuple and args and args[0] is str:
-            value = [value]  # a single task name or set name is a one-element list
-        if not isinstance(value, (list, tuple)):
-            raise bad
-        if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
-            items = [coerce(v, args[0], f"{where}[{i}]") for i, v in enumerate(value)]
-        elif origin is tuple and args:
-            if len(args) != len(value):
-                raise bad
-            items = [
-                coerce(v, a, f"{where}[{i}]")
-                for i, (v, a) in enumerate(zip(value, args, strict=True))
-            ]
-        else:
-            items = [
-                coerce(v, args[0], f"{where}[{i}]") if args else v for i, v in enumerate(value)
-            ]
-        return tuple(items) if origin is tuple else items
-    if origin is dict:
-        if not isinstance(value, dict):
-            raise bad
-        if args:
-            return {
-                coerce(k, args[0], where): coerce(v, args[1], f"{where}.{k}")
-                for k, v in value.items()
-            }
-        return dict(value)
-    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
-        if not isinstance(value, dict):
-            raise bad
-        return build_dataclass(tp, value, where.rsplit(" = ", 1)[0])
-    if isinstance(tp, type):
-        if isinstance(value, tp):
-            return value
-        raise bad
-    return value
-
-
-def build_dataclass(
-    cls: type, table: Mapping[str, Any], where: str, defaults: Mapping[str, Any] | None = None
-) -> Any:
-    """An instance of dataclass `cls` from a TOML table, every key and value checked.
-
-    `where` is "file: table" for messages; `defaults` replace the class defaults for keys the
-    table leaves out (e.g. the agent's architecture by protocol kind).
-    """
-    if not isinstance(table, Mapping):
-        raise ConfigError(f"{where} must be a table, got {table!r}")
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(table) - set(fields))
-    if unknown:
-        raise ConfigError(
-            f"{where}.{unknown[0]} is not a valid key; valid keys: {', '.join(fields)}"
-        )
-    kwargs: dict[str, Any] = dict(defaults or {})
-    for key, value in table.items():
-        kwargs[key] = coerce(value, hints.get(key, Any), f"{where}.{key}")
-        lo, hi = BOUNDS.get((cls, key), (None, None))
-        if (lo is not None and kwargs[key] < lo) or (hi is not None and kwargs[key] > hi):
-            span = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
-            raise ConfigError(f"{where}.{key} = {value!r} is out of range; valid: {span}")
-        above = ABOVE.get((cls, key))
-        if above is not None and not (math.isfinite(kwargs[key]) and kwargs[key] > above):
-            raise ConfigError(f"{where}.{key} = {value!r} is out of range; valid: > {above:g}")
-    kwargs = {k: v for k, v in kwargs.items() if k in fields}
-    try:
-        return cls(**kwargs)
-    except SealError as exc:
-        raise ConfigError(f"{where}: {exc}") from None
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{where}: {exc}") from None
-
-
 # ---------------------------------------------------------------- scaling
-
-
-def scale_duration(value: int, factor: float) -> int:
-    """A duration multiplied by `factor`, rounded, with a floor of 1."""
-    return max(1, int(round(value * factor)))
 
 
 def scale_config(config: ProtocolConfig, factor: float) -> ProtocolConfig:
@@ -272,6 +103,8 @@ def scale_config(config: ProtocolConfig, factor: float) -> ProtocolConfig:
     if not (isinstance(factor, (int, float)) and math.isfinite(factor) and factor > 0):
         raise ConfigError(f"{config.path}: --scale {factor!r} must be a positive number")
     rep = dataclasses.replace
+    from seal.schedulers.base import scale_duration
+
     s = functools.partial(scale_duration, factor=factor)
     finetune = config.finetune
     if finetune is not None:
@@ -280,7 +113,7 @@ def scale_config(config: ProtocolConfig, factor: float) -> ProtocolConfig:
             pretrain_epochs=s(finetune.pretrain_epochs),
             finetune_epochs=s(finetune.finetune_epochs),
         )
-    scheduler = scheduling.resolve_table(config.scheduler, config.path, factor)
+    scheduler = config.scheduler.scale(factor) if config.scheduler is not None else None
     return rep(
         config,
         protocol=rep(config.protocol, epochs=s(config.protocol.epochs)),
@@ -301,14 +134,6 @@ def scale_config(config: ProtocolConfig, factor: float) -> ProtocolConfig:
 # ---------------------------------------------------------------- the protocol
 
 
-def _agent_config_class() -> type | None:
-    try:
-        from seal.learner import AgentConfig
-    except ImportError:
-        return None
-    return AgentConfig
-
-
 def _build_envs(raw: Any, file: str) -> dict[str, EnvConfig]:
     from seal.envs import adapter_class
 
@@ -323,7 +148,9 @@ def _build_envs(raw: Any, file: str) -> dict[str, EnvConfig]:
             raise ConfigError(
                 f"{where} must be a table with keys adapter, tasks, episode_length, options"
             )
-        env = build_dataclass(EnvConfig, table, where)
+        if isinstance(table.get("tasks"), str):  # one task or set name: a one-element list
+            table = {**table, "tasks": [table["tasks"]]}
+        env = typed_config.build(EnvConfig, table, where)
         adapter_name = env.adapter or name
         try:
             cls = adapter_class(adapter_name)
@@ -412,14 +239,10 @@ def default_architecture(kind: str) -> str:
     return "seal" if kind == "joint" else "mtmhsac"
 
 
-def _build_agent(raw: Any, kind: str, device: str, file: str) -> Any:
-    cls = _agent_config_class()
-    table = dict(raw or {})
-    if cls is None:  # learner layer not installed yet: keep the table for later validation
-        return table
-    names = {f.name for f in dataclasses.fields(cls)}
-    from seal.learner.config import RENAMED_KEYS
+def _build_agent(raw: Any, kind: str, device: str, file: str) -> AgentConfig:
+    from seal.learner.config import RENAMED_KEYS, AgentConfig
 
+    table = dict(raw or {})
     renamed = sorted(set(table) & set(RENAMED_KEYS))
     if renamed:
         old = renamed[0]
@@ -430,14 +253,15 @@ def _build_agent(raw: Any, kind: str, device: str, file: str) -> Any:
         # The aligned observation already carries the aligned one-hot id at a fixed index
         # (Appendix D), so by default the agent appends no second one.
         defaults["one_hot"] = False
-    defaults = {k: v for k, v in defaults.items() if k in names}
-    return build_dataclass(cls, table, f"{file}: agent", defaults)
+    return typed_config.build(AgentConfig, table, f"{file}: agent", defaults)
 
 
-def _validate_scheduler(table: dict[str, Any], envs: dict[str, EnvConfig], file: str) -> None:
-    if table:
+def _validate_scheduler(
+    scheduler: SchedulerConfig | None, envs: dict[str, EnvConfig], file: str
+) -> None:
+    if scheduler is not None:
         scheduling.build(
-            table,
+            scheduler,
             {n: e.tasks for n, e in envs.items()},
             {n: e.adapter for n, e in envs.items()},
             file,
@@ -458,9 +282,8 @@ def _validate_search(raw: dict[str, Any], spec: sweep_tables.SearchSpec, file: s
             config_from_dict(trial, f"{file} (search.{param.key} = {value!r})")
 
 
-def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolConfig:
-    """Validate a parsed protocol (tables as dicts) into a ProtocolConfig; `path` names it in errors."""
-    file = str(path)
+def _check_tables(raw: Mapping[str, Any], file: str) -> None:
+    """Only known tables, each a table."""
     unknown = [t for t in raw if t not in ALL_TABLES]
     if unknown:
         raise ConfigError(
@@ -469,56 +292,68 @@ def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolCon
     for table in ALL_TABLES:
         if table in raw and not isinstance(raw[table], dict):
             raise ConfigError(f"{file}: {table} must be a table ([{table}]), got {raw[table]!r}")
-    proto_table = dict(raw.get("protocol", {}))
-    proto_table.setdefault("name", Path(file).stem if file != "<memory>" else "protocol")
-    protocol = build_dataclass(ProtocolTable, proto_table, f"{file}: protocol")
+
+
+def _build_protocol_table(raw: Mapping[str, Any], file: str) -> ProtocolTable:
+    table = dict(raw.get("protocol", {}))
+    table.setdefault("name", Path(file).stem if file != "<memory>" else "protocol")
+    protocol = typed_config.build(ProtocolTable, table, f"{file}: protocol")
     if not protocol.name or "/" in protocol.name or protocol.name.startswith("."):
         raise ConfigError(
             f"{file}: protocol.name = {protocol.name!r} must be a non-empty folder name without '/'"
         )
+    return protocol
+
+
+def _check_kind_tables(config: ProtocolConfig, file: str) -> None:
+    """[scheduler] and [transfer] do nothing under kind = "finetune": refused, not ignored."""
+    if config.kind != "finetune":
+        return
+    if config.scheduler is not None:
+        raise ConfigError(
+            f'{file}: scheduler is not used by kind = "finetune" (each phase trains on one env with uniform batches); remove [scheduler]'
+        )
+    if config.transfer is not None:
+        raise ConfigError(
+            f'{file}: transfer is not used by kind = "finetune" (its [finetune] table transfers between phases); remove [transfer]'
+        )
+
+
+def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolConfig:
+    """Validate a parsed protocol (tables as dicts) into a ProtocolConfig; `path` names it in errors."""
+    file = str(path)
+    _check_tables(raw, file)
+    protocol = _build_protocol_table(raw, file)
     tables = {
-        name: build_dataclass(cls, raw.get(name, {}), f"{file}: {name}")
+        name: typed_config.build(cls, raw.get(name, {}), f"{file}: {name}")
         for name, cls in SIMPLE_TABLES.items()
         if name not in ("protocol", "finetune")
     }
-    transfer = (
-        build_dataclass(TransferConfig, raw["transfer"], f"{file}: transfer")
-        if "transfer" in raw
-        else None
-    )
-    finetune = (
-        build_dataclass(FinetuneConfig, raw["finetune"], f"{file}: finetune")
-        if "finetune" in raw
-        else None
-    )
+    optional = {
+        name: typed_config.build(cls, raw[name], f"{file}: {name}") if name in raw else None
+        for name, cls in (("transfer", TransferConfig), ("finetune", FinetuneConfig))
+    }
     envs = _build_envs(raw.get("envs"), file)
     config = ProtocolConfig(
         path=file,
         protocol=protocol,
         envs=envs,
         agent=_build_agent(raw.get("agent"), protocol.kind, protocol.device, file),
-        finetune=finetune,
-        transfer=transfer,
-        scheduler=scheduling.resolve_table(raw.get("scheduler", {}), file),
+        scheduler=scheduling.parse(raw.get("scheduler", {}), file),
         search=dict(raw.get("search", {})),
         resources=dict(raw.get("resources", {})),
         **tables,
+        **optional,
     )
     _check_kind(config, file)
     _check_demos(config, file)
-    if config.kind == "finetune" and config.scheduler:
-        raise ConfigError(
-            f'{file}: scheduler is not used by kind = "finetune" (each phase trains on one env with uniform batches); remove [scheduler]'
-        )
+    _check_kind_tables(config, file)
     _validate_scheduler(config.scheduler, envs, file)
     sweep_tables.parse_resources(config.resources, file)
     if config.search:
         _validate_search(raw, sweep_tables.parse_search(config.search, file), file)
-    if transfer is not None and config.kind == "finetune":
-        raise ConfigError(
-            f'{file}: transfer is not used by kind = "finetune" (its [finetune] table transfers between phases); remove [transfer]'
-        )
-    if finetune is not None:
+    finetune = config.finetune
+    if finetune is not None:  # 0 epochs means [protocol].epochs
         config = config.replace(
             finetune=dataclasses.replace(
                 finetune,
@@ -554,11 +389,11 @@ def config_to_dict(config: ProtocolConfig) -> dict[str, Any]:
         return obj
 
     out: dict[str, Any] = {"protocol": plain(config.protocol), "envs": plain(config.envs)}
-    out["agent"] = plain(config.agent) if config.agent is not None else {}
+    out["agent"] = plain(config.agent)
     for name in ("replay", "training", "evaluation"):
         out[name] = plain(getattr(config, name))
-    if config.scheduler:
-        out["scheduler"] = plain(config.scheduler)
+    if config.scheduler is not None:
+        out["scheduler"] = config.scheduler.to_table()
     if config.finetune is not None:
         out["finetune"] = plain(config.finetune)
     if config.transfer is not None:
@@ -617,7 +452,7 @@ def explain(config: ProtocolConfig) -> str:
 
     def section(title: str, obj: Any, cls: type | None) -> None:
         out.append(f"[{title}]")
-        docs = field_docs(cls) if cls is not None else {}
+        docs = typed_config.field_docs(cls) if cls is not None else {}
         values = (
             {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
             if dataclasses.is_dataclass(obj)
@@ -633,12 +468,12 @@ def explain(config: ProtocolConfig) -> str:
     for name, env in config.envs.items():
         section(f"envs.{name}", env, EnvConfig)
     agent = config.agent
-    section("agent", agent, type(agent) if dataclasses.is_dataclass(agent) else None)
+    section("agent", agent, type(agent))
     for name in ("replay", "training", "evaluation"):
         obj = getattr(config, name)
         section(name, obj, type(obj))
-    if config.scheduler:
-        section("scheduler", config.scheduler, None)
+    if config.scheduler is not None:
+        section("scheduler", config.scheduler.to_table(), type(config.scheduler))
     if config.finetune is not None:
         section("finetune", config.finetune, FinetuneConfig)
     if config.transfer is not None:

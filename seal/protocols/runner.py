@@ -41,6 +41,7 @@ from seal.envs import make_adapter
 from seal.envs.base import EnvAdapter
 from seal.errors import ConfigError, SealError
 from seal.learner.checkpoint import read_checkpoint, save_checkpoint
+from seal.learner.config import AgentConfig
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
 from seal.protocols.phase import (
@@ -110,30 +111,9 @@ def build_alignment(config: ProtocolConfig, adapters: Mapping[str, EnvAdapter]) 
         raise SealError(f"{config.path}: finetune.alignment: {exc}") from None
 
 
-def agent_config(config: ProtocolConfig) -> Any:
-    """The AgentConfig of a protocol (built from the raw [agent] table if the loader could not)."""
-    from seal.learner import AgentConfig
-
-    agent = config.agent
-    if isinstance(agent, AgentConfig):
-        return agent
-    from seal.protocols.loader import build_dataclass, default_architecture
-
-    return build_dataclass(
-        AgentConfig,
-        dict(agent or {}),
-        f"{config.path}: agent",
-        {
-            "architecture": default_architecture(config.kind),
-            "device": config.protocol.device,
-            **({"one_hot": False} if config.kind == "finetune" else {}),
-        },
-    )
-
-
-def run_agent_config(config: ProtocolConfig, device: str) -> Any:
+def run_agent_config(config: ProtocolConfig, device: str) -> AgentConfig:
     """The AgentConfig a run trains with on `device`."""
-    return dataclasses.replace(agent_config(config), device=device)
+    return dataclasses.replace(config.agent, device=device)
 
 
 # ---------------------------------------------------------------- checkpoint files

@@ -1,21 +1,27 @@
-"""The protocol side of `[scheduler]`: parse, validate, scale and build a scheduler from the table.
+"""The protocol side of `[scheduler]`: parse a table into its typed config, and build a scheduler.
 
-The schedulers layer owns the configs (`seal.schedulers.registry`); this module only calls it. An
-empty table means the default: every task collects every epoch and the batch is uniform over tasks.
+The schedulers layer owns the configs (`seal.schedulers.registry`); this module only calls it. No
+table means the default: every task collects every epoch and the batch is uniform over tasks.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from seal.errors import ConfigError, SealError
 
+if TYPE_CHECKING:
+    from seal.schedulers.base import Scheduler, SchedulerConfig
 
-def parse_scheduler(table: Mapping[str, Any], where: str) -> Any:
-    """The SchedulerConfig of a [scheduler] table ({} = uniform); ConfigError names the file and key."""
+
+def parse(table: Mapping[str, Any], where: str) -> SchedulerConfig | None:
+    """The SchedulerConfig of a [scheduler] table (None for no table: uniform); ConfigError names
+    the file and key."""
     from seal.schedulers.registry import config_from_table
 
+    if not table:
+        return None
     try:
         return config_from_table(dict(table), where)
     except ConfigError:
@@ -24,31 +30,19 @@ def parse_scheduler(table: Mapping[str, Any], where: str) -> Any:
         raise ConfigError(f"{where}: scheduler: {exc}") from None
 
 
-def resolve_table(
-    table: Mapping[str, Any], where: str, scale: float | None = None
-) -> dict[str, Any]:
-    """The [scheduler] table with every field resolved (and durations scaled); {} stays {}."""
-    if not table:
-        return {}
-    config = parse_scheduler(table, where)
-    if scale is not None:
-        config = config.scale(scale)
-    return config.to_table()
-
-
 def build(
-    table: Mapping[str, Any],
+    config: SchedulerConfig | None,
     env_tasks: Mapping[str, Sequence[str]],
     adapters: Mapping[str, str],
     where: str,
     *,
     seed: int = 0,
     episode_lengths: Mapping[str, int] | None = None,
-) -> Any:
-    """The Scheduler of a [scheduler] table over `env_tasks`; `adapters` maps env -> adapter name."""
+) -> Scheduler:
+    """The Scheduler of a protocol's scheduler config over `env_tasks`; `adapters` maps env ->
+    adapter name. Errors name the file (`where`) and the `scheduler.key`."""
     from seal.schedulers.registry import build_scheduler
 
-    config = parse_scheduler(table, where)
     try:
         return build_scheduler(
             config,

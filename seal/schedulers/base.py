@@ -37,8 +37,10 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, Self
 
 import numpy as np
+from pydantic import with_config
 
 from seal.errors import SealError, UnknownNameError
+from seal.typed_config import SCHEMA
 
 TaskKey = tuple[str, str]
 """(environment name, task name): one task instance of one environment."""
@@ -311,6 +313,7 @@ def scale_duration(value: int, factor: float) -> int:
     return max(1, int(round(value * factor)))
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class SchedulerConfig:
     """Base of the [scheduler] table's dataclasses: one subclass per `kind`.

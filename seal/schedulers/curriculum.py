@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
+from pydantic import with_config
 
 from seal.errors import ConfigError
 from seal.schedulers.base import (
@@ -47,6 +48,7 @@ from seal.schedulers.base import (
     TaskKey,
     scale_duration,
 )
+from seal.typed_config import SCHEMA
 
 # ---- Curriculum V1 presets: the report's tables, task -> percent per phase ------------------------
 TABLE_B3_STEPS = (9_000_000, 3_000_000, 3_000_000, 3_000_000, 3_000_000, 12_000_000)
@@ -100,6 +102,7 @@ MIXED_TIERS: dict[str, int] = {
 MIXED_PHASES = 7
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class CurriculumPhase:
     """One phase of a staged curriculum: how long it lasts and the task distribution."""
@@ -110,6 +113,7 @@ class CurriculumPhase:
     """Task ("task" or "env/task") -> share of the update batch, in percent or fractions (normalised); missing = 0."""
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class CurriculumV1Config(SchedulerConfig):
     """kind = "curriculum_v1": explicit phases of env steps and task distributions (report Tables B.3, C.3)."""
@@ -152,6 +156,7 @@ class CurriculumV1Config(SchedulerConfig):
         )
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class ProgressivePhase:
     """One phase of a progressive curriculum: its tasks and the success that opens the next phase."""
@@ -164,6 +169,7 @@ class ProgressivePhase:
     """Move on after this many env steps in the phase even below the threshold; 0 = no limit."""
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class CurriculumV2Config(SchedulerConfig):
     """kind = "curriculum_v2": progressive phases gated by success thresholds (report §III-B)."""

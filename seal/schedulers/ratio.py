@@ -18,9 +18,11 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal
 
 import numpy as np
+from pydantic import with_config
 
 from seal.errors import ConfigError
 from seal.schedulers.base import Plan, Progress, Scheduler, SchedulerConfig, TaskKey
+from seal.typed_config import SCHEMA
 
 CollectMode = Literal["all", "ratio"]
 
@@ -34,6 +36,7 @@ RATIO_PRESETS: dict[str, tuple[str, str]] = {
 }
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class UniformConfig(SchedulerConfig):
     """kind = "uniform": every task collects every epoch; the batch is uniform over all tasks (the default)."""
@@ -41,6 +44,7 @@ class UniformConfig(SchedulerConfig):
     kind: ClassVar[str] = "uniform"
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class ConstantRatioConfig(SchedulerConfig):
     """kind = "constant": a fixed fraction of every update batch per environment (e.g. 50/50)."""
@@ -54,6 +58,7 @@ class ConstantRatioConfig(SchedulerConfig):
     """Envs of a joint run that this run stands in for but does not have, with their task counts: their share of the batch is not drawn, so each task here gets the per-step batch it gets in that joint run (a target-alone arm)."""
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class SteppedRatioConfig(SchedulerConfig):
     """kind = "stepped": start at `start`, move `step` toward `end` every `interval` epochs (§4.3)."""

@@ -1,18 +1,16 @@
 """From a protocol's [scheduler] table to a config, and from a config to a scheduler.
 
 `config_from_table` checks every key and type against the config dataclass of the table's `kind`
-(unknown keys, wrong types and unknown kinds raise ConfigError naming `scheduler.key`);
+(`seal.typed_config.build`: unknown keys, wrong types and unknown kinds raise ConfigError naming
+`scheduler.key`);
 `build_scheduler` validates values against the protocol's envs and tasks and dispatches on the
 config's type, ending in a clear error for anything else.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import types
-import typing
 from collections.abc import Mapping, Sequence
-from typing import Any, Literal
+from typing import Any
 
 from seal.errors import ConfigError
 from seal.schedulers.base import Scheduler, SchedulerConfig
@@ -30,6 +28,7 @@ from seal.schedulers.ratio import (
     build_ratio_scheduler,
 )
 from seal.schedulers.smt import SMTConfig, build_smt_scheduler
+from seal.typed_config import build
 
 SCHEDULER_CONFIGS: dict[str, type[SchedulerConfig]] = {
     cls.kind: cls
@@ -49,72 +48,6 @@ KIND_ALIASES: dict[str, tuple[str, dict[str, Any]]] = {
     "high_fk": ("stepped", {"preset": "high_fk"}),
     "high_mw": ("stepped", {"preset": "high_mw"}),
 }
-
-
-def _convert(value: Any, hint: Any, key: str) -> Any:
-    """`value` checked against and converted to the type `hint`, or a ConfigError naming `key`."""
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    if hint is bool:
-        if isinstance(value, bool):
-            return value
-        raise ConfigError(f"{key} = {value!r}: expected true or false")
-    if hint is int:
-        if isinstance(value, int) and not isinstance(value, bool):
-            return value
-        if isinstance(value, float) and value.is_integer():
-            return int(value)  # 1.7e7 in TOML is a float
-        raise ConfigError(f"{key} = {value!r}: expected an integer")
-    if hint is float:
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            return float(value)
-        raise ConfigError(f"{key} = {value!r}: expected a number")
-    if hint is str:
-        if isinstance(value, str):
-            return value
-        raise ConfigError(f"{key} = {value!r}: expected a string")
-    if origin is Literal:
-        if value in args:
-            return value
-        raise ConfigError(f"{key} = {value!r}: expected one of {', '.join(repr(a) for a in args)}")
-    if origin is dict:
-        if not isinstance(value, Mapping):
-            raise ConfigError(f"{key} = {value!r}: expected a table")
-        return {str(k): _convert(v, args[1], f"{key}.{k}") for k, v in value.items()}
-    if origin is tuple:
-        if isinstance(value, str) or not isinstance(value, Sequence):
-            raise ConfigError(f"{key} = {value!r}: expected a list")
-        return tuple(_convert(v, args[0], f"{key}[{i}]") for i, v in enumerate(value))
-    if origin in (typing.Union, types.UnionType):
-        for option in args:
-            try:
-                return _convert(value, option, key)
-            except ConfigError:
-                continue
-        raise ConfigError(f"{key} = {value!r}: expected {hint}")
-    if dataclasses.is_dataclass(hint):
-        if not isinstance(value, Mapping):
-            raise ConfigError(f"{key} = {value!r}: expected a table")
-        return _dataclass_from(hint, value, key)
-    raise TypeError(f"unsupported field type {hint!r} at {key}")
-
-
-def _dataclass_from(cls: type, table: Mapping[str, Any], where: str) -> Any:
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(table) - set(fields))
-    if unknown:
-        raise ConfigError(f"{where}.{unknown[0]}: unknown key; valid keys: {', '.join(fields)}")
-    missing = [
-        n
-        for n, f in fields.items()
-        if n not in table
-        and f.default is dataclasses.MISSING
-        and f.default_factory is dataclasses.MISSING
-    ]
-    if missing:
-        raise ConfigError(f"{where}.{missing[0]}: required key is missing")
-    return cls(**{n: _convert(v, hints[n], f"{where}.{n}") for n, v in table.items()})
 
 
 def config_from_table(table: Mapping[str, Any] | None, source: str = "") -> SchedulerConfig:
@@ -138,7 +71,7 @@ def config_from_table(table: Mapping[str, Any] | None, source: str = "") -> Sche
             raise ConfigError(
                 f"scheduler.kind = {kind!r}: unknown; valid: {', '.join([*SCHEDULER_CONFIGS, *KIND_ALIASES])}"
             )
-        return _dataclass_from(SCHEDULER_CONFIGS[kind], table, "scheduler")
+        return build(SCHEDULER_CONFIGS[kind], table, "scheduler")
     except ConfigError as exc:
         raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal
 
 import numpy as np
+from pydantic import with_config
 
 from seal.errors import ConfigError
 from seal.schedulers.base import (
@@ -42,6 +43,7 @@ from seal.schedulers.base import (
     ScoreRequest,
     TaskKey,
 )
+from seal.typed_config import SCHEMA
 
 MAIN, TRAINING, SOLVED, UNSOLVABLE = "main", "training", "solved", "unsolvable"
 POOLS: tuple[str, ...] = (MAIN, TRAINING, SOLVED, UNSOLVABLE)
@@ -55,6 +57,7 @@ PAPER_EPISODE_LENGTH = 500
 KNOWN_EPISODE_LENGTHS: dict[str, int] = {"metaworld": 500, "franka_kitchen_dense": 280}
 
 
+@with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class SMTConfig(SchedulerConfig):
     """kind = "smt": hard-tasks-first scheduling with budgets, resets and a second stage (Table 6, MT10)."""

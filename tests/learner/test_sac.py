@@ -12,6 +12,7 @@ import torch
 
 from seal.errors import ConfigError, SealError, UnknownNameError
 from seal.learner import Agent, AgentConfig, Batch, EnvSpec
+from seal.typed_config import field_docs
 
 SMALL = {"hidden": (32, 32), "translator_hidden": (32,), "latent_dim": 16, "trunk_hidden": (32, 32)}
 
@@ -331,8 +332,8 @@ def test_config_errors_name_the_key_and_valid_values() -> None:
     with pytest.raises(ConfigError, match="agent.critic_hidden"):
         AgentConfig(critic_hidden=(0,))
     assert (
-        "zero-padded" not in AgentConfig.field_help()["hidden"]
-        and AgentConfig.field_help()["gamma"] == "Discount factor."
+        "zero-padded" not in field_docs(AgentConfig)["hidden"]
+        and field_docs(AgentConfig)["gamma"] == "Discount factor."
     )
 
 

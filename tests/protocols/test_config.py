@@ -10,7 +10,8 @@ import pytest
 from seal.cli.main import main
 from seal.errors import ConfigError
 from seal.protocols import config_to_dict, dumps_toml, explain, load_protocol
-from seal.protocols.loader import config_from_dict, parse_override, scale_duration
+from seal.protocols.loader import config_from_dict, parse_override
+from seal.schedulers.base import scale_duration
 
 PROTOCOLS = Path(__file__).resolve().parents[2] / "protocols"
 
@@ -129,7 +130,7 @@ def test_scale_multiplies_durations_only(tmp_path: Path) -> None:
     assert config.evaluation.interval == 1
     assert config.logging.train_interval == 1
     assert config.checkpoint.interval == 1
-    assert config.scheduler["interval"] == 10
+    assert config.scheduler.interval == 10
     # Per-epoch quantities are untouched.
     assert config.training.batch_per_task == 128
     assert config.training.grad_steps_per_epoch == -1
@@ -175,7 +176,7 @@ def test_every_shipped_protocol_is_valid_and_paper_scale() -> None:
         assert config.protocol.epochs == 10_000 and config.protocol.seeds == 2
         assert config.evaluation.episodes == 50 and config.evaluation.interval == 100
         assert "GPU-hours" in (PROTOCOLS / f"{name}.toml").read_text()
-    assert load_protocol(PROTOCOLS / "high_fk.toml").scheduler["preset"] == "high_fk"
+    assert load_protocol(PROTOCOLS / "high_fk.toml").scheduler.preset == "high_fk"
 
 
 # ---------------------------------------------------------------- bad input: key named, nothing written

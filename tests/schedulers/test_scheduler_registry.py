@@ -65,16 +65,25 @@ def test_empty_table_is_uniform_over_all_tasks() -> None:
             r"scheduler.kind: required; valid: uniform, constant, stepped, smt, curriculum_v1, curriculum_v2",
         ),
         ({"kind": "smt2"}, r"scheduler.kind = 'smt2': unknown"),
-        ({"kind": "smt", "kapa": 0.5}, r"scheduler.kapa: unknown key; valid keys: budget_stage1, "),
-        ({"kind": "smt", "slots": "three"}, r"scheduler.slots = 'three': expected an integer"),
-        ({"kind": "smt", "slots": 2.5}, r"scheduler.slots = 2.5: expected an integer"),
+        (
+            {"kind": "smt", "kapa": 0.5},
+            r"scheduler.kapa is not a valid key; valid keys: budget_stage1, ",
+        ),
+        (
+            {"kind": "smt", "slots": "three"},
+            r"scheduler.slots = 'three' has the wrong type; expected an integer",
+        ),
+        (
+            {"kind": "smt", "slots": 2.5},
+            r"scheduler.slots = 2.5 has the wrong type; expected an integer",
+        ),
         (
             {"kind": "smt", "solved_return": {"mw": "high"}},
-            r"scheduler.solved_return.mw = 'high': expected a number",
+            r"scheduler.solved_return.mw = 'high' has the wrong type; expected a number",
         ),
         (
             {"kind": "constant", "collect": "some"},
-            r"scheduler.collect = 'some': expected one of 'all', 'ratio'",
+            r"scheduler.collect = 'some' is not valid; valid: 'all', 'ratio'",
         ),
         (
             {"kind": "curriculum_v1", "phases": [{"weights": {"a": 1}}]},
@@ -82,7 +91,7 @@ def test_empty_table_is_uniform_over_all_tasks() -> None:
         ),
         (
             {"kind": "curriculum_v2", "phases": [{"tasks": "a"}]},
-            r"scheduler.phases\[0\].tasks = 'a': expected a list",
+            r"scheduler.phases\[0\].tasks = 'a' has the wrong type; expected a list",
         ),
     ],
 )
