@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
@@ -89,6 +90,121 @@ def _default_out(paths: Sequence[str | os.PathLike[str]], groups: Sequence[_Grou
     return root / "comparison" / _safe(names)[:150]
 
 
+def _frames(groups: Sequence[_Group]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The groups' evaluation rows (labels disambiguated) and training rows, in one column space."""
+    metrics = _labelled(groups, "metrics")
+    if metrics.empty:
+        raise SealError(
+            f"{[str(g.path) for g in groups]}: the metrics.csv files have no evaluation rows yet"
+        )
+    metrics = _disambiguate(metrics)
+    train = _labelled(groups, "train")
+    if not train.empty:
+        # Training rows take their evaluation rows' column (disambiguated labels included).
+        column_of = metrics.drop_duplicates(["source", "phase", "env"]).set_index(
+            ["source", "phase", "env"]
+        )["column"]
+        keys = list(zip(train["source"], train["phase"], train["env"], strict=True))
+        train["column"] = [column_of.get(k, c) for k, c in zip(keys, train["column"], strict=True)]
+    return metrics, train
+
+
+def _output_dirs(out_dir: Path) -> tuple[Path, Path]:
+    """`out_dir`'s tables/ and plots/, created; SealError if they cannot be."""
+    tables_dir, plots_dir = out_dir / "tables", out_dir / "plots"
+    try:
+        tables_dir.mkdir(parents=True, exist_ok=True)
+        plots_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SealError(
+            f"cannot write the report to {out_dir}: {exc.strerror}; pass --out DIR"
+        ) from None
+    return tables_dir, plots_dir
+
+
+@dataclass
+class _Layout:
+    """The tables' columns (protocols), rows (tasks) and env labels."""
+
+    columns: list[str]
+    rows: list[tuple[str, str]]
+    labels: dict[str, str]
+
+    @classmethod
+    def of(cls, metrics: pd.DataFrame) -> _Layout:
+        columns = sorted(dict.fromkeys(metrics["column"]), key=_column_rank)
+        labels = dict(zip(metrics["env"], metrics["env_label"], strict=False))
+        return cls(columns, _row_order(metrics), labels)
+
+
+def _update_counts(
+    metrics: pd.DataFrame, threshold: float
+) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """The update-count metric: (per seed, across seeds with % change against Single Env, env totals)."""
+    per_seed = []
+    for (column, source), frame in metrics.groupby(["column", "source"], sort=False):
+        reach = first_reach(frame, threshold)
+        reach.insert(0, "column", column)
+        reach.insert(1, "source", source)
+        per_seed.append(reach)
+    per_seed_frame = pd.concat(per_seed, ignore_index=True)
+    counts = aggregate_seeds(per_seed_frame, keys=("column", "env", "task"))
+    counts = add_percent_change(counts, BASELINE_COLUMN, column_key="column", on=("env", "task"))
+    return per_seed_frame, counts, env_totals(counts, keys=("column", "env"))
+
+
+def _count_notes(
+    counts: pd.DataFrame, threshold: float, layout: _Layout, warnings: Sequence[str]
+) -> list[str]:
+    """The update-count table's notes: definitions, the paper's product where it differs, warnings."""
+    notes = _notes(
+        threshold,
+        with_change=bool((counts["column"] == BASELINE_COLUMN).any() and len(layout.columns) > 1),
+    )
+    if (counts["reached"] > 0).any() and any(
+        _paper_suffix(r.updates_mean, r.paper_updates_mean, int(r.reached), "plain")
+        for r in counts.itertuples(index=False)
+    ):
+        notes.append(
+            "{C×GS×BS: x} = Appendix B's product (gradient steps × the task's batch in force at that "
+            "evaluation), shown where the batch changed during the run and it differs from the exact count."
+        )
+    notes.extend(f"WARNING: {w}; these columns are not the same experiment." for w in warnings)
+    return notes
+
+
+def _write_tables(
+    tables_dir: Path,
+    metrics: pd.DataFrame,
+    counts: tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame],
+    layout: _Layout,
+    title: str,
+    notes: list[str],
+) -> dict[str, Path]:
+    """update_counts.{csv,md,tex}, update_counts_per_seed.csv and success.{csv,md,tex}."""
+    per_seed, aggregated, totals = counts
+    tables: dict[str, Path] = {}
+    for name, frame in (("update_counts", aggregated), ("update_counts_per_seed", per_seed)):
+        path = tables_dir / f"{name}.csv"
+        frame.to_csv(path, index=False)
+        tables[path.name] = path
+    cols, rows, labels = layout.columns, layout.rows, layout.labels
+    display_md = _update_count_table(aggregated, totals, cols, rows, labels, "markdown")
+    display_tex = _update_count_table(aggregated, totals, cols, rows, labels, "latex")
+    tables.update(
+        _write_table(display_md, tables_dir / "update_counts", title, notes, latex=display_tex)
+    )
+    success_long, success_display = _success_tables(metrics, cols, rows, labels)
+    success_csv = tables_dir / "success.csv"
+    success_long.to_csv(success_csv, index=False)
+    tables[success_csv.name] = success_csv
+    success_notes = ["Success rate at each run's last evaluation; mean ± sample std over seeds."]
+    tables.update(
+        _write_table(success_display, tables_dir / "success", "Final success rate", success_notes)
+    )
+    return tables
+
+
 def report(
     paths: Sequence[str | os.PathLike[str]],
     out: str | os.PathLike[str] | None = None,
@@ -110,88 +226,21 @@ def report(
         raise SealError(f"x axis {x!r} is not valid; expected 'grad_steps' or 'epoch'")
     groups = _gather(paths)
     threshold = _resolve_threshold(groups, threshold)
-    metrics = _labelled(groups, "metrics")
-    if metrics.empty:
-        raise SealError(
-            f"{[str(g.path) for g in groups]}: the metrics.csv files have no evaluation rows yet"
-        )
-    metrics = _disambiguate(metrics)
-    train = _labelled(groups, "train")
-    if not train.empty:
-        # Training rows take their evaluation rows' column (disambiguated labels included).
-        column_of = metrics.drop_duplicates(["source", "phase", "env"]).set_index(
-            ["source", "phase", "env"]
-        )["column"]
-        keys = list(zip(train["source"], train["phase"], train["env"], strict=True))
-        train["column"] = [column_of.get(k, c) for k, c in zip(keys, train["column"], strict=True)]
-
+    metrics, train = _frames(groups)
     out_dir = Path(out) if out is not None else _default_out(paths, groups)
-    tables_dir, plots_dir = out_dir / "tables", out_dir / "plots"
-    try:
-        tables_dir.mkdir(parents=True, exist_ok=True)
-        plots_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SealError(
-            f"cannot write the report to {out_dir}: {exc.strerror}; pass --out DIR"
-        ) from None
+    tables_dir, plots_dir = _output_dirs(out_dir)
 
-    # ---- update-count metric: per seed, across seeds, totals, % change against Single Env
-    per_seed = []
-    for (column, source), frame in metrics.groupby(["column", "source"], sort=False):
-        reach = first_reach(frame, threshold)
-        reach.insert(0, "column", column)
-        reach.insert(1, "source", source)
-        per_seed.append(reach)
-    per_seed_frame = pd.concat(per_seed, ignore_index=True)
-    counts = aggregate_seeds(per_seed_frame, keys=("column", "env", "task"))
-    counts = add_percent_change(counts, BASELINE_COLUMN, column_key="column", on=("env", "task"))
-    totals = env_totals(counts, keys=("column", "env"))
-
-    columns = sorted(dict.fromkeys(metrics["column"]), key=_column_rank)
-    rows = _row_order(metrics)
-    labels = dict(zip(metrics["env"], metrics["env_label"], strict=False))
-    notes = _notes(
-        threshold,
-        with_change=bool((counts["column"] == BASELINE_COLUMN).any() and len(columns) > 1),
-    )
-    if (counts["reached"] > 0).any() and any(
-        _paper_suffix(r.updates_mean, r.paper_updates_mean, int(r.reached), "plain")
-        for r in counts.itertuples(index=False)
-    ):
-        notes.append(
-            "{C×GS×BS: x} = Appendix B's product (gradient steps × the task's batch in force at that "
-            "evaluation), shown where the batch changed during the run and it differs from the exact count."
-        )
+    per_seed, counts, totals = _update_counts(metrics, threshold)
+    layout = _Layout.of(metrics)
     warnings = _comparability_warnings(groups)
-    notes.extend(f"WARNING: {w}; these columns are not the same experiment." for w in warnings)
+    notes = _count_notes(counts, threshold, layout, warnings)
     title = f"Millions of updates to reach {threshold:.0%} success"
+    tables = _write_tables(tables_dir, metrics, (per_seed, counts, totals), layout, title, notes)
 
-    tables: dict[str, Path] = {}
-    counts_csv = tables_dir / "update_counts.csv"
-    counts.to_csv(counts_csv, index=False)
-    per_seed_csv = tables_dir / "update_counts_per_seed.csv"
-    per_seed_frame.to_csv(per_seed_csv, index=False)
-    tables[counts_csv.name], tables[per_seed_csv.name] = counts_csv, per_seed_csv
-    display_md = _update_count_table(counts, totals, columns, rows, labels, "markdown")
-    display_tex = _update_count_table(counts, totals, columns, rows, labels, "latex")
-    tables.update(
-        _write_table(display_md, tables_dir / "update_counts", title, notes, latex=display_tex)
-    )
-
-    success_long, success_display = _success_tables(metrics, columns, rows, labels)
-    success_csv = tables_dir / "success.csv"
-    success_long.to_csv(success_csv, index=False)
-    tables[success_csv.name] = success_csv
-    success_notes = ["Success rate at each run's last evaluation; mean ± sample std over seeds."]
-    tables.update(
-        _write_table(success_display, tables_dir / "success", "Final success rate", success_notes)
-    )
-
-    # ---- plots
-    colours = _colours(columns)
+    colours = _colours(layout.columns)
     skipped: list[str] = []
-    plots = _plot_success(metrics, x, colours, labels, plots_dir, threshold)
-    loss_plot = _plot_critic_loss(train, x, colours, labels, plots_dir)
+    plots = _plot_success(metrics, x, colours, layout.labels, plots_dir, threshold)
+    loss_plot = _plot_critic_loss(train, x, colours, layout.labels, plots_dir)
     if loss_plot is None:
         skipped.append("critic_loss.png: no critic_loss rows in the runs' train.csv")
     else:
@@ -204,7 +253,7 @@ def report(
         tables=tables,
         plots=plots,
         update_counts=counts,
-        per_seed=per_seed_frame,
+        per_seed=per_seed,
         totals=totals,
         groups=[g.path for g in groups],
         skipped=skipped,
