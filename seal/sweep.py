@@ -505,6 +505,115 @@ def _load_configs(
     return configs
 
 
+def _resume_sweep(
+    sweep_dir: Path,
+) -> tuple[dict[str, Any], list[TrialRecord], dict[str, ProtocolConfig]]:
+    """(manifest, trials, configs by name) of an earlier sweep directory."""
+    manifest = read_manifest(sweep_dir)
+    if manifest.get("kind") != "sweep":
+        raise SealError(
+            f"--resume {sweep_dir}: this is a {manifest.get('kind')!r} directory; resume it with --search"
+        )
+    trials = manifest["trials"]
+    configs = {
+        name: load_protocol(_saved_config_path(sweep_dir, name))
+        for name in dict.fromkeys(t.protocol for t in trials)
+    }
+    for t in trials:
+        t.wall_s = 0.0
+    return manifest, trials, configs
+
+
+def _new_sweep(
+    paths: Sequence[str | Path],
+    seeds: Sequence[int] | None,
+    overrides: Sequence[str],
+    scale: float | None,
+    out: str | Path,
+    command: Sequence[str],
+) -> tuple[Path, dict[str, Any], list[TrialRecord], dict[str, ProtocolConfig]]:
+    """(sweep directory, manifest, trials, configs by name) of a new sweep, its groups created."""
+    from seal.protocols.runner import new_group_dir
+
+    loaded = _load_configs(paths, overrides, scale)
+    groups = {c.name: new_group_dir(c, out).resolve() for c in loaded}
+    if len(loaded) == 1:
+        sweep_dir = groups[loaded[0].name]
+    else:
+        stamp = new_group_id(json.dumps([dumps_toml(config_to_dict(c)) for c in loaded]))
+        sweep_dir = Path(out).resolve() / "sweeps" / stamp
+    trials = [
+        TrialRecord(
+            trial=f"{c.name}/seed-{s}",
+            protocol=c.name,
+            seed=s,
+            run_dir=str(seed_dir(groups[c.name], s)),
+        )
+        for c in loaded
+        for s in dict.fromkeys(seeds if seeds is not None else c.seeds)
+    ]
+    sweep_dir.mkdir(parents=True, exist_ok=True)
+    for group in groups.values():
+        group.mkdir(parents=True, exist_ok=True)
+    _save_configs(sweep_dir, loaded)
+    manifest = {
+        "created": _now(),
+        "command": " ".join(command),
+        "protocols": [str(p) for p in paths],
+        "groups": {n: str(g) for n, g in groups.items()},
+    }
+    return sweep_dir, manifest, trials, {c.name: c for c in loaded}
+
+
+def _run_trials(
+    ray: Any,
+    configs: Mapping[str, ProtocolConfig],
+    trials: list[TrialRecord],
+    save: Callable[[], None],
+    command: Sequence[str],
+    say: Callable[[str], None],
+) -> None:
+    """Each unfinished trial as its own Ray task; `trials` updated and `save`d as they end."""
+    remote = ray.remote(execute_trial)
+    pending: dict[Any, TrialRecord] = {}
+    for record in trials:
+        if is_finished(record.run_dir):  # resume: a finished run is not sent to Ray at all
+            record.start, record.status = "kept", "finished"
+            record.refresh()
+            continue
+        res = parse_resources(configs[record.protocol])
+        task = remote.options(
+            num_cpus=res.cpus,
+            num_gpus=res.gpus,
+            max_retries=0,
+            name=f"seal-sweep:{record.trial}",
+        )
+        pending[
+            task.remote(configs[record.protocol], record, threads=res.threads, command=command)
+        ] = record
+    done_count, total = len(trials) - len(pending), len(trials)
+    try:
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            ref = ready[0]
+            record = pending.pop(ref)
+            try:
+                result: TrialRecord = ray.get(ref)
+                trials[trials.index(record)] = result
+                record = result
+            except Exception as exc:  # noqa: BLE001 - a crashed worker is this trial's failure
+                record.status, record.error = "failed", _write_error(Path(record.run_dir), exc)
+                record.refresh()
+            done_count += 1
+            say(f"[{done_count}/{total}] {record.trial}: {_outcome(record)}")
+            save()
+    except KeyboardInterrupt:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        save()
+        raise
+
+
 def sweep(
     paths: Sequence[str | Path] = (),
     *,
@@ -528,100 +637,28 @@ def sweep(
     check_address(address)
     if resume is not None:
         sweep_dir = Path(resume)
-        manifest = read_manifest(sweep_dir)
-        if manifest.get("kind") != "sweep":
-            raise SealError(
-                f"--resume {sweep_dir}: this is a {manifest.get('kind')!r} directory; resume it with --search"
-            )
-        trials = manifest["trials"]
-        configs = {
-            name: load_protocol(_saved_config_path(sweep_dir, name))
-            for name in dict.fromkeys(t.protocol for t in trials)
-        }
-        for t in trials:
-            t.wall_s = 0.0
+        manifest, trials, configs = _resume_sweep(sweep_dir)
     else:
-        loaded = _load_configs(paths, overrides, scale)
-        configs = {c.name: c for c in loaded}
-        from seal.protocols.runner import new_group_dir
-
-        groups = {c.name: new_group_dir(c, out).resolve() for c in loaded}
-        if len(loaded) == 1:
-            sweep_dir = groups[loaded[0].name]
-        else:
-            stamp = new_group_id(json.dumps([dumps_toml(config_to_dict(c)) for c in loaded]))
-            sweep_dir = Path(out).resolve() / "sweeps" / stamp
-        trials = [
-            TrialRecord(
-                trial=f"{c.name}/seed-{s}",
-                protocol=c.name,
-                seed=s,
-                run_dir=str(seed_dir(groups[c.name], s)),
-            )
-            for c in loaded
-            for s in dict.fromkeys(seeds if seeds is not None else c.seeds)
-        ]
-        sweep_dir.mkdir(parents=True, exist_ok=True)
-        for group in groups.values():
-            group.mkdir(parents=True, exist_ok=True)
-        _save_configs(sweep_dir, loaded)
-        manifest = {
-            "created": _now(),
-            "command": " ".join(command),
-            "protocols": [str(p) for p in paths],
-            "groups": {n: str(g) for n, g in groups.items()},
-        }
+        sweep_dir, manifest, trials, configs = _new_sweep(
+            paths, seeds, overrides, scale, out, command
+        )
     extra = {k: v for k, v in manifest.items() if k not in ("kind", "trials")}
     say = progress or (lambda _msg: None)
-    _write_manifest(sweep_dir, "sweep", trials, extra)
-    say(f"sweep directory: {sweep_dir}")
 
+    def save() -> None:
+        _write_manifest(sweep_dir, "sweep", trials, extra)
+
+    save()
+    say(f"sweep directory: {sweep_dir}")
     with RaySession(address, num_cpus) as ray:
         for config in configs.values():
             check_feasible(ray, config, parse_resources(config))
-        remote = ray.remote(execute_trial)
-        pending: dict[Any, TrialRecord] = {}
-        for record in trials:
-            if is_finished(record.run_dir):  # resume: a finished run is not sent to Ray at all
-                record.start, record.status = "kept", "finished"
-                record.refresh()
-                continue
-            res = parse_resources(configs[record.protocol])
-            task = remote.options(
-                num_cpus=res.cpus,
-                num_gpus=res.gpus,
-                max_retries=0,
-                name=f"seal-sweep:{record.trial}",
-            )
-            pending[
-                task.remote(configs[record.protocol], record, threads=res.threads, command=command)
-            ] = record
-        done_count, total = len(trials) - len(pending), len(trials)
-        try:
-            while pending:
-                ready, _ = ray.wait(list(pending), num_returns=1)
-                ref = ready[0]
-                record = pending.pop(ref)
-                try:
-                    result: TrialRecord = ray.get(ref)
-                    trials[trials.index(record)] = result
-                    record = result
-                except Exception as exc:  # noqa: BLE001 - a crashed worker is this trial's failure
-                    record.status, record.error = "failed", _write_error(Path(record.run_dir), exc)
-                    record.refresh()
-                done_count += 1
-                say(f"[{done_count}/{total}] {record.trial}: {_outcome(record)}")
-                _write_manifest(sweep_dir, "sweep", trials, extra)
-        except KeyboardInterrupt:
-            for ref in pending:
-                ray.cancel(ref, force=True)
-            _write_manifest(sweep_dir, "sweep", trials, extra)
-            raise
+        _run_trials(ray, configs, trials, save, command, say)
 
     notes: list[str] = []
     trials_table = _write_trials_table(sweep_dir / "trials", trials, ranked=False)
     table = _aggregate(sweep_dir, trials, notes) or trials_table
-    _write_manifest(sweep_dir, "sweep", trials, extra)
+    save()
     return SweepResult(
         sweep_dir=sweep_dir, trials=trials, table=table, trials_table=trials_table, notes=notes
     )
@@ -820,6 +857,81 @@ class TuneReporter(LoopCallback):
         )
 
 
+def _resume_search(search_dir: Path) -> tuple[dict[str, Any], list[TrialRecord], ProtocolConfig]:
+    """(manifest, trials reset to run again, base config) of an earlier search directory."""
+    manifest = read_manifest(search_dir)
+    if manifest.get("kind") != "search":
+        raise SealError(
+            f"--resume {search_dir}: this is a {manifest.get('kind')!r} directory; resume it without --search"
+        )
+    records = manifest["trials"]
+    base = load_protocol(_saved_config_path(search_dir, manifest["protocol"]))
+    for t in records:
+        # A trial ASHA stopped was judged by the scheduler already: kept, not run again.
+        t.start = "kept" if t.status == "stopped" else t.start
+        t.status, t.error, t.wall_s = (
+            ("stopped" if t.status == "stopped" else "pending"),
+            "",
+            0.0,
+        )
+    return manifest, records, base
+
+
+def _new_search(
+    path: str | Path,
+    seed: int | None,
+    num_samples: int | None,
+    overrides: Sequence[str],
+    scale: float | None,
+    out: str | Path,
+    command: Sequence[str],
+) -> tuple[Path, dict[str, Any], list[TrialRecord], ProtocolConfig]:
+    """(search directory, manifest, one trial per drawn sample, base config) of a new search."""
+    (base,) = _load_configs([path], overrides, scale)
+    run_seed_no = base.protocol.first_seed if seed is None else seed
+    spec = parse_search(base, num_samples)
+    search_dir = (
+        Path(out).resolve() / base.name / f"search-{new_group_id(dumps_toml(config_to_dict(base)))}"
+    )
+    records = [
+        TrialRecord(
+            trial=f"sample-{k:03d}",
+            protocol=base.name,
+            seed=run_seed_no,
+            run_dir=str(seed_dir(search_dir / f"sample-{k:03d}", run_seed_no)),
+            sample=s,
+        )
+        for k, s in enumerate(draw_samples(spec))
+    ]
+    search_dir.mkdir(parents=True, exist_ok=True)
+    _save_configs(search_dir, [base])
+    manifest = {
+        "created": _now(),
+        "command": " ".join(command),
+        "protocol": base.name,
+        "file": str(path),
+        "search": dataclasses.asdict(spec),
+    }
+    return search_dir, manifest, records, base
+
+
+def _sample_configs(base: ProtocolConfig, records: Sequence[TrialRecord]) -> list[ProtocolConfig]:
+    """Each trial's config: `base` with its sample set; a sample the schema refuses fails its trial."""
+    configs = []
+    for record in records:
+        try:
+            configs.append(
+                with_overrides(
+                    base, sample_overrides(record.sample), f"{base.path} [{record.trial}]"
+                )
+            )
+        except SealError as exc:
+            # A sampled value the schema rejects (e.g. a learning rate of 0) fails that trial only.
+            configs.append(base)
+            record.status, record.error = "failed", f"ConfigError: {exc}"
+    return configs
+
+
 def search(
     path: str | Path | None = None,
     *,
@@ -845,65 +957,15 @@ def search(
     say = progress or (lambda _msg: None)
     if resume is not None:
         search_dir = Path(resume)
-        manifest = read_manifest(search_dir)
-        if manifest.get("kind") != "search":
-            raise SealError(
-                f"--resume {search_dir}: this is a {manifest.get('kind')!r} directory; resume it without --search"
-            )
-        records = manifest["trials"]
-        base = load_protocol(_saved_config_path(search_dir, manifest["protocol"]))
-        for t in records:
-            # A trial ASHA stopped was judged by the scheduler already: kept, not run again.
-            t.start = "kept" if t.status == "stopped" else t.start
-            t.status, t.error, t.wall_s = (
-                ("stopped" if t.status == "stopped" else "pending"),
-                "",
-                0.0,
-            )
+        manifest, records, base = _resume_search(search_dir)
     else:
         if path is None:
             raise SealError("seal sweep --search: give one protocol FILE (or --resume SEARCH_DIR)")
-        (base,) = _load_configs([path], overrides, scale)
-        run_seed_no = base.protocol.first_seed if seed is None else seed
-        spec = parse_search(base, num_samples)
-        samples = draw_samples(spec)
-        search_dir = (
-            Path(out).resolve()
-            / base.name
-            / f"search-{new_group_id(dumps_toml(config_to_dict(base)))}"
+        search_dir, manifest, records, base = _new_search(
+            path, seed, num_samples, overrides, scale, out, command
         )
-        records = [
-            TrialRecord(
-                trial=f"sample-{k:03d}",
-                protocol=base.name,
-                seed=run_seed_no,
-                run_dir=str(seed_dir(search_dir / f"sample-{k:03d}", run_seed_no)),
-                sample=s,
-            )
-            for k, s in enumerate(samples)
-        ]
-        search_dir.mkdir(parents=True, exist_ok=True)
-        _save_configs(search_dir, [base])
-        manifest = {
-            "created": _now(),
-            "command": " ".join(command),
-            "protocol": base.name,
-            "file": str(path),
-            "search": dataclasses.asdict(spec),
-        }
     spec = parse_search(base, manifest["search"]["num_samples"])
-    configs = []
-    for record in records:
-        try:
-            configs.append(
-                with_overrides(
-                    base, sample_overrides(record.sample), f"{base.path} [{record.trial}]"
-                )
-            )
-        except SealError as exc:
-            # A sampled value the schema rejects (e.g. a learning rate of 0) fails that trial only.
-            configs.append(base)
-            record.status, record.error = "failed", f"ConfigError: {exc}"
+    configs = _sample_configs(base, records)
     extra = {k: v for k, v in manifest.items() if k not in ("kind", "trials")}
     _write_manifest(search_dir, "search", records, extra)
     say(f"search directory: {search_dir} ({len(records)} samples)")
