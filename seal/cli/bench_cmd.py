@@ -19,7 +19,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "--learn transfer runs only the cross-environment transfer testbed (protocols/testbed, "
             "docs/transfer_testbed.md) and prints its table and transfer_updates_saved; "
             "--learn kitchen runs only the kitchen learning protocols (protocols/kitchen_learn: "
-            "slide-cabinet and light-switch, with and without demonstrations)."
+            "slide-cabinet, light-switch and bottom-left-burner, with and without demonstrations)."
         ),
     )
     parser.add_argument(
