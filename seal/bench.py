@@ -195,7 +195,9 @@ def bench_sac_vs_sb3(updates: int = 300, repeats: int = 3, seed: int = 0) -> dic
         "next_obs": rng.normal(size=(filled, SB3_OBS_DIM)).astype(np.float32),
         "terminations": np.zeros(filled, np.float32),
     }
-    replay = MultiTaskReplay([EnvSpec("bench", SB3_OBS_DIM, SB3_ACT_DIM, 1)], capacity=filled)
+    replay = MultiTaskReplay(
+        [EnvSpec("bench", SB3_OBS_DIM, SB3_ACT_DIM, 1)], capacity=filled, seed=seed + 1
+    )
     replay.add(
         "bench",
         np.zeros(filled, np.int64),
@@ -213,11 +215,10 @@ def bench_sac_vs_sb3(updates: int = 300, repeats: int = 3, seed: int = 0) -> dic
     buf.dones[:filled, 0] = data["terminations"]
     buf.full = True
     counts = {"bench": np.array([batch_size])}
-    sample_rng = np.random.default_rng(seed + 1)
 
     def ours_run(n: int) -> None:
         for _ in range(n):
-            ours.update(replay.sample(counts, sample_rng))
+            ours.update(replay.sample(counts))
 
     def sb3_run(n: int) -> None:
         sb3.train(gradient_steps=n, batch_size=batch_size)
@@ -821,10 +822,10 @@ def bench_ratio_lever(
             **(agent or {}),
         )
         learner = Agent(specs, config, seed)
-        rng = np.random.default_rng(seed)
+        replay.generator.manual_seed(seed)  # every mode sees the same batches
         for _ in range(warmup_updates):
-            learner.update(replay.sample(counts, rng))
-        lever = learner.ratio_lever(replay.sample(counts, rng))
+            learner.update(replay.sample(counts))
+        lever = learner.ratio_lever(replay.sample(counts))
         g = lever["grad_norm"]
         out["modes"][mode] = {**lever, "grad_norm_ratio_a_over_b": g["a"] / g["b"]}
     n = out["batch"]

@@ -1,8 +1,11 @@
-"""Multi-task replay: one preallocated float32 ring buffer per (environment, task).
+"""Multi-task replay: one preallocated float32 ring buffer per (environment, task), on the training device.
 
-Each environment's buffers are stored as arrays of shape (num_tasks, capacity_per_task, ...), so
-task t's buffer is the slice [t] and a batch over all tasks is one fancy-indexing gather. The caller
-(a data-ratio scheduler) decides how many transitions each task contributes to an update
+Each environment's buffers are tensors of shape (num_tasks, capacity_per_task, ...) on the replay's
+device, so task t's buffer is the slice [t] and a batch over all tasks is one gather there, with
+row indices drawn by the replay's own torch generator on that device: an update reads no host
+memory. Collected steps are staged on the host and written in one copy per field when the replay
+is next read (`flush`: once per epoch in the phase loop). The caller (a data-ratio scheduler)
+decides how many transitions each task contributes to an update
 (`seal.schedulers.base.split_counts` rounds proportions into those per-task counts).
 """
 
@@ -77,9 +80,13 @@ class MultiTaskReplay:
         capacity: int | Mapping[str, int] = DEFAULT_CAPACITY,
         device: str | torch.device = "cpu",
         check_memory: bool = True,
+        seed: int = 0,
     ) -> None:
         self.specs = {s.name: s for s in specs}
         self.device = torch.device(device)
+        self.generator = torch.Generator(device=self.device)
+        """Draws every sampled row (saved in `state_dict`, so a resumed run draws the same rows)."""
+        self.generator.manual_seed(seed)
         needed = replay_bytes(specs, capacity)
         if check_memory:
             available = available_memory_bytes()
@@ -92,7 +99,10 @@ class MultiTaskReplay:
                     f"replay needs {needed / 2**30:.2f} GiB ({per_env}) but only {available / 2**30:.2f} GiB of memory is available; lower the replay capacity or train fewer tasks"
                 )
         self.capacity_per_task: dict[str, int] = {}
-        self.storage: dict[str, dict[str, np.ndarray]] = {}
+        self._storage: dict[str, dict[str, torch.Tensor]] = {}
+        self._staged: dict[str, list[tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]]] = {}
+        self._size_on_device: dict[str, torch.Tensor] = {}
+        self._ids_cache: dict[tuple[str, bytes], torch.Tensor] = {}
         self.size: dict[str, np.ndarray] = {}
         self.position: dict[str, np.ndarray] = {}
         self.consumed: dict[str, np.ndarray] = {}
@@ -100,17 +110,33 @@ class MultiTaskReplay:
             per_task = _capacity_of(spec, capacity) // spec.num_tasks
             shape = (spec.num_tasks, per_task)
             self.capacity_per_task[spec.name] = per_task
-            # np.zeros maps pages lazily, so untouched capacity costs no resident memory.
-            self.storage[spec.name] = {
-                "obs": np.zeros((*shape, spec.obs_dim), np.float32),
-                "actions": np.zeros((*shape, spec.act_dim), np.float32),
-                "rewards": np.zeros(shape, np.float32),
-                "next_obs": np.zeros((*shape, spec.obs_dim), np.float32),
-                "terminations": np.zeros(shape, np.float32),
+            shapes = {
+                "obs": (*shape, spec.obs_dim),
+                "actions": (*shape, spec.act_dim),
+                "rewards": shape,
+                "next_obs": (*shape, spec.obs_dim),
+                "terminations": shape,
             }
+            self._storage[spec.name] = {f: self._zeros(shapes[f]) for f in _FIELDS}
+            self._staged[spec.name] = []
+            self._size_on_device[spec.name] = torch.zeros(
+                spec.num_tasks, dtype=torch.int64, device=self.device
+            )
             self.size[spec.name] = np.zeros(spec.num_tasks, np.int64)
             self.position[spec.name] = np.zeros(spec.num_tasks, np.int64)
             self.consumed[spec.name] = np.zeros(spec.num_tasks, np.int64)
+
+    def _zeros(self, shape: tuple[int, ...]) -> torch.Tensor:
+        if self.device.type == "cpu":
+            # np.zeros maps pages lazily, so untouched capacity costs no resident memory.
+            return torch.from_numpy(np.zeros(shape, np.float32))
+        return torch.zeros(shape, dtype=torch.float32, device=self.device)
+
+    @property
+    def storage(self) -> dict[str, dict[str, torch.Tensor]]:
+        """Each env's buffers by field, shape (num_tasks, capacity_per_task, ...), staged steps written."""
+        self.flush()
+        return self._storage
 
     def _spec(self, env: str) -> EnvSpec:
         if env not in self.specs:
@@ -144,7 +170,7 @@ class MultiTaskReplay:
         rank[order] = np.arange(n) - np.searchsorted(sorted_ids, sorted_ids, side="left")
         cap = self.capacity_per_task[env]
         slots = (self.position[env][task_ids] + rank) % cap
-        store = self.storage[env]
+        store = self._storage[env]
         values = {
             "obs": obs,
             "actions": actions,
@@ -152,22 +178,64 @@ class MultiTaskReplay:
             "next_obs": next_obs,
             "terminations": terminations,
         }
-        for field in _FIELDS:
-            store[field][task_ids, slots] = np.asarray(values[field], dtype=np.float32).reshape(
-                n, *store[field].shape[2:]
+        self._staged[env].append(
+            (
+                task_ids,
+                slots,
+                {
+                    f: np.array(values[f], dtype=np.float32).reshape(n, *store[f].shape[2:])
+                    for f in _FIELDS
+                },
             )
+        )
         added = np.bincount(task_ids, minlength=spec.num_tasks)
         self.position[env] = (self.position[env] + added) % cap
         self.size[env] = np.minimum(self.size[env] + added, cap)
 
-    def sample(
-        self, counts: Mapping[str, np.ndarray], rng: np.random.Generator
-    ) -> dict[str, Batch]:
+    def flush(self) -> None:
+        """Write the staged steps into the buffers: one host-to-device copy per env and field.
+
+        A slot written twice since the last flush (a ring that wrapped) keeps its latest step.
+        """
+        for env, staged in self._staged.items():
+            if not staged:
+                continue
+            task_ids = np.concatenate([t for t, _, _ in staged])
+            slots = np.concatenate([s for _, s, _ in staged])
+            cap = self.capacity_per_task[env]
+            # The last write of each (task, slot): unique over the reversed flat keys.
+            flat = (task_ids * cap + slots)[::-1]
+            _, first_in_reversed = np.unique(flat, return_index=True)
+            keep = len(flat) - 1 - first_in_reversed
+            index = (
+                torch.from_numpy(task_ids[keep]).to(self.device),
+                torch.from_numpy(slots[keep]).to(self.device),
+            )
+            for field in _FIELDS:
+                rows = np.concatenate([v[field] for _, _, v in staged])[keep]
+                self._storage[env][field][index] = torch.from_numpy(rows).to(self.device)
+            self._size_on_device[env].copy_(torch.from_numpy(self.size[env]))
+            staged.clear()
+
+    def _task_ids(self, env: str, counts: np.ndarray) -> torch.Tensor:
+        """counts[t] copies of each task id t on the device (cached: a schedule repeats its counts)."""
+        key = (env, counts.tobytes())
+        ids = self._ids_cache.get(key)
+        if ids is None:
+            if len(self._ids_cache) > 256:
+                self._ids_cache.clear()
+            ids = torch.from_numpy(np.repeat(np.arange(len(counts)), counts)).to(self.device)
+            self._ids_cache[key] = ids
+        return ids
+
+    def sample(self, counts: Mapping[str, np.ndarray]) -> dict[str, Batch]:
         """Draw counts[env][t] transitions uniformly with replacement from each task's buffer.
 
         Returns one Batch per env with a non-zero total, rows grouped by task in task order, and
-        adds the counts to `consumed` (each sample feeds one update).
+        adds the counts to `consumed` (each sample feeds one update). Rows are drawn on the
+        replay's device by `generator`; nothing is copied from the host but cached task ids.
         """
+        self.flush()
         batches: dict[str, Batch] = {}
         for env, env_counts in counts.items():
             spec = self._spec(env)
@@ -183,24 +251,30 @@ class MultiTaskReplay:
                 raise SealError(
                     f"replay.sample: {env!r} task(s) {empty.tolist()} have no transitions yet but were asked for {env_counts[empty].tolist()}"
                 )
-            task_ids = np.repeat(np.arange(spec.num_tasks), env_counts)
-            rows = rng.integers(0, self.size[env][task_ids])
-            store = self.storage[env]
-            arrays = {field: store[field][task_ids, rows] for field in _FIELDS}
+            task_ids = self._task_ids(env, env_counts)
+            # Uniform rows below each task's size: 62 random bits modulo the size (bias < 2**-40).
+            draws = torch.randint(
+                0, 1 << 62, task_ids.shape, generator=self.generator, device=self.device
+            )
+            rows = draws % self._size_on_device[env][task_ids]
+            store = self._storage[env]
             batches[env] = Batch(
-                *(torch.from_numpy(arrays[field]).to(self.device) for field in _FIELDS),
-                task_ids=torch.from_numpy(task_ids).to(self.device),
+                *(store[field][task_ids, rows] for field in _FIELDS), task_ids=task_ids
             )
             self.consumed[env] += env_counts
         return batches
 
     def state_dict(self) -> dict[str, Any]:
         """Contents (only the filled rows) and counters, as tensors so torch.load(weights_only=True) reads them."""
-        state: dict[str, Any] = {"capacity_per_task": dict(self.capacity_per_task), "envs": {}}
+        state: dict[str, Any] = {
+            "capacity_per_task": dict(self.capacity_per_task),
+            "generator": self.generator.get_state(),
+            "envs": {},
+        }
         for env, store in self.storage.items():
             filled = int(self.size[env].max())
             state["envs"][env] = {
-                **{field: torch.from_numpy(store[field][:, :filled].copy()) for field in _FIELDS},
+                **{field: store[field][:, :filled].to("cpu", copy=True) for field in _FIELDS},
                 "size": torch.from_numpy(self.size[env].copy()),
                 "position": torch.from_numpy(self.position[env].copy()),
                 "consumed": torch.from_numpy(self.consumed[env].copy()),
@@ -213,19 +287,24 @@ class MultiTaskReplay:
             raise SealError(
                 f"replay state has capacities per task {dict(state['capacity_per_task'])}, but this replay has {self.capacity_per_task}"
             )
+        # A replay state saved before the generator was stored (checkpoint format 2) keeps this
+        # replay's freshly seeded stream.
+        if "generator" in state:
+            self.generator.set_state(state["generator"])
         for env, saved in state["envs"].items():
             self._spec(env)
             store = self.storage[env]
             previous = int(self.size[env].max())
             for field in _FIELDS:
                 filled = saved[field].shape[1]
-                store[field][:, :filled] = saved[field].numpy()
+                store[field][:, :filled] = saved[field].to(self.device)
                 # Clear only rows this replay had filled: zeroing the whole capacity would make
                 # every lazily mapped page resident.
                 store[field][:, filled:previous] = 0.0
             self.size[env] = saved["size"].numpy().copy()
             self.position[env] = saved["position"].numpy().copy()
             self.consumed[env] = saved["consumed"].numpy().copy()
+            self._size_on_device[env].copy_(saved["size"])
 
     def consumed_counts(self) -> dict[str, np.ndarray]:
         """A copy of the per-task counters of transitions used by updates."""

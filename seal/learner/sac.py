@@ -639,7 +639,20 @@ class Agent:
         `charts/<env>/alpha/<task index>` (the temperature used by this update) and, with two or
         more envs and config.ratio_lever_interval > 0, `charts/ratio_lever` (the last measured
         value). Raises TrainingDivergedError naming the update and the last good checkpoint if a
-        loss is NaN/inf.
+        loss is NaN/inf. One device sync; a training loop uses `update_on_device` and reads its
+        sums once per interval instead.
+        """
+        metrics = self.read_logs(*self.update_on_device(batches), first_update=self.num_updates)
+        if self.last_ratio_lever is not None:
+            metrics["charts/ratio_lever"] = self.last_ratio_lever
+        return metrics
+
+    def update_on_device(
+        self, batches: Mapping[str, Batch]
+    ) -> tuple[tuple[str, ...], torch.Tensor]:
+        """`update` without the sync: (the log names, their values as one tensor on the device).
+
+        Sums of these tensors over updates with the same names are read by `read_logs`.
         """
         for name in batches:
             self._spec(name)
@@ -650,10 +663,8 @@ class Agent:
             self.last_ratio_lever = self.ratio_lever(batches)["lever"]
         order, scalars = self._update(batches)
         self.num_updates += 1
-        metrics = self._metrics(order, scalars)
-        if self.last_ratio_lever is not None:
-            metrics["charts/ratio_lever"] = self.last_ratio_lever
-        return metrics
+        values = torch.cat(scalars) if scalars else torch.zeros(0, device=self.device)
+        return self._log_names(tuple(order)), values
 
     def _update(
         self, batches: Mapping[str, Batch], drop: str | None = None
@@ -821,23 +832,36 @@ class Agent:
             "grad_norm": grad_norm,
         }
 
-    def _metrics(self, order: list[str], scalars: list[torch.Tensor]) -> dict[str, float]:
-        """One device sync for all logs; raise TrainingDivergedError on a non-finite loss."""
-        values = torch.cat(scalars).tolist() if scalars else []
-        metrics: dict[str, float] = {}
-        i = 0
-        for name in order:
-            for template in _SCALARS:
-                metrics[template.format(name)] = values[i]
-                i += 1
-            for task in range(self.specs[name].num_tasks):
-                metrics[f"charts/{name}/alpha/{task}"] = values[i]
-                i += 1
+    def _log_names(self, order: tuple[str, ...]) -> tuple[str, ...]:
+        """The names of `update_on_device`'s values for envs updated in `order`."""
+        return tuple(
+            name
+            for env in order
+            for name in (
+                *(template.format(env) for template in _SCALARS),
+                *(f"charts/{env}/alpha/{task}" for task in range(self.specs[env].num_tasks)),
+            )
+        )
+
+    def read_logs(
+        self, names: tuple[str, ...], values: torch.Tensor, first_update: int
+    ) -> dict[str, float]:
+        """One device sync: `names` -> values (sums, when summed over updates since `first_update`).
+
+        Raises TrainingDivergedError on a non-finite value (a NaN/inf in any summed update makes
+        its sum non-finite), naming the updates and the last good checkpoint.
+        """
+        metrics = dict(zip(names, values.tolist(), strict=True))
         bad = [k for k, v in metrics.items() if not math.isfinite(v)]
         if bad:
             where = self.last_checkpoint or "none saved yet"
+            updates = (
+                f"update {self.num_updates}"
+                if first_update + 1 >= self.num_updates
+                else f"one of updates {first_update + 1}-{self.num_updates}"
+            )
             raise TrainingDivergedError(
-                f"training diverged at update {self.num_updates}: {', '.join(f'{k} = {metrics[k]}' for k in bad)}; last good checkpoint: {where}"
+                f"training diverged at {updates}: {', '.join(f'{k} = {metrics[k]}' for k in bad)}; last good checkpoint: {where}"
             )
         return metrics
 

@@ -223,7 +223,6 @@ class PhaseLoop:
             episode_lengths={e: run.adapters[e].episode_length for e in phase.envs},
         )
         self.state = PhaseState(env_steps={e: [0] * len(t) for e, t in model.env_tasks.items()})
-        self.np_rng = np.random.default_rng(derive_seed(run.seed, "runner", phase.index))
         if payload is not None:
             self._restore(payload)
         self.collector: Collector = run._collector(model, self.state.anchor_epoch)
@@ -243,6 +242,9 @@ class PhaseLoop:
         """The per-task batch of the latest update (metrics.csv's `batch`)."""
         self.last_rows: list[dict[str, Any]] = []
         """metrics.csv rows of the latest evaluation, one per (env, task)."""
+        self.pending_logs: dict[tuple[str, ...], torch.Tensor] = {}
+        """Sums on the device of the agent's log values (by name tuple) since `_read_logs`."""
+        self.pending_since = self.agent.num_updates
         self.callbacks: list[LoopCallback] = [
             *([] if run.quiet else [ProgressBar(self)]),
             *run.callbacks,
@@ -258,7 +260,6 @@ class PhaseLoop:
         self.replay.load_state_dict(payload["replay"])
         self.scheduler.load_state_dict(payload["scheduler"])
         self.state = PhaseState(**payload["runner"]["state"])
-        self.np_rng.bit_generator.state = payload["runner"]["np_rng"]
         torch.set_rng_state(payload["runner"]["torch_rng"])
         random.setstate(_tuple_state(payload["runner"]["py_rng"]))
 
@@ -369,26 +370,50 @@ class PhaseLoop:
         every = cfg.evaluation.every_grad_steps
         for _ in range(self._grad_steps(plan, lengths)):
             since = time.perf_counter()
-            batches = self.replay.sample(sample_counts, self.np_rng)
+            batches = self.replay.sample(sample_counts)
             if model.alignment is not None:
                 batches = {
                     k: b._replace(task_ids=self.id_maps[k].to(b.task_ids.device)[b.task_ids])
                     for k, b in batches.items()
                 }
-            try:
-                losses = self.agent.update(batches)
-            except TrainingDivergedError as exc:
-                rundir = self.owner.rundir
-                raise SealError(
-                    f"{rundir.path}: training diverged in phase {self.phase.name!r} at gradient step {state.grad_steps + 1} ({exc}); last good checkpoint: {rundir.latest_checkpoint() or 'none yet'}"
-                ) from None
+            names, values = self.agent.update_on_device(batches)
+            sums = self.pending_logs.get(names)
+            self.pending_logs[names] = values if sums is None else sums + values
             state.grad_steps += 1
             state.log_updates += 1
-            for k, v in losses.items():
-                state.log_sums[k] = state.log_sums.get(k, 0.0) + float(v)
+            if self.agent.last_ratio_lever is not None:
+                lever = self.agent.last_ratio_lever
+                state.log_sums["charts/ratio_lever"] = (
+                    state.log_sums.get("charts/ratio_lever", 0.0) + lever
+                )
             state.add_time("update", since)
             if every and state.grad_steps % every == 0:
                 self._evaluate()  # mid-epoch: the update-count grid is K x batch
+        self._read_logs()
+
+    def _read_logs(self) -> None:
+        """Fetch the updates' log sums from the device (one sync) into `state.log_sums`.
+
+        Runs at the end of every epoch's updates and before every evaluation, so a diverged run
+        stops before it evaluates or writes a checkpoint; the sync's wait counts as update time.
+        """
+        since = time.perf_counter()
+        pending, self.pending_logs = self.pending_logs, {}
+        first, self.pending_since = self.pending_since, self.agent.num_updates
+        for names, sums in pending.items():
+            try:
+                values = self.agent.read_logs(names, sums, first_update=first)
+            except TrainingDivergedError as exc:
+                rundir = self.owner.rundir
+                raise SealError(
+                    f"{rundir.path}: training diverged in phase {self.phase.name!r} by gradient step {self.state.grad_steps} ({exc}); last good checkpoint: {rundir.latest_checkpoint() or 'none yet'}"
+                ) from None
+            for k, v in values.items():
+                self.state.log_sums[k] = self.state.log_sums.get(k, 0.0) + v
+        if pending:
+            self.state.seconds["update"] = (
+                self.state.seconds.get("update", 0.0) + time.perf_counter() - since
+            )
 
     def _demonstrations(self) -> dict[str, dict[str, float]]:
         """Put `training.demo_episodes` episodes per task of each adapter's scripted expert in the replay."""
@@ -457,6 +482,7 @@ class PhaseLoop:
 
     def _evaluate(self) -> None:
         """Appendix B's evaluation: metrics.csv rows, first crossings, best.pt, then the callbacks."""
+        self._read_logs()
         since = time.perf_counter()
         cfg, state, model, phase, owner = self.cfg, self.state, self.model, self.phase, self.owner
         state.evaluated_at = state.grad_steps
@@ -489,7 +515,7 @@ class PhaseLoop:
             save_checkpoint(
                 owner.rundir.best_path(phase.name if len(owner.phases) > 1 else None),
                 self.agent,
-                fields=owner._fields(phase, None, state, None, best=True),
+                fields=owner._fields(phase, None, state, best=True),
             )
         state.add_time("evaluate", since)
         for callback in self.callbacks:
@@ -609,9 +635,7 @@ class PhaseLoop:
         state.wall_s = time.monotonic() - self.started
         state.anchor_epoch = state.epoch
         since = time.perf_counter()
-        self.owner._checkpoint(
-            self.phase, self.agent, self.replay, self.scheduler, state, self.np_rng
-        )
+        self.owner._checkpoint(self.phase, self.agent, self.replay, self.scheduler, state)
         state.add_time("checkpoint", since)
         if reseed:
             # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.

@@ -256,7 +256,10 @@ class Run:
         from seal.learner import MultiTaskReplay
 
         return MultiTaskReplay(
-            model.replay_specs, self.config.replay.capacity_per_env, device=self.device
+            model.replay_specs,
+            self.config.replay.capacity_per_env,
+            device=self.device,
+            seed=derive_seed(self.seed, "replay", model.phase.index),
         )
 
     def _collector(self, model: PhaseModel, anchor: int) -> Any:
@@ -312,7 +315,6 @@ class Run:
         phase: Phase,
         scheduler: Any,
         state: PhaseState,
-        np_rng: Any,
         best: bool = False,
     ) -> dict[str, Any]:
         """The runner's checkpoint fields beside the agent and replay (seal.learner.checkpoint)."""
@@ -331,7 +333,6 @@ class Run:
                 "phase_index": phase.index,
                 "state": dataclasses.asdict(state),
                 "rows": self.rundir.row_counts(),
-                "np_rng": np_rng.bit_generator.state,
                 "torch_rng": torch.get_rng_state(),
                 "py_rng": random.getstate(),
                 "finished_phases": {k: dataclasses.asdict(v) for k, v in self.results.items()},
@@ -339,7 +340,7 @@ class Run:
         }
 
     def _checkpoint(
-        self, phase: Phase, agent: Any, replay: Any, scheduler: Any, state: PhaseState, np_rng: Any
+        self, phase: Phase, agent: Any, replay: Any, scheduler: Any, state: PhaseState
     ) -> None:
         self.rundir.flush()
         path = self.rundir.checkpoint_path(
@@ -349,7 +350,7 @@ class Run:
             path,
             agent,
             replay if self.config.checkpoint.save_replay else None,
-            self._fields(phase, scheduler, state, np_rng),
+            self._fields(phase, scheduler, state),
         )
         self.rundir.prune(self.config.checkpoint.keep_last)
 

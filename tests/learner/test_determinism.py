@@ -24,7 +24,7 @@ _SCRIPT = textwrap.dedent(
     specs = [EnvSpec("mw", 6, 2, 3), EnvSpec("fk", 8, 3, 2)]
     config = AgentConfig(architecture="seal", translator_hidden=(32,), latent_dim=32, trunk_hidden=(32, 32), device="cpu")
     agent = Agent(specs, config, seed=seed)
-    replay = MultiTaskReplay(specs, capacity=500)
+    replay = MultiTaskReplay(specs, capacity=500, seed=seed)
     rng = np.random.default_rng(seed)
     for spec in specs:
         ids = np.arange(spec.num_tasks)
@@ -34,7 +34,7 @@ _SCRIPT = textwrap.dedent(
     counts = counts_from_ratio({"mw": 0.6, "fk": 0.4}, {"mw": 3, "fk": 2}, batch_per_task=16)
     losses = []
     for _ in range(100):
-        metrics = agent.update(replay.sample(counts, rng))
+        metrics = agent.update(replay.sample(counts))
         losses.append([metrics["losses/mw/critic"], metrics["losses/mw/actor"], metrics["losses/fk/critic"], metrics["losses/fk/actor"]])
     print(json.dumps(losses))
     """

@@ -36,8 +36,7 @@ def test_add_and_sample_keep_tasks_apart_and_count_consumed() -> None:
     for step in range(3):
         _add_tagged(replay, "mw", [0, 1, 2, 3], step)
     np.testing.assert_array_equal(replay.size["mw"], [3, 3, 3, 3])
-    rng = np.random.default_rng(0)
-    batch = replay.sample({"mw": np.array([5, 0, 2, 1])}, rng)["mw"]
+    batch = replay.sample({"mw": np.array([5, 0, 2, 1])})["mw"]
     assert batch.obs.dtype == torch.float32 and batch.task_ids.dtype == torch.int64
     assert batch.task_ids.tolist() == [0] * 5 + [2] * 2 + [3]
     # every row comes from its own task's buffer, and its fields belong to one transition
@@ -45,7 +44,7 @@ def test_add_and_sample_keep_tasks_apart_and_count_consumed() -> None:
     torch.testing.assert_close(batch.rewards, batch.obs[:, 1])
     torch.testing.assert_close(batch.next_obs, batch.obs + 100)
     assert set(batch.obs[:, 1].tolist()) <= {0.0, 1.0, 2.0}
-    replay.sample({"mw": np.array([1, 1, 1, 1])}, rng)
+    replay.sample({"mw": np.array([1, 1, 1, 1])})
     np.testing.assert_array_equal(replay.consumed["mw"], [6, 1, 3, 2])
     assert replay.consumed["mw"].dtype == np.int64
 
@@ -64,16 +63,15 @@ def test_ring_buffer_wraps_per_task_and_repeated_task_ids_get_their_own_slots() 
 def test_sampling_errors_name_env_and_task() -> None:
     replay = MultiTaskReplay([EnvSpec("mw", 2, 1, 3)], capacity=30)
     _add_tagged(replay, "mw", [0], 0)
-    rng = np.random.default_rng(0)
     with pytest.raises(SealError, match=r"'mw' task\(s\) \[1\] have no transitions"):
-        replay.sample({"mw": np.array([1, 1, 0])}, rng)
+        replay.sample({"mw": np.array([1, 1, 0])})
     with pytest.raises(SealError, match="one per task"):
-        replay.sample({"mw": np.array([1, 1])}, rng)
+        replay.sample({"mw": np.array([1, 1])})
     with pytest.raises(UnknownNameError):
-        replay.sample({"fk": np.array([1])}, rng)
+        replay.sample({"fk": np.array([1])})
     with pytest.raises(SealError, match=r"task ids must be in \[0, 3\)"):
         _add_tagged(replay, "mw", [3], 0)
-    assert replay.sample({"mw": np.zeros(3, np.int64)}, rng) == {}
+    assert replay.sample({"mw": np.zeros(3, np.int64)}) == {}
 
 
 def test_counts_from_ratio_splits_exactly() -> None:
@@ -122,7 +120,7 @@ def test_state_dict_round_trip() -> None:
     replay = MultiTaskReplay([spec], capacity=20)
     for step in range(4):
         _add_tagged(replay, "mw", [0, 1], step)
-    replay.sample({"mw": np.array([3, 1])}, np.random.default_rng(0))
+    replay.sample({"mw": np.array([3, 1])})
     other = MultiTaskReplay([spec], capacity=20)
     other.load_state_dict(replay.state_dict())
     for field, array in replay.storage["mw"].items():
@@ -131,3 +129,36 @@ def test_state_dict_round_trip() -> None:
     np.testing.assert_array_equal(other.size["mw"], [4, 4])
     with pytest.raises(SealError, match="capacities per task"):
         MultiTaskReplay([spec], capacity=10).load_state_dict(replay.state_dict())
+
+
+def test_rows_are_uniform_over_each_tasks_filled_rows() -> None:
+    replay = MultiTaskReplay([EnvSpec("mw", 2, 1, 2)], capacity=20, seed=3)  # 10 slots per task
+    for step in range(3):
+        _add_tagged(replay, "mw", [0], step)
+    for step in range(7):
+        _add_tagged(replay, "mw", [1], step)
+    batch = replay.sample({"mw": np.array([6000, 7000])})["mw"]
+    steps = batch.obs[:, 1].long()
+    # task 0 holds steps 0-2, task 1 steps 0-6: each row drawn 2000 and 1000 times in expectation
+    # (binomial sd ~37 and ~30); none of the 7 unfilled rows of task 0 or 3 of task 1 ever.
+    counts0 = torch.bincount(steps[:6000], minlength=10).tolist()
+    counts1 = torch.bincount(steps[6000:], minlength=10).tolist()
+    assert all(abs(c - 2000) < 200 for c in counts0[:3]) and counts0[3:] == [0] * 7
+    assert all(abs(c - 1000) < 150 for c in counts1[:7]) and counts1[7:] == [0] * 3
+
+
+def test_state_dict_carries_the_sampling_stream() -> None:
+    spec = EnvSpec("mw", 3, 2, 2)
+    replay = MultiTaskReplay([spec], capacity=20, seed=1)
+    for step in range(5):
+        _add_tagged(replay, "mw", [0, 1], step)
+    replay.sample({"mw": np.array([4, 4])})
+    other = MultiTaskReplay([spec], capacity=20, seed=2)
+    other.load_state_dict(replay.state_dict())
+    expected = replay.sample({"mw": np.array([8, 8])})["mw"]
+    got = other.sample({"mw": np.array([8, 8])})["mw"]
+    assert torch.equal(got.obs, expected.obs) and torch.equal(got.task_ids, expected.task_ids)
+    # a fresh replay with the other seed draws other rows from the same contents
+    fresh = MultiTaskReplay([spec], capacity=20, seed=2)
+    fresh.load_state_dict({k: v for k, v in replay.state_dict().items() if k != "generator"})
+    assert not torch.equal(fresh.sample({"mw": np.array([8, 8])})["mw"].obs, expected.obs)

@@ -31,7 +31,7 @@ def test_reset_keeps_buffers_and_changes_every_reset_parameter() -> None:
             np.zeros(2),
         )
     for _ in range(5):  # move every parameter away from its initial value and fill Adam's state
-        agent.update(replay.sample({"mw": np.array([8, 8])}, rng))
+        agent.update(replay.sample({"mw": np.array([8, 8])}))
 
     # The scheduler asks for the reset once T_reset env steps of stage 1 have been spent.
     sched = build_scheduler(
@@ -49,7 +49,7 @@ def test_reset_keeps_buffers_and_changes_every_reset_parameter() -> None:
     plan = sched.plan(Progress(epoch=1))
     assert plan.reset_agent  # 20 env steps // T_reset 20 = 1 reset due
 
-    buffers = {k: v.copy() for k, v in replay.storage["mw"].items()}
+    buffers = {k: v.clone() for k, v in replay.storage["mw"].items()}
     sizes, consumed = replay.size["mw"].copy(), replay.consumed["mw"].copy()
     nets = {"actor": agent.actor, "critic": agent.critic, "critic_target": agent.critic_target}
     before = {
@@ -98,7 +98,7 @@ def test_reset_keeps_buffers_and_changes_every_reset_parameter() -> None:
         for p in g["params"]
     )
     # Training goes on from the kept buffers.
-    logs = agent.update(replay.sample({"mw": np.array([8, 8])}, rng))
+    logs = agent.update(replay.sample({"mw": np.array([8, 8])}))
     assert all(math.isfinite(v) for v in logs.values())
 
 
