@@ -2,9 +2,11 @@
 
 `seal sweep FILE... [--seeds 0-4]` sends each (protocol, seed) pair to Ray as one task that calls
 `seal.protocols.run_seed`, so every trial writes exactly the run directory `seal run` writes, all
-seeds of a protocol under one group. `seal sweep FILE --search` draws configs from the protocol's
-`[search]` table and lets Ray Tune run them (optionally stopping weak ones early with ASHA), then
-ranks them and writes the best resolved config as a TOML file ready for `seal run`.
+seeds of a protocol under one group. `seal sweep FILE --search` gives Ray Tune the protocol's
+`[search]` table as its param_space: Tune draws the configs (a searcher seeded by [search].seed,
+so the same table always tries the same configs) and runs them (optionally stopping weak ones
+early with ASHA); its ResultGrid is ranked and the best resolved config written as a TOML file
+ready for `seal run`.
 
 Ray is optional (the `ray` extra): it is imported inside the functions that need it, never at
 module import, so `seal run` and the protocol layer never load it.
@@ -20,7 +22,8 @@ On disk, a sweep is a directory holding `sweep.json` (what was asked, every tria
 Fault tolerance: a trial that raises (e.g. training diverged) is recorded with its error and the
 others go on. `--resume SWEEP_DIR` re-reads sweep.json: trials whose run directory is finished
 (provenance.json has an end_time) are kept as they are, started ones continue from their last
-checkpoint, and the rest start afresh.
+checkpoint, and the rest start afresh. A search's resume lets Tune draw the same samples again;
+the kept ones only report their evaluations.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ import traceback
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from seal.errors import ConfigError, SealError
 from seal.protocols import sweep_tables
@@ -59,6 +62,12 @@ from seal.protocols.sweep_tables import (
     Resources,
     SearchSpec,
 )
+
+if TYPE_CHECKING:  # Ray is imported only where it is used (see the module docstring)
+    from ray.tune import Callback, ResultGrid
+    from ray.tune.experiment import Trial
+    from ray.tune.schedulers import ASHAScheduler
+    from ray.tune.search.basic_variant import BasicVariantGenerator
 
 MANIFEST = "sweep.json"
 """The file in a sweep directory that records what was asked and every trial's status."""
@@ -82,31 +91,6 @@ def parse_search(config: ProtocolConfig, num_samples: int | None = None) -> Sear
             f'[search] "agent.actor_lr" = {{dist = "loguniform", low = 1e-5, high = 1e-3}}'
         )
     return sweep_tables.parse_search(config.search, config.path, num_samples)
-
-
-def draw_samples(spec: SearchSpec) -> list[dict[str, Any]]:
-    """The configs a search tries: `num_samples` random draws for every point of the grid entries.
-
-    Draws use Ray Tune's distributions with a generator seeded by `spec.seed`, so a search (and
-    its resume) always tries the same configs. Values are plain Python numbers, in [search] order.
-    """
-    import numpy as np
-
-    rng = np.random.default_rng(spec.seed)
-    grid = [p for p in spec.params if p.dist == "grid"]
-    points = list(itertools.product(*(p.values for p in grid))) or [()]
-    samples: list[dict[str, Any]] = []
-    for _ in range(spec.num_samples):
-        for point in points:
-            chosen = dict(zip((p.key for p in grid), point, strict=True))
-            sample = {}
-            for p in spec.params:
-                value = (
-                    chosen[p.key] if p.dist == "grid" else p.tune_domain().sample(random_state=rng)
-                )
-                sample[p.key] = _plain(value)
-            samples.append(sample)
-    return samples
 
 
 def _plain(value: Any) -> Any:
@@ -768,44 +752,123 @@ def rank_trials(trials: Iterable[TrialRecord]) -> list[TrialRecord]:
     return sorted(trials, key=key)
 
 
+def search_space(spec: SearchSpec) -> dict[str, Any]:
+    """The [search] table as Tune's param_space: each "table.key" to its Tune distribution."""
+    return {p.key: p.tune_domain() for p in spec.params}
+
+
+def search_algorithm(spec: SearchSpec) -> BasicVariantGenerator:
+    """Tune's random sampler seeded by [search].seed, so a search (and its resume) draws the same configs.
+
+    It numbers its trials in the order it draws them, which is the sample index (`trial_index`).
+    """
+    from ray.tune.search.basic_variant import BasicVariantGenerator
+
+    # Tune ignores TuneConfig.max_concurrent_trials when given a search algorithm: set it here.
+    return BasicVariantGenerator(max_concurrent=spec.max_concurrent or 0, random_state=spec.seed)
+
+
+def count_trials(spec: SearchSpec) -> int:
+    """Trials of a search: `num_samples` draws for every point of the grid entries (Tune's semantics)."""
+    return spec.num_samples * math.prod(len(p.values) for p in spec.params if p.dist == "grid")
+
+
+def trial_name(index: int) -> str:
+    """The name (and directory) of the sample drawn `index`-th, e.g. "sample-003"."""
+    return f"sample-{index:03d}"
+
+
+def trial_index(trial_id: str) -> int:
+    """The sample index of a Tune trial id: BasicVariantGenerator ids end in the draw's number ("1a2b3_00003")."""
+    return int(trial_id.rsplit("_", 1)[1])
+
+
+def plain_sample(config: Mapping[str, Any]) -> dict[str, Any]:
+    """A Tune trial's config (its sampled values) with plain Python numbers, in [search] order."""
+    return {key: _plain(value) for key, value in config.items()}
+
+
+def evaluation_horizon(base: ProtocolConfig, spec: SearchSpec) -> int:
+    """The most evaluations any sample can make (ASHA's max_t; Tune draws the samples, so it is a bound).
+
+    Evaluations grow with epochs and shrink with the interval, so the bound tries every combination
+    of the ends (choice and grid: the values) of the searched values that change the count alone.
+    """
+
+    def ends(p: Distribution) -> tuple[Any, ...]:
+        if p.dist in ("choice", "grid"):
+            return p.values
+        return (int(p.low), int(p.high)) if p.dist == "int" else (p.low, p.high)
+
+    def count(sample: Mapping[str, Any]) -> int:
+        try:
+            return evaluations_per_run(with_overrides(base, sample_overrides(sample)))
+        except SealError:
+            return 0  # a value the schema refuses fails its trial before any evaluation
+
+    plain = evaluations_per_run(base)
+    varying = [p for p in spec.params if any(count({p.key: v}) != plain for v in ends(p))]
+    keys = [p.key for p in varying]
+    combos = itertools.product(*(ends(p) for p in varying))
+    return max(plain, *(count(dict(zip(keys, c, strict=True))) for c in combos))
+
+
 @dataclass(frozen=True)
 class SearchPlan:
     """What every search trial needs (shipped once to Ray's object store)."""
 
-    configs: tuple[ProtocolConfig, ...]
-    """The resolved config of each sample, by index."""
-    records: tuple[TrialRecord, ...]
+    base: ProtocolConfig
+    """The resolved config a sample's values are set on."""
+    search_dir: Path
+    seed: int
+    """The run seed of every sample."""
     threads: int
     command: tuple[str, ...]
+    recorded: Mapping[int, Mapping[str, Any]]
+    """Samples sweep.json already holds, by index: what their run directories were started with."""
+    kept: frozenset[int]
+    """Samples not run again (finished, or stopped by ASHA before): their evaluations are only reported."""
+
+    def run_dir(self, index: int) -> Path:
+        """The run directory of sample `index`."""
+        return seed_dir(self.search_dir / trial_name(index), self.seed)
 
 
 def search_trainable(tune_config: Mapping[str, Any], plan: SearchPlan) -> None:
     """The Ray Tune function trainable of one sample: run it, reporting mean success per evaluation.
 
-    The run reports from its phase loop (`TuneReporter`, a `LoopCallback`), so each evaluation
-    reaches Tune as it is made (`training_iteration` counts evaluations, which ASHA's grace period
-    uses) and ASHA stops the trial at its report. A continued run first reports the evaluations it
-    kept; a finished run directory (resume) is not run again: its evaluations are reported as they are.
+    `tune_config` holds the values Tune drew. The run reports from its phase loop (`TuneReporter`,
+    a `LoopCallback`), so each evaluation reaches Tune as it is made (`training_iteration` counts
+    evaluations, which ASHA's grace period uses) and ASHA stops the trial at its report. A
+    continued run first reports the evaluations it kept; a kept one only reports them.
     """
+    from ray import tune
+
     from seal.protocols import run_seed
 
-    index = int(tune_config["sample"])
-    config, record = plan.configs[index], plan.records[index]
-    run_dir = Path(record.run_dir)
+    index = trial_index(tune.get_context().get_trial_id())
+    sample, run_dir = plain_sample(tune_config), plan.run_dir(index)
     reporter = TuneReporter(run_dir)
-    if is_finished(run_dir):
+    if index in plan.kept:
         reporter.report_kept()
         return
-    resume = is_started(run_dir)
     (run_dir / "error.txt").unlink(missing_ok=True)
     try:
+        recorded = plan.recorded.get(index)
+        if recorded is not None and dict(recorded) != sample:
+            raise SealError(
+                f"{trial_name(index)}: Tune drew {describe_sample(sample)}, but this search recorded "
+                f"{describe_sample(recorded)} (was it started with another Ray version?); start a new search"
+            )
+        where = f"{plan.base.path} [{trial_name(index)}]"
+        config = with_overrides(plan.base, sample_overrides(sample), where)
         _set_threads(plan.threads)
         run_seed(
             config,
-            record.seed,
+            plan.seed,
             run_dir.parent,
             quiet=True,
-            resume=resume,
+            resume=is_started(run_dir),
             command=list(plan.command),
             callbacks=[reporter],
         )
@@ -857,8 +920,41 @@ class TuneReporter(LoopCallback):
         )
 
 
+@dataclass
+class TuneLog:
+    """What the driver learns from Tune's callbacks while a search runs."""
+
+    samples: dict[int, dict[str, Any]] = field(default_factory=dict)
+    """Each started trial's drawn values, by index (a ResultGrid has no config for a trial that never reported)."""
+    completed: set[int] = field(default_factory=set)
+    """Trials Tune completed (ran out or stopped by the scheduler); an interrupted search leaves its
+    running trials out, so they stay pending, not "stopped"."""
+
+    def callback(self) -> Callback:
+        """A Tune callback that fills this log."""
+        from ray import tune
+
+        log = self
+
+        class _Log(tune.Callback):
+            def on_trial_start(
+                self, iteration: int, trials: list[Trial], trial: Trial, **info: object
+            ) -> None:
+                log.samples[trial_index(trial.trial_id)] = plain_sample(trial.config)
+
+            def on_trial_complete(
+                self, iteration: int, trials: list[Trial], trial: Trial, **info: object
+            ) -> None:
+                log.completed.add(trial_index(trial.trial_id))
+
+        return _Log()
+
+
 def _resume_search(search_dir: Path) -> tuple[dict[str, Any], list[TrialRecord], ProtocolConfig]:
-    """(manifest, trials reset to run again, base config) of an earlier search directory."""
+    """(manifest, its trials as recorded, base config) of an earlier search directory.
+
+    Tune's own resume (`Tuner.restore`) unpickles its experiment state, so a resume reads sweep.json.
+    """
     manifest = read_manifest(search_dir)
     if manifest.get("kind") != "search":
         raise SealError(
@@ -866,14 +962,7 @@ def _resume_search(search_dir: Path) -> tuple[dict[str, Any], list[TrialRecord],
         )
     records = manifest["trials"]
     base = load_protocol(_saved_config_path(search_dir, manifest["protocol"]))
-    for t in records:
-        # A trial ASHA stopped was judged by the scheduler already: kept, not run again.
-        t.start = "kept" if t.status == "stopped" else t.start
-        t.status, t.error, t.wall_s = (
-            ("stopped" if t.status == "stopped" else "pending"),
-            "",
-            0.0,
-        )
+    manifest.setdefault("seed", records[0].seed if records else base.protocol.first_seed)
     return manifest, records, base
 
 
@@ -885,24 +974,13 @@ def _new_search(
     scale: float | None,
     out: str | Path,
     command: Sequence[str],
-) -> tuple[Path, dict[str, Any], list[TrialRecord], ProtocolConfig]:
-    """(search directory, manifest, one trial per drawn sample, base config) of a new search."""
+) -> tuple[Path, dict[str, Any], ProtocolConfig]:
+    """(search directory, manifest, base config) of a new search, its directory created."""
     (base,) = _load_configs([path], overrides, scale)
-    run_seed_no = base.protocol.first_seed if seed is None else seed
     spec = parse_search(base, num_samples)
     search_dir = (
         Path(out).resolve() / base.name / f"search-{new_group_id(dumps_toml(config_to_dict(base)))}"
     )
-    records = [
-        TrialRecord(
-            trial=f"sample-{k:03d}",
-            protocol=base.name,
-            seed=run_seed_no,
-            run_dir=str(seed_dir(search_dir / f"sample-{k:03d}", run_seed_no)),
-            sample=s,
-        )
-        for k, s in enumerate(draw_samples(spec))
-    ]
     search_dir.mkdir(parents=True, exist_ok=True)
     _save_configs(search_dir, [base])
     manifest = {
@@ -910,26 +988,41 @@ def _new_search(
         "command": " ".join(command),
         "protocol": base.name,
         "file": str(path),
+        "seed": base.protocol.first_seed if seed is None else seed,
         "search": dataclasses.asdict(spec),
     }
-    return search_dir, manifest, records, base
+    return search_dir, manifest, base
 
 
-def _sample_configs(base: ProtocolConfig, records: Sequence[TrialRecord]) -> list[ProtocolConfig]:
-    """Each trial's config: `base` with its sample set; a sample the schema refuses fails its trial."""
-    configs = []
-    for record in records:
-        try:
-            configs.append(
-                with_overrides(
-                    base, sample_overrides(record.sample), f"{base.path} [{record.trial}]"
-                )
-            )
-        except SealError as exc:
-            # A sampled value the schema rejects (e.g. a learning rate of 0) fails that trial only.
-            configs.append(base)
-            record.status, record.error = "failed", f"ConfigError: {exc}"
-    return configs
+def _search_records(
+    search_dir: Path,
+    base: ProtocolConfig,
+    spec: SearchSpec,
+    seed: int,
+    earlier: Sequence[TrialRecord],
+) -> list[TrialRecord]:
+    """One record per trial, by sample index; samples and ASHA stops recorded earlier are kept."""
+    before = {t.trial: t for t in earlier}
+    records = []
+    for index in range(count_trials(spec)):
+        name = trial_name(index)
+        old = before.get(name)
+        record = TrialRecord(
+            trial=name,
+            protocol=base.name,
+            seed=seed,
+            run_dir=str(seed_dir(search_dir / name, seed)),
+            sample=dict(old.sample) if old else {},
+        )
+        if is_finished(record.run_dir):
+            record.start, record.status = "kept", "finished"
+        elif old is not None and old.status == "stopped":
+            # A trial ASHA stopped was judged by the scheduler already: kept, not run again.
+            record.start, record.status = "kept", "stopped"
+        elif is_started(record.run_dir):
+            record.start = "continued"
+        records.append(record)
+    return records
 
 
 def search(
@@ -955,36 +1048,49 @@ def search(
     command = _command(command)
     check_address(address)
     say = progress or (lambda _msg: None)
+    earlier: list[TrialRecord] = []
     if resume is not None:
         search_dir = Path(resume)
-        manifest, records, base = _resume_search(search_dir)
+        manifest, earlier, base = _resume_search(search_dir)
+    elif path is None:
+        raise SealError("seal sweep --search: give one protocol FILE (or --resume SEARCH_DIR)")
     else:
-        if path is None:
-            raise SealError("seal sweep --search: give one protocol FILE (or --resume SEARCH_DIR)")
-        search_dir, manifest, records, base = _new_search(
+        search_dir, manifest, base = _new_search(
             path, seed, num_samples, overrides, scale, out, command
         )
     spec = parse_search(base, manifest["search"]["num_samples"])
-    configs = _sample_configs(base, records)
+    records = _search_records(search_dir, base, spec, manifest["seed"], earlier)
     extra = {k: v for k, v in manifest.items() if k not in ("kind", "trials")}
     _write_manifest(search_dir, "search", records, extra)
     say(f"search directory: {search_dir} ({len(records)} samples)")
-
-    for record in records:
-        # A finished run is only replayed through Tune when ASHA needs its results for its rungs.
-        if record.status == "pending" and spec.scheduler != "asha" and is_finished(record.run_dir):
-            record.start, record.status = "kept", "finished"
-    runnable = [i for i, r in enumerate(records) if r.status == "pending"]
     res = parse_resources(base)
-    if runnable:
+    plan = SearchPlan(
+        base=base,
+        search_dir=search_dir.resolve(),
+        seed=manifest["seed"],
+        threads=res.threads,
+        command=tuple(command),
+        recorded={i: r.sample for i, r in enumerate(records) if r.sample},
+        kept=frozenset(i for i, r in enumerate(records) if r.start == "kept"),
+    )
+    if len(plan.kept) < len(records):
         with RaySession(address, num_cpus) as ray:
             check_feasible(ray, base, res)
-            _run_tune(search_dir, spec, base, configs, records, runnable, res, command, say)
-    for record in records:
-        record.refresh()
+            results, log = _run_tune(plan, spec, res)
+        _record_results(records, results, log, say)
+    else:
+        for record in records:
+            record.refresh()  # a search with every trial kept runs nothing: no Ray
+    return _finish_search(search_dir, records, base, extra)
+
+
+def _finish_search(
+    search_dir: Path, records: list[TrialRecord], base: ProtocolConfig, extra: Mapping[str, Any]
+) -> SweepResult:
+    """Rank the trials; write search.{csv,md}, best.toml and sweep.json."""
     ranked = rank_trials(records)
     trials_table = _write_trials_table(search_dir / "search", ranked, ranked=True)
-    best = _write_best(search_dir, ranked, configs, records)
+    best = _write_best(search_dir, ranked, base)
     notes: list[str] = []
     if best is None:
         notes.append("no trial finished, so there is no best config")
@@ -1004,114 +1110,103 @@ def search(
     )
 
 
-def _run_tune(
-    search_dir: Path,
-    spec: SearchSpec,
-    base: ProtocolConfig,
-    configs: Sequence[ProtocolConfig],
-    records: Sequence[TrialRecord],
-    runnable: Sequence[int],
-    res: Resources,
-    command: Sequence[str],
-    say: Callable[[str], None],
-) -> None:
-    """Let Ray Tune run the runnable samples; set each record's status from its run directory."""
-    from ray import tune
+def _scheduler(base: ProtocolConfig, spec: SearchSpec) -> ASHAScheduler | None:
+    """ASHA over evaluations when [search].scheduler = "asha", else None (every trial runs to its end)."""
+    if spec.scheduler != "asha":
+        return None
     from ray.tune.schedulers import ASHAScheduler
 
-    class _Completed(tune.Callback):
-        """Collects the samples whose trials Tune completed (ran out or stopped by the scheduler).
+    return ASHAScheduler(
+        time_attr="training_iteration",
+        # One beyond the last evaluation: ASHA stops a trial that reaches max_t at that report,
+        # which would cut a run off before it writes its end (it would read as "stopped").
+        max_t=max(evaluation_horizon(base, spec) + 1, spec.grace_period),
+        grace_period=spec.grace_period,
+        reduction_factor=spec.reduction_factor,
+    )
 
-        An interrupted search leaves its running trials out, so they stay pending, not "stopped".
-        """
 
-        def __init__(self, done: set[int]) -> None:
-            self.done = done
-
-        def on_trial_complete(
-            self, iteration: int, trials: list[Any], trial: Any, **info: Any
-        ) -> None:
-            self.done.add(int(trial.config["sample"]))
-
-    completed: set[int] = set()
+def _run_tune(plan: SearchPlan, spec: SearchSpec, res: Resources) -> tuple[ResultGrid, TuneLog]:
+    """Let Ray Tune draw every sample (seeded) and run it; its ResultGrid and what its callbacks saw."""
+    from ray import tune
 
     # The legacy reporter honours verbose=0; the new one still draws a banner on stdout, which
     # would sit among `seal sweep`'s own output (the --json line must stay the last one).
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
-    plan = SearchPlan(
-        configs=tuple(configs), records=tuple(records), threads=res.threads, command=tuple(command)
-    )
     trainable = tune.with_resources(
         tune.with_parameters(search_trainable, plan=plan), {"cpu": res.cpus, "gpu": res.gpus}
     )
-    scheduler = None
-    if spec.scheduler == "asha":
-        max_t = max(evaluations_per_run(c) for c in configs)
-        scheduler = ASHAScheduler(
-            time_attr="training_iteration",
-            max_t=max(max_t, spec.grace_period),
-            grace_period=spec.grace_period,
-            reduction_factor=spec.reduction_factor,
-        )
+    scheduler = _scheduler(plan.base, spec)
+    log = TuneLog()
     tuner = tune.Tuner(
         trainable,
-        param_space={"sample": tune.grid_search(list(runnable))},
+        param_space=search_space(spec),
         tune_config=tune.TuneConfig(
             metric="mean_success",
             mode="max",
-            num_samples=1,  # the samples were drawn above; the grid over their indices runs each once
+            num_samples=spec.num_samples,
+            search_alg=search_algorithm(spec),
             scheduler=scheduler,
-            max_concurrent_trials=spec.max_concurrent,
-            trial_dirname_creator=lambda trial: f"sample-{int(trial.config['sample']):03d}",
+            trial_dirname_creator=lambda trial: trial_name(trial_index(trial.trial_id)),
             # Reusing actors saves a Python + torch start per trial; only safe when no trial is
             # stopped early, since a stopped trial's run (Tune's function thread) would live on in the reused actor.
             reuse_actors=scheduler is None,
         ),
         run_config=tune.RunConfig(
             name="tune",
-            storage_path=str(search_dir.resolve()),
+            storage_path=str(plan.search_dir),
             verbose=0,
             failure_config=tune.FailureConfig(max_failures=0, fail_fast=False),
-            callbacks=[_Completed(completed)],
+            callbacks=[log.callback()],
         ),
     )
-    starts = {
-        i: "kept"
-        if is_finished(records[i].run_dir)
-        else "continued"
-        if is_started(records[i].run_dir)
-        else "new"
-        for i in runnable
-    }
-    started = time.monotonic()
-    results = tuner.fit()
-    errors: dict[int, str] = {}
-    seconds: dict[int, float] = {}
-    for result in results:
-        if not result.config:
+    return tuner.fit(), log
+
+
+def _record_results(
+    records: Sequence[TrialRecord],
+    results: ResultGrid,
+    log: TuneLog,
+    say: Callable[[str], None],
+) -> None:
+    """Each record's sample, scores, status and time from Tune's ResultGrid (its last report)."""
+    by_index = {int(Path(r.path).name.removeprefix("sample-")): r for r in results}
+    for index, record in enumerate(records):
+        # A recorded sample is what its run directory was started with (a resume checks they match).
+        record.sample = record.sample or log.samples.get(index, {})
+        result = by_index.get(index)
+        if result is None:  # never drawn: the search was interrupted first
+            record.refresh()
             continue
-        index = int(result.config["sample"])
-        seconds[index] = float((result.metrics or {}).get("time_total_s") or 0.0)
-        if result.error is not None:
-            text = str(result.error).strip()
-            errors[index] = text.splitlines()[-1] if text else type(result.error).__name__
-    wall = round(time.monotonic() - started, 3)
-    for i in runnable:
-        record = records[i]
-        record.start = starts[i]
-        record.refresh()
-        error_file = Path(record.run_dir) / "error.txt"
+        metrics = result.metrics or {}
+        if "mean_success" in metrics:
+            record.mean_success, record.mean_return = (
+                metrics["mean_success"],
+                metrics["mean_return"],
+            )
+            record.evaluations = int(metrics["training_iteration"])
+        else:
+            record.refresh()  # no report reached Tune (it failed first)
         if is_finished(record.run_dir):
             record.status = "finished"
-        elif error_file.is_file() or i in errors:
+        elif result.error is not None:
             record.status = "failed"
-            record.error = _error_line(error_file) or errors.get(i, "failed")
-        elif i in completed:
+            record.error = _error_line(Path(record.run_dir) / "error.txt") or _last_line(
+                result.error
+            )
+        elif index in log.completed:
             record.status = "stopped"  # Tune completed it before the run finished: ASHA stopped it
         else:
             record.status = "pending"  # interrupted (Ctrl-C): --resume continues it
-        record.wall_s = 0.0 if record.start == "kept" else round(seconds.get(i) or wall, 3)
+        if record.start != "kept":
+            record.wall_s = round(float(metrics.get("time_total_s") or 0.0), 3)
         say(f"{record.trial} [{describe_sample(record.sample)}]: {_outcome(record)}")
+
+
+def _last_line(error: BaseException) -> str:
+    """The last line of an exception's text (Tune wraps a trial's error in its own traceback)."""
+    text = str(error).strip()
+    return text.splitlines()[-1] if text else type(error).__name__
 
 
 def _error_line(error_file: Path) -> str:
@@ -1124,16 +1219,13 @@ def _error_line(error_file: Path) -> str:
 
 
 def _write_best(
-    search_dir: Path,
-    ranked: Sequence[TrialRecord],
-    configs: Sequence[ProtocolConfig],
-    records: Sequence[TrialRecord],
+    search_dir: Path, ranked: Sequence[TrialRecord], base: ProtocolConfig
 ) -> Path | None:
     """best.toml: the best finished sample's resolved config without [search], ready for `seal run`."""
     best = next((t for t in ranked if t.status == "finished"), None)
     if best is None:
         return None
-    config = configs[[r.trial for r in records].index(best.trial)]
+    config = with_overrides(base, sample_overrides(best.sample), f"{base.path} [{best.trial}]")
     data = config_to_dict(config)
     data.pop("search", None)
     score = (
@@ -1157,7 +1249,6 @@ __all__ = [
     "SearchSpec",
     "SweepResult",
     "TrialRecord",
-    "draw_samples",
     "execute_trial",
     "is_finished",
     "parse_resources",

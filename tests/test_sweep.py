@@ -10,6 +10,7 @@ valid Adam rate) stays at success 0 and return ~ -16 (the point barely moves).
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -21,7 +22,7 @@ from seal.errors import ConfigError, SealError
 from seal.protocols import load_protocol
 from seal.sweep import (
     TrialRecord,
-    draw_samples,
+    count_trials,
     is_finished,
     parse_resources,
     parse_search,
@@ -112,25 +113,12 @@ def test_search_table_parses_every_distribution(tmp_path: Path) -> None:
         "agent.gamma",
     ]
     assert (spec.num_samples, spec.seed, spec.scheduler, spec.grace_period) == (3, 7, "asha", 2)
-    samples = draw_samples(spec)
-    # 3 draws for each of the 2 grid points.
-    assert len(samples) == 6
-    assert [s["agent.gamma"] for s in samples] == [0.9, 0.95] * 3
-    for s in samples:
-        assert 1e-5 <= s["agent.actor_lr"] <= 1e-3
-        assert 0.001 <= s["agent.tau"] <= 0.02
-        assert s["training.batch_per_task"] in (16, 17)  # int: both ends included
-        assert s["agent.hidden"] in ([32], [64, 64])
-    assert draw_samples(spec) == samples  # same seed, same configs (what resume relies on)
-    # --samples wins over the file's num_samples.
-    assert (
-        len(
-            draw_samples(
-                parse_search(load_protocol(write_protocol(tmp_path, extra=extra)), num_samples=1)
-            )
-        )
-        == 2
-    )
+    assert [p.dist for p in spec.params] == ["loguniform", "uniform", "int", "choice", "grid"]
+    assert spec.params[2].low == 16 and spec.params[3].values == ([32], [64, 64])
+    # 3 draws for each of the 2 grid points; --samples wins over the file's num_samples.
+    assert count_trials(spec) == 6
+    spec = parse_search(load_protocol(write_protocol(tmp_path, extra=extra)), num_samples=1)
+    assert count_trials(spec) == 2
 
 
 def test_sample_becomes_overrides_of_the_resolved_config(tmp_path: Path) -> None:
@@ -191,11 +179,21 @@ def test_resources_table(tmp_path: Path) -> None:
 
 
 def test_evaluations_per_run_sets_ashas_horizon(tmp_path: Path) -> None:
-    from seal.sweep import evaluations_per_run
+    from seal.sweep import evaluation_horizon, evaluations_per_run
 
     # 20 epochs, interval 10: evaluations at 10 and 20 -> 2; 25 epochs: 10, 20 and the last (25) -> 3.
     assert evaluations_per_run(load_protocol(write_protocol(tmp_path))) == 2
     assert evaluations_per_run(load_protocol(write_protocol(tmp_path), ["protocol.epochs=25"])) == 3
+    # Tune draws the samples, so ASHA's horizon is a bound over the searched values' ends:
+    # 35 epochs every 5 -> 7 evaluations (agent.tau does not change the count).
+    extra = """
+    [search]
+    "protocol.epochs" = {dist = "int", low = 20, high = 35}
+    "evaluation.interval" = {dist = "choice", values = [10, 5]}
+    "agent.tau" = {dist = "uniform", low = 0.001, high = 0.01}
+    """
+    config = load_protocol(write_protocol(tmp_path, extra=extra))
+    assert evaluation_horizon(config, parse_search(config)) == 7
 
 
 def test_ranking_puts_finished_then_stopped_then_failed(tmp_path: Path) -> None:
@@ -321,6 +319,67 @@ def ray_session():  # noqa: ANN201 - yields the ray module
     ray.shutdown()
 
 
+SEARCH_SPACE = """
+[search]
+num_samples = 3
+seed = {seed}
+"agent.actor_lr" = {{dist = "loguniform", low = 1e-5, high = 1e-3}}
+"agent.tau" = {{dist = "uniform", low = 0.001, high = 0.02}}
+"training.batch_per_task" = {{dist = "int", low = 16, high = 17}}
+"agent.hidden" = {{dist = "choice", values = [[32], [64, 64]]}}
+"agent.gamma" = {{dist = "grid", values = [0.9, 0.95]}}
+"""
+
+
+def tune_draws(tmp_path: Path, seed: int) -> list[dict[str, object]]:
+    """The configs Ray Tune draws for SEARCH_SPACE with `seed`, by sample index (a trial that only reports)."""
+    from ray import tune
+
+    from seal.sweep import plain_sample, search_algorithm, search_space, trial_index
+
+    spec = parse_search(
+        load_protocol(
+            write_protocol(tmp_path, f"draws{seed}", extra=SEARCH_SPACE.format(seed=seed))
+        )
+    )
+    tuner = tune.Tuner(
+        lambda config: tune.report({"done_once": 1}),
+        param_space=search_space(spec),
+        tune_config=tune.TuneConfig(
+            num_samples=spec.num_samples, search_alg=search_algorithm(spec), reuse_actors=True
+        ),
+        run_config=tune.RunConfig(storage_path=str(tmp_path / f"tune{seed}"), verbose=0),
+    )
+    results = tuner.fit()
+    assert len(results) == count_trials(spec) == 6 and not results.errors
+    by_index = {trial_index(r.metrics["trial_id"]): plain_sample(r.config) for r in results}
+    return [by_index[i] for i in range(len(by_index))]
+
+
+def test_tune_draws_the_same_samples_for_the_same_seed(ray_session, tmp_path: Path) -> None:  # noqa: ANN001
+    samples = tune_draws(tmp_path, seed=7)
+    # Tune's grid semantics: each of the 3 draws is made for every grid point, in grid order.
+    assert [s["agent.gamma"] for s in samples] == [0.9, 0.95] * 3
+    for s in samples:
+        assert list(s) == [
+            "agent.actor_lr",
+            "agent.tau",
+            "training.batch_per_task",
+            "agent.hidden",
+            "agent.gamma",
+        ]
+        assert 1e-5 <= s["agent.actor_lr"] <= 1e-3
+        assert 0.001 <= s["agent.tau"] <= 0.02
+        assert s["training.batch_per_task"] in (16, 17)  # int: both ends included
+        assert s["agent.hidden"] in ([32], [64, 64])
+    assert len({s["agent.actor_lr"] for s in samples}) == 6  # a fresh draw per trial
+    assert (
+        tune_draws(tmp_path, seed=7) == samples
+    )  # same seed, same configs (what resume relies on)
+    other = tune_draws(tmp_path, seed=8)
+    assert [s["agent.actor_lr"] for s in other] != [s["agent.actor_lr"] for s in samples]
+
+
 def test_two_seeds_give_two_run_dirs_and_one_table(
     ray_session, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:  # noqa: ANN001
@@ -381,6 +440,74 @@ def test_search_ranks_the_config_that_cannot_learn_last(ray_session, tmp_path: P
     assert [t.start for t in again.trials] == ["kept"] * 4
     assert [t.trial for t in again.trials] == [t.trial for t in result.trials]
     assert metrics.stat().st_mtime_ns == before
+
+
+def test_resume_runs_the_pending_samples_as_drawn_and_keeps_finished_ones(
+    ray_session, tmp_path: Path
+) -> None:  # noqa: ANN001
+    from seal.sweep import search
+
+    extra = """
+    [search]
+    num_samples = 3
+    seed = 5
+    "agent.tau" = {dist = "uniform", low = 0.004, high = 0.01}
+    """
+    first = search(write_protocol(tmp_path, extra=extra), out=tmp_path / "reports")
+    drawn = {t.trial: t.sample for t in first.trials}
+    assert sorted(drawn) == ["sample-000", "sample-001", "sample-002"]
+    assert all(t.status == "finished" and t.start == "new" for t in first.trials)
+    # An interrupted search: sample-001 was running (pending in sweep.json, its run directory
+    # unfinished) and sample-002 was never drawn (not in sweep.json, no run directory).
+    manifest_path = first.sweep_dir / "sweep.json"
+    manifest = json.loads(manifest_path.read_text())
+    manifest["trials"] = [t for t in manifest["trials"] if t["trial"] != "sample-002"]
+    for t in manifest["trials"]:
+        if t["trial"] == "sample-001":
+            t["status"] = "pending"
+    manifest_path.write_text(json.dumps(manifest))
+    by_name = {t.trial: Path(t.run_dir) for t in first.trials}
+    shutil.rmtree(by_name["sample-001"])
+    shutil.rmtree(by_name["sample-002"].parent)
+    metrics = by_name["sample-000"] / "metrics.csv"
+    before = (metrics.stat().st_mtime_ns, metrics.read_text())
+
+    again = search(resume=first.sweep_dir)
+    by_name = {t.trial: t for t in again.trials}
+    assert by_name["sample-000"].start == "kept" and by_name["sample-000"].status == "finished"
+    assert (metrics.stat().st_mtime_ns, metrics.read_text()) == before  # not run again
+    for name in ("sample-001", "sample-002"):
+        assert by_name[name].start == "new" and by_name[name].status == "finished"
+        assert is_finished(by_name[name].run_dir)
+    # Tune drew the same values again (seed 5): each sample is what the first search ran.
+    assert {t.trial: t.sample for t in again.trials} == drawn
+    resumed = load_protocol(Path(by_name["sample-002"].run_dir) / "config.toml")
+    assert resumed.agent.tau == drawn["sample-002"]["agent.tau"]
+
+
+def test_failing_sample_is_recorded_while_the_others_finish(ray_session, tmp_path: Path) -> None:  # noqa: ANN001
+    from seal.sweep import search
+
+    # init_alpha = 1e300 makes the first update's losses inf/NaN: "training diverged".
+    extra = """
+    [search]
+    num_samples = 1
+    "agent.init_alpha" = {dist = "grid", values = [1e300, 0.01]}
+    """
+    result = search(write_protocol(tmp_path, extra=extra), out=tmp_path / "reports")
+    assert [(t.trial, t.status) for t in result.trials] == [
+        ("sample-001", "finished"),
+        ("sample-000", "failed"),
+    ]
+    failed = result.trials[1]
+    assert "training diverged" in failed.error
+    assert (Path(failed.run_dir) / "error.txt").is_file()
+    assert result.to_json()["failed"] == [
+        {"trial": "sample-000", "run_dir": failed.run_dir, "error": failed.error}
+    ]
+    assert load_protocol(result.best_config).agent.init_alpha == 0.01
+    rows = (result.sweep_dir / "search.csv").read_text().splitlines()
+    assert rows[2].startswith("2,sample-000,failed,") and "training diverged" in rows[2]
 
 
 def test_failing_trial_is_reported_others_complete_and_resume_keeps_finished(

@@ -19,8 +19,8 @@ def register(subparsers: Any) -> None:
         description=(
             "Run every (protocol, seed) pair as its own Ray task; each writes the run directory "
             "`seal run` writes, all seeds of a protocol in one group, and the finished runs are "
-            "aggregated into `seal report`'s tables. With --search, draw --samples configs from "
-            "the protocol's [search] table and let Ray Tune run them (ASHA early stopping with "
+            "aggregated into `seal report`'s tables. With --search, let Ray Tune draw --samples "
+            "configs from the protocol's [search] table (seeded) and run them (ASHA early stopping with "
             'scheduler = "asha"), then write a ranked table and best.toml. A [resources] table '
             "(cpus, gpus) sets what each trial reserves. Without --address a local Ray starts "
             "inside this process; --address auto or HOST:PORT joins a running cluster."

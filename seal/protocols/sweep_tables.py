@@ -94,7 +94,7 @@ class Distribution:
     values: tuple[Any, ...] = ()
 
     def tune_domain(self) -> Any:
-        """The Ray Tune search-space object of this distribution (grid: a plain list of values)."""
+        """This distribution as a Ray Tune param_space entry (a `tune.uniform` ... domain; grid: `tune.grid_search`)."""
         from ray import tune
 
         if self.dist == "uniform":
@@ -107,7 +107,7 @@ class Distribution:
             )  # Tune's upper bound is exclusive
         if self.dist == "choice":
             return tune.choice(list(self.values))
-        return list(self.values)
+        return tune.grid_search(list(self.values))
 
 
 @dataclass(frozen=True)
