@@ -178,12 +178,14 @@ class CheckpointConfig:
 @with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class LoggingConfig:
-    """[logging]: training-curve logs (train.csv and TensorBoard)."""
+    """[logging]: training-curve logs (train.csv; mirrored to TensorBoard and, optionally, wandb)."""
 
     train_interval: Annotated[int, Field(ge=1)] = 10
     """Log losses, mean Q and temperatures every this many epochs."""
     tensorboard: bool = True
     """Also write TensorBoard events under tb/."""
+    wandb: Literal["off", "offline", "online"] = "off"
+    """Also log the same scalars to Weights & Biases under wandb/: "offline" never touches the network (`wandb sync` uploads later), "online" uploads as it runs; needs the extra: pip install -e ".[wandb]"."""
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -2,7 +2,8 @@
 
 `PhaseLoop` runs a phase's epochs in steps (plan, collect, train, evaluate, end of epoch,
 checkpoint) over typed parts (agent, replay, scheduler, collector) and calls its
-`LoopCallback`s (the progress bar; loggers and Ray Tune reporting can hook in the same way).
+`LoopCallback`s: the progress bar, the TensorBoard and wandb loggers (`seal.protocols.loggers`)
+and a sweep's Ray Tune reporting.
 The `Run` that owns it (`seal.protocols.runner`) keeps the run directory and the file formats.
 """
 
@@ -13,7 +14,7 @@ import random
 import sys
 import time
 import zlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -169,6 +170,12 @@ class LoopCallback:
     def on_evaluation(self, loop: PhaseLoop) -> None:
         """After each evaluation (its rows are in metrics.csv, `loop.state.last_success` holds them)."""
 
+    def on_train_log(self, loop: PhaseLoop, rows: Sequence[Mapping[str, Any]]) -> None:
+        """After train.csv rows (TRAIN_COLUMNS: the mean logged values of an interval) are written."""
+
+    def on_checkpoint(self, loop: PhaseLoop) -> None:
+        """Just before an epoch checkpoint is saved (loggers flush, so a resume purges exactly)."""
+
     def on_epoch_end(self, loop: PhaseLoop) -> None:
         """After each epoch's collection, updates, evaluation and checkpoint."""
 
@@ -247,6 +254,7 @@ class PhaseLoop:
         self.pending_since = self.agent.num_updates
         self.callbacks: list[LoopCallback] = [
             *([] if run.quiet else [ProgressBar(self)]),
+            *run.loggers,
             *run.callbacks,
         ]
 
@@ -499,13 +507,6 @@ class PhaseLoop:
         state.last_success = {
             e: {t: results[e][t]["success"] for t in model.env_tasks[e]} for e in phase.envs
         }
-        owner.rundir.log_charts(
-            {
-                f"{e}/mean_success": float(np.mean(list(v.values())))
-                for e, v in state.last_success.items()
-            },
-            state.grad_steps,
-        )
         self.scheduler.observe_eval(
             state.epoch, {(r["env"], r["task"]): r["success"] for r in rows}
         )
@@ -609,7 +610,10 @@ class PhaseLoop:
         # Training curves: the mean of every logged value over the interval's updates.
         if state.log_updates and (epoch % cfg.logging.train_interval == 0 or last_epoch):
             means = {k: v / state.log_updates for k, v in state.log_sums.items()}
-            run.rundir.log_train(self._train_rows(epoch, state.grad_steps, means))
+            rows = self._train_rows(epoch, state.grad_steps, means)
+            run.rundir.log_train(rows)
+            for callback in self.callbacks:
+                callback.on_train_log(self, rows)
             state.log_sums, state.log_updates = {}, 0
         # Evaluation (Appendix B): every `interval` epochs, or every K gradient steps (in _train).
         every = cfg.evaluation.every_grad_steps
@@ -635,6 +639,8 @@ class PhaseLoop:
         state.wall_s = time.monotonic() - self.started
         state.anchor_epoch = state.epoch
         since = time.perf_counter()
+        for callback in self.callbacks:
+            callback.on_checkpoint(self)
         self.owner._checkpoint(self.phase, self.agent, self.replay, self.scheduler, state)
         state.add_time("checkpoint", since)
         if reseed:

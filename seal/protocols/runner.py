@@ -44,6 +44,7 @@ from seal.learner.checkpoint import read_checkpoint, save_checkpoint
 from seal.learner.config import AgentConfig
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
+from seal.protocols.loggers import ScalarLogger, open_loggers
 from seal.protocols.phase import (
     LoopCallback,
     Phase,
@@ -187,6 +188,8 @@ class Run:
             )
             self.rundir = RunDir.create(path, dumps_toml(config_to_dict(config)), prov)
         self.results: dict[str, PhaseState] = {}
+        self.loggers: list[ScalarLogger] = []
+        """The run's TensorBoard and wandb loggers while it runs (`seal.protocols.loggers`)."""
 
     # ------------------------------------------------------------ driver
     def run(self) -> RunResult:
@@ -212,8 +215,7 @@ class Run:
             # Hide TensorBoard events written after the checkpoint (they are written again). Steps
             # restart in every phase, so purging in a later phase would hide earlier phases' events.
             purge = int(resume_payload["runner"]["state"]["grad_steps"])
-        if self.config.logging.tensorboard:
-            self.rundir.open_tensorboard(purge_step=purge)
+        self.loggers = open_loggers(self.config, self.rundir.path, purge_step=purge)
         try:
             for phase in self.phases[start_phase:]:
                 payload = (
@@ -223,7 +225,9 @@ class Run:
                 )
                 self.results[phase.name] = self._run_phase(phase, payload)
         finally:
-            self.rundir.close()
+            for logger in self.loggers:
+                logger.close()
+            self.loggers = []
         self.rundir.update_provenance(end_time=provenance.utc_now())
         counts: dict[str, dict[str, float]] = {}
         final: dict[str, dict[str, float]] = {}
@@ -342,7 +346,6 @@ class Run:
     def _checkpoint(
         self, phase: Phase, agent: Any, replay: Any, scheduler: Any, state: PhaseState
     ) -> None:
-        self.rundir.flush()
         path = self.rundir.checkpoint_path(
             state.epoch, phase.name if len(self.phases) > 1 else None
         )
