@@ -25,10 +25,10 @@ from seal.envs.base import EnvAdapter
 from seal.errors import SealError, TrainingDivergedError
 from seal.evaluation import AgentPolicy, evaluate, mean_success, reaches
 from seal.learner.checkpoint import save_checkpoint
-from seal.protocols import scheduling
 from seal.protocols.config import ProtocolConfig
 
 if TYPE_CHECKING:
+    from seal.learner.collection import Collector
     from seal.protocols.runner import Run
 
 ALIGNED_ENV = "aligned"
@@ -211,28 +211,31 @@ class PhaseLoop:
     """
 
     def __init__(self, run: Run, phase: Phase, payload: Mapping[str, Any] | None) -> None:
-        from seal.learner.collection import Collector
         from seal.learner.replay import MultiTaskReplay
         from seal.learner.sac import Agent
         from seal.schedulers.base import Scheduler
+        from seal.schedulers.ratio import UniformConfig
 
         cfg = self.cfg = run.config
         self.owner, self.phase = run, phase
         model = self.model = PhaseModel(cfg, phase, run.adapters, run.alignment)
         self.agent: Agent = run._initial_agent(phase, model, resuming=payload is not None)
-        self.replay: MultiTaskReplay = run._new_replay(model)
-        self.scheduler: Scheduler = scheduling.build(
-            cfg.scheduler,
+        self.replay: MultiTaskReplay = cfg.replay.build(
+            model.replay_specs,
+            device=run.device,
+            seed=derive_seed(run.seed, "replay", phase.index),
+        )
+        self.scheduler: Scheduler = (cfg.scheduler or UniformConfig()).build(
             model.env_tasks,
-            {e: cfg.envs[e].adapter for e in phase.envs},
-            cfg.path,
             seed=derive_seed(run.seed, "scheduler", phase.index),
+            adapters={e: cfg.envs[e].adapter for e in phase.envs},
             episode_lengths={e: run.adapters[e].episode_length for e in phase.envs},
+            source=cfg.path,
         )
         self.state = PhaseState(env_steps={e: [0] * len(t) for e, t in model.env_tasks.items()})
         if payload is not None:
             self._restore(payload)
-        self.collector: Collector = run._collector(model, self.state.anchor_epoch)
+        self.collector: Collector = self._new_collector(self.state.anchor_epoch)
         if payload is None and cfg.training.demo_episodes:
             since = time.perf_counter()
             self.state.demos = self._demonstrations()
@@ -257,6 +260,16 @@ class PhaseLoop:
             *run.loggers,
             *run.callbacks,
         ]
+
+    def _new_collector(self, anchor: int) -> Collector:
+        """The phase's env instances, seeded from (seed, phase, epoch of the last checkpoint).
+
+        Training and evaluation episodes run on the same instances (each episode starts from a
+        reset that continues the instance's RNG stream): building MuJoCo envs costs about a
+        second each, and evaluation episodes never feed the replay.
+        """
+        seed = derive_seed(self.owner.seed, "envs", self.phase.index, anchor)
+        return self.cfg.training.build_collector(self.model.adapters, seed)
 
     def _restore(self, payload: Mapping[str, Any]) -> None:
         """Agent, replay, scheduler, counters and RNG streams from a checkpoint's payload."""
@@ -646,7 +659,7 @@ class PhaseLoop:
         if reseed:
             # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
             self.collector.close()
-            self.collector = self.owner._collector(self.model, state.epoch)
+            self.collector = self._new_collector(state.epoch)
 
 
 def _tuple_state(state: Any) -> Any:

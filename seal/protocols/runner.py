@@ -20,7 +20,7 @@ states, and the CSV row counts. Env instances continue their own RNG streams fro
 episode, which a checkpoint cannot capture, so the collector's env instances are rebuilt
 with seeds derived from (seed, phase, epoch) right after every checkpoint, in uninterrupted and in
 resumed runs alike: a resumed run then replays exactly what the uninterrupted run did.
-Training and evaluation episodes share the env instances (see `Run._collector`).
+Training and evaluation episodes share the env instances (see `PhaseLoop._new_collector`).
 """
 
 from __future__ import annotations
@@ -249,40 +249,8 @@ class Run:
         return RunResult(self.rundir.path, counts, final, timing)
 
     # ------------------------------------------------------------ building blocks
-    def _new_agent(self, model: PhaseModel) -> Any:
-        from seal.learner import Agent
-
-        return Agent(
-            model.specs, self.agent_cfg, derive_seed(self.seed, "agent", model.phase.index)
-        )
-
-    def _new_replay(self, model: PhaseModel) -> Any:
-        from seal.learner import MultiTaskReplay
-
-        return MultiTaskReplay(
-            model.replay_specs,
-            self.config.replay.capacity_per_env,
-            device=self.device,
-            seed=derive_seed(self.seed, "replay", model.phase.index),
-        )
-
-    def _collector(self, model: PhaseModel, anchor: int) -> Any:
-        """The phase's env instances, seeded from (seed, phase, epoch of the last checkpoint).
-
-        Training and evaluation episodes run on the same instances (each episode starts from a
-        reset that continues the instance's RNG stream): building MuJoCo envs costs about a
-        second each, and evaluation episodes never feed the replay.
-        """
-        from seal.learner.collection import Collector
-
-        return Collector(
-            model.adapters,
-            seed=derive_seed(self.seed, "envs", model.phase.index, anchor),
-            backend=self.config.training.collector,
-        )
-
     def _initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Any:
-        agent = self._new_agent(model)
+        agent = self.agent_cfg.build(model.specs, derive_seed(self.seed, "agent", phase.index))
         if resuming:
             return agent  # the checkpoint's agent state replaces everything (lr factor included)
         transfer = self.config.transfer
@@ -422,9 +390,7 @@ def load_policy(
     adapters = build_adapters(config)
     alignment = build_alignment(config, adapters) if config.kind == "finetune" else None
     model = PhaseModel(config, phase, adapters, alignment)
-    from seal.learner import Agent
-
-    agent = Agent(model.specs, run_agent_config(config, provenance.resolve_device(device)), 0)
+    agent = run_agent_config(config, provenance.resolve_device(device)).build(model.specs, 0)
     agent.load_state_dict(data["agent"])
     return config, model, agent, data
 
