@@ -214,7 +214,9 @@ class Run:
         if resume_payload is not None and start_phase == 0:
             # Hide TensorBoard events written after the checkpoint (they are written again). Steps
             # restart in every phase, so purging in a later phase would hide earlier phases' events.
-            purge = int(resume_payload["runner"]["state"]["grad_steps"])
+            # Events at the checkpoint's own step (its epoch's evaluation and train rows) came
+            # before it and are not written again, so the purge starts one step later.
+            purge = int(resume_payload["runner"]["state"]["grad_steps"]) + 1
         self.loggers = open_loggers(self.config, self.rundir.path, purge_step=purge)
         try:
             for phase in self.phases[start_phase:]:

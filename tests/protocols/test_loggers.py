@@ -131,3 +131,18 @@ def test_wandb_offline_run_files_hold_the_logged_keys(
     blob = data.read_bytes()
     for key in (b"eval/pt/east/success", b"charts/pt/mean_success", b"losses/pt/critic_loss"):
         assert key in blob
+
+
+def test_resume_purges_tensorboard_events_past_the_checkpoint(tmp_path: Path) -> None:
+    config = _config(tmp_path, "")
+    run = run_seed(config, 0, tmp_path / "g").run_dir
+    first = _events(run)
+    # As if killed after epoch 3's events but before its checkpoint: resume from epoch 2's.
+    (run / "checkpoints" / "ckpt-0000003.pt").unlink()
+    run_seed(config, 0, tmp_path / "g", resume=True)
+    events = _events(run)
+    assert [s for s, _ in events["charts/pt/mean_success"]] == [10, 20, 30]
+    assert events["eval/pt/east/success"] == first["eval/pt/east/success"]
+    metrics = pd.read_csv(run / "metrics.csv")
+    east = metrics[metrics["task"] == "east"]
+    _same(events["eval/pt/east/success"], east["grad_steps"], east["success"])
