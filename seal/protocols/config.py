@@ -14,6 +14,7 @@ configs of `seal.schedulers`, so those layers own their own fields and docs.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
@@ -22,7 +23,10 @@ from pydantic import Field, with_config
 from seal.typed_config import SCHEMA
 
 if TYPE_CHECKING:  # the learner (and torch) load only when an agent is built
-    from seal.learner.config import AgentConfig
+    from seal.envs.base import EnvAdapter
+    from seal.learner.collection import Collector
+    from seal.learner.config import AgentConfig, EnvSpec
+    from seal.learner.replay import MultiTaskReplay
     from seal.schedulers.base import SchedulerConfig
 
 Kind = Literal["baseline", "finetune", "joint"]
@@ -74,6 +78,12 @@ class ReplayConfig:
     capacity_per_env: Annotated[int, Field(ge=1)] = 1_000_000
     """Transitions kept per environment, split evenly over its tasks (Meta-World: 1e6)."""
 
+    def build(self, specs: Sequence[EnvSpec], *, device: str, seed: int) -> MultiTaskReplay:
+        """The replay over `specs` (one buffer per task of each env) on `device`, sampled by `seed`."""
+        from seal.learner.replay import MultiTaskReplay
+
+        return MultiTaskReplay(specs, self.capacity_per_env, device=device, seed=seed)
+
 
 @with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
@@ -100,6 +110,12 @@ class TrainingConfig:
     warm-up still runs in full, so a run with demos differs from one without only by the demos)
     nor toward the env-step counts, and they count as consumed updates only when sampled.
     """
+
+    def build_collector(self, adapters: Mapping[str, EnvAdapter], seed: int) -> Collector:
+        """The env instances of `adapters` on this config's collection backend, seeded by `seed`."""
+        from seal.learner.collection import Collector
+
+        return Collector(adapters, seed=seed, backend=self.collector)
 
 
 @with_config(SCHEMA)
@@ -178,12 +194,14 @@ class CheckpointConfig:
 @with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
 class LoggingConfig:
-    """[logging]: training-curve logs (train.csv and TensorBoard)."""
+    """[logging]: training-curve logs (train.csv; mirrored to TensorBoard and, optionally, wandb)."""
 
     train_interval: Annotated[int, Field(ge=1)] = 10
     """Log losses, mean Q and temperatures every this many epochs."""
     tensorboard: bool = True
     """Also write TensorBoard events under tb/."""
+    wandb: Literal["off", "offline", "online"] = "off"
+    """Also log the same scalars to Weights & Biases under wandb/: "offline" never touches the network (`wandb sync` uploads later), "online" uploads as it runs; needs the extra: pip install -e ".[wandb]"."""
 
 
 @dataclass(frozen=True, kw_only=True)

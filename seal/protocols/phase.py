@@ -2,7 +2,8 @@
 
 `PhaseLoop` runs a phase's epochs in steps (plan, collect, train, evaluate, end of epoch,
 checkpoint) over typed parts (agent, replay, scheduler, collector) and calls its
-`LoopCallback`s (the progress bar; loggers and Ray Tune reporting can hook in the same way).
+`LoopCallback`s: the progress bar, the TensorBoard and wandb loggers (`seal.protocols.loggers`)
+and a sweep's Ray Tune reporting.
 The `Run` that owns it (`seal.protocols.runner`) keeps the run directory and the file formats.
 """
 
@@ -13,7 +14,7 @@ import random
 import sys
 import time
 import zlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -24,10 +25,10 @@ from seal.envs.base import EnvAdapter
 from seal.errors import SealError, TrainingDivergedError
 from seal.evaluation import AgentPolicy, evaluate, mean_success, reaches
 from seal.learner.checkpoint import save_checkpoint
-from seal.protocols import scheduling
 from seal.protocols.config import ProtocolConfig
 
 if TYPE_CHECKING:
+    from seal.learner.collection import Collector
     from seal.protocols.runner import Run
 
 ALIGNED_ENV = "aligned"
@@ -169,6 +170,12 @@ class LoopCallback:
     def on_evaluation(self, loop: PhaseLoop) -> None:
         """After each evaluation (its rows are in metrics.csv, `loop.state.last_success` holds them)."""
 
+    def on_train_log(self, loop: PhaseLoop, rows: Sequence[Mapping[str, Any]]) -> None:
+        """After train.csv rows (TRAIN_COLUMNS: the mean logged values of an interval) are written."""
+
+    def on_checkpoint(self, loop: PhaseLoop) -> None:
+        """Just before an epoch checkpoint is saved (loggers flush, so a resume purges exactly)."""
+
     def on_epoch_end(self, loop: PhaseLoop) -> None:
         """After each epoch's collection, updates, evaluation and checkpoint."""
 
@@ -204,28 +211,31 @@ class PhaseLoop:
     """
 
     def __init__(self, run: Run, phase: Phase, payload: Mapping[str, Any] | None) -> None:
-        from seal.learner.collection import Collector
         from seal.learner.replay import MultiTaskReplay
         from seal.learner.sac import Agent
         from seal.schedulers.base import Scheduler
+        from seal.schedulers.ratio import UniformConfig
 
         cfg = self.cfg = run.config
         self.owner, self.phase = run, phase
         model = self.model = PhaseModel(cfg, phase, run.adapters, run.alignment)
         self.agent: Agent = run._initial_agent(phase, model, resuming=payload is not None)
-        self.replay: MultiTaskReplay = run._new_replay(model)
-        self.scheduler: Scheduler = scheduling.build(
-            cfg.scheduler,
+        self.replay: MultiTaskReplay = cfg.replay.build(
+            model.replay_specs,
+            device=run.device,
+            seed=derive_seed(run.seed, "replay", phase.index),
+        )
+        self.scheduler: Scheduler = (cfg.scheduler or UniformConfig()).build(
             model.env_tasks,
-            {e: cfg.envs[e].adapter for e in phase.envs},
-            cfg.path,
             seed=derive_seed(run.seed, "scheduler", phase.index),
+            adapters={e: cfg.envs[e].adapter for e in phase.envs},
             episode_lengths={e: run.adapters[e].episode_length for e in phase.envs},
+            source=cfg.path,
         )
         self.state = PhaseState(env_steps={e: [0] * len(t) for e, t in model.env_tasks.items()})
         if payload is not None:
             self._restore(payload)
-        self.collector: Collector = run._collector(model, self.state.anchor_epoch)
+        self.collector: Collector = self._new_collector(self.state.anchor_epoch)
         if payload is None and cfg.training.demo_episodes:
             since = time.perf_counter()
             self.state.demos = self._demonstrations()
@@ -247,8 +257,19 @@ class PhaseLoop:
         self.pending_since = self.agent.num_updates
         self.callbacks: list[LoopCallback] = [
             *([] if run.quiet else [ProgressBar(self)]),
+            *run.loggers,
             *run.callbacks,
         ]
+
+    def _new_collector(self, anchor: int) -> Collector:
+        """The phase's env instances, seeded from (seed, phase, epoch of the last checkpoint).
+
+        Training and evaluation episodes run on the same instances (each episode starts from a
+        reset that continues the instance's RNG stream): building MuJoCo envs costs about a
+        second each, and evaluation episodes never feed the replay.
+        """
+        seed = derive_seed(self.owner.seed, "envs", self.phase.index, anchor)
+        return self.cfg.training.build_collector(self.model.adapters, seed)
 
     def _restore(self, payload: Mapping[str, Any]) -> None:
         """Agent, replay, scheduler, counters and RNG streams from a checkpoint's payload."""
@@ -499,13 +520,6 @@ class PhaseLoop:
         state.last_success = {
             e: {t: results[e][t]["success"] for t in model.env_tasks[e]} for e in phase.envs
         }
-        owner.rundir.log_charts(
-            {
-                f"{e}/mean_success": float(np.mean(list(v.values())))
-                for e, v in state.last_success.items()
-            },
-            state.grad_steps,
-        )
         self.scheduler.observe_eval(
             state.epoch, {(r["env"], r["task"]): r["success"] for r in rows}
         )
@@ -609,7 +623,10 @@ class PhaseLoop:
         # Training curves: the mean of every logged value over the interval's updates.
         if state.log_updates and (epoch % cfg.logging.train_interval == 0 or last_epoch):
             means = {k: v / state.log_updates for k, v in state.log_sums.items()}
-            run.rundir.log_train(self._train_rows(epoch, state.grad_steps, means))
+            rows = self._train_rows(epoch, state.grad_steps, means)
+            run.rundir.log_train(rows)
+            for callback in self.callbacks:
+                callback.on_train_log(self, rows)
             state.log_sums, state.log_updates = {}, 0
         # Evaluation (Appendix B): every `interval` epochs, or every K gradient steps (in _train).
         every = cfg.evaluation.every_grad_steps
@@ -635,12 +652,14 @@ class PhaseLoop:
         state.wall_s = time.monotonic() - self.started
         state.anchor_epoch = state.epoch
         since = time.perf_counter()
+        for callback in self.callbacks:
+            callback.on_checkpoint(self)
         self.owner._checkpoint(self.phase, self.agent, self.replay, self.scheduler, state)
         state.add_time("checkpoint", since)
         if reseed:
             # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
             self.collector.close()
-            self.collector = self.owner._collector(self.model, state.epoch)
+            self.collector = self._new_collector(state.epoch)
 
 
 def _tuple_state(state: Any) -> Any:

@@ -7,7 +7,8 @@
         metrics.csv        one row per evaluation and task (METRICS_COLUMNS)
         train.csv          long format: seed,phase,epoch,grad_steps,env,key,value (TRAIN_COLUMNS)
         scheduler.csv      the scheduler's timeline, when it has one
-        tb/                TensorBoard events
+        tb/                TensorBoard events ([logging] tensorboard; seal.protocols.loggers)
+        wandb/             Weights & Biases files and run_id ([logging] wandb)
         checkpoints/       ckpt-<epoch>.pt (last K, phase-prefixed for finetune) and best.pt
 
 Crash safety: CSV rows are appended and fsync'ed; JSON and TOML are written atomically (temp file,
@@ -118,7 +119,6 @@ class RunDir:
         self.metrics = CsvLog(self.path / "metrics.csv", METRICS_COLUMNS)
         self.train = CsvLog(self.path / "train.csv", TRAIN_COLUMNS)
         self._scheduler: CsvLog | None = None
-        self._tb: Any = None
 
     @classmethod
     def create(cls, path: Path, config_toml: str, provenance: Mapping[str, Any]) -> RunDir:
@@ -164,24 +164,12 @@ class RunDir:
 
     # ------------------------------------------------------------ logs
     def log_eval(self, rows: Iterable[Mapping[str, Any]]) -> None:
-        """Append evaluation rows (METRICS_COLUMNS) and mirror success to TensorBoard."""
-        rows = list(rows)
+        """Append evaluation rows (METRICS_COLUMNS)."""
         self.metrics.append(rows)
-        tb = self.tensorboard
-        if tb is not None:
-            for r in rows:
-                tb.add_scalar(f"eval/{r['env']}/{r['task']}/success", r["success"], r["grad_steps"])
-                tb.add_scalar(f"eval/{r['env']}/{r['task']}/return", r["return"], r["grad_steps"])
 
     def log_train(self, rows: Iterable[Mapping[str, Any]]) -> None:
-        """Append train.csv rows (TRAIN_COLUMNS) and mirror them to TensorBoard under losses/ or charts/."""
-        rows = list(rows)
+        """Append train.csv rows (TRAIN_COLUMNS)."""
         self.train.append(rows)
-        tb = self.tensorboard
-        if tb is not None:
-            for r in rows:
-                group = "losses" if r["key"].endswith("loss") else "charts"
-                tb.add_scalar(f"{group}/{r['env']}/{r['key']}", r["value"], r["grad_steps"])
 
     def log_scheduler(self, rows: Sequence[Mapping[str, Any]]) -> None:
         """Append scheduler timeline rows; the columns are the first row's keys."""
@@ -190,38 +178,6 @@ class RunDir:
         if self._scheduler is None:
             self._scheduler = CsvLog(self.path / "scheduler.csv", tuple(rows[0].keys()))
         self._scheduler.append(rows)
-
-    def log_charts(self, values: Mapping[str, float], step: int) -> None:
-        """Scalars under charts/ in TensorBoard only (throughput, mean success)."""
-        tb = self.tensorboard
-        if tb is not None:
-            for k, v in values.items():
-                tb.add_scalar(f"charts/{k}", v, step)
-
-    @property
-    def tensorboard(self) -> Any:
-        """The TensorBoard SummaryWriter for tb/ (None when TensorBoard is not installed or disabled)."""
-        return self._tb
-
-    def open_tensorboard(self, purge_step: int | None = None) -> None:
-        """Start writing TensorBoard events; `purge_step` hides events past a resumed checkpoint."""
-        try:
-            from torch.utils.tensorboard import SummaryWriter
-        except ImportError:  # tensorboard missing: CSVs remain the record
-            self._tb = None
-            return
-        self._tb = SummaryWriter(str(self.path / "tb"), purge_step=purge_step)
-
-    def flush(self) -> None:
-        """Flush TensorBoard events (CSV rows are already on disk)."""
-        if self._tb is not None:
-            self._tb.flush()
-
-    def close(self) -> None:
-        """Close TensorBoard."""
-        if self._tb is not None:
-            self._tb.close()
-            self._tb = None
 
     # ------------------------------------------------------------ resume bookkeeping
     def row_counts(self) -> dict[str, int]:

@@ -20,7 +20,7 @@ states, and the CSV row counts. Env instances continue their own RNG streams fro
 episode, which a checkpoint cannot capture, so the collector's env instances are rebuilt
 with seeds derived from (seed, phase, epoch) right after every checkpoint, in uninterrupted and in
 resumed runs alike: a resumed run then replays exactly what the uninterrupted run did.
-Training and evaluation episodes share the env instances (see `Run._collector`).
+Training and evaluation episodes share the env instances (see `PhaseLoop._new_collector`).
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ from seal.learner.checkpoint import read_checkpoint, save_checkpoint
 from seal.learner.config import AgentConfig
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
+from seal.protocols.loggers import ScalarLogger, open_loggers
 from seal.protocols.phase import (
     LoopCallback,
     Phase,
@@ -187,6 +188,8 @@ class Run:
             )
             self.rundir = RunDir.create(path, dumps_toml(config_to_dict(config)), prov)
         self.results: dict[str, PhaseState] = {}
+        self.loggers: list[ScalarLogger] = []
+        """The run's TensorBoard and wandb loggers while it runs (`seal.protocols.loggers`)."""
 
     # ------------------------------------------------------------ driver
     def run(self) -> RunResult:
@@ -211,9 +214,10 @@ class Run:
         if resume_payload is not None and start_phase == 0:
             # Hide TensorBoard events written after the checkpoint (they are written again). Steps
             # restart in every phase, so purging in a later phase would hide earlier phases' events.
-            purge = int(resume_payload["runner"]["state"]["grad_steps"])
-        if self.config.logging.tensorboard:
-            self.rundir.open_tensorboard(purge_step=purge)
+            # Events at the checkpoint's own step (its epoch's evaluation and train rows) came
+            # before it and are not written again, so the purge starts one step later.
+            purge = int(resume_payload["runner"]["state"]["grad_steps"]) + 1
+        self.loggers = open_loggers(self.config, self.rundir.path, purge_step=purge)
         try:
             for phase in self.phases[start_phase:]:
                 payload = (
@@ -223,7 +227,9 @@ class Run:
                 )
                 self.results[phase.name] = self._run_phase(phase, payload)
         finally:
-            self.rundir.close()
+            for logger in self.loggers:
+                logger.close()
+            self.loggers = []
         self.rundir.update_provenance(end_time=provenance.utc_now())
         counts: dict[str, dict[str, float]] = {}
         final: dict[str, dict[str, float]] = {}
@@ -245,40 +251,8 @@ class Run:
         return RunResult(self.rundir.path, counts, final, timing)
 
     # ------------------------------------------------------------ building blocks
-    def _new_agent(self, model: PhaseModel) -> Any:
-        from seal.learner import Agent
-
-        return Agent(
-            model.specs, self.agent_cfg, derive_seed(self.seed, "agent", model.phase.index)
-        )
-
-    def _new_replay(self, model: PhaseModel) -> Any:
-        from seal.learner import MultiTaskReplay
-
-        return MultiTaskReplay(
-            model.replay_specs,
-            self.config.replay.capacity_per_env,
-            device=self.device,
-            seed=derive_seed(self.seed, "replay", model.phase.index),
-        )
-
-    def _collector(self, model: PhaseModel, anchor: int) -> Any:
-        """The phase's env instances, seeded from (seed, phase, epoch of the last checkpoint).
-
-        Training and evaluation episodes run on the same instances (each episode starts from a
-        reset that continues the instance's RNG stream): building MuJoCo envs costs about a
-        second each, and evaluation episodes never feed the replay.
-        """
-        from seal.learner.collection import Collector
-
-        return Collector(
-            model.adapters,
-            seed=derive_seed(self.seed, "envs", model.phase.index, anchor),
-            backend=self.config.training.collector,
-        )
-
     def _initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Any:
-        agent = self._new_agent(model)
+        agent = self.agent_cfg.build(model.specs, derive_seed(self.seed, "agent", phase.index))
         if resuming:
             return agent  # the checkpoint's agent state replaces everything (lr factor included)
         transfer = self.config.transfer
@@ -342,7 +316,6 @@ class Run:
     def _checkpoint(
         self, phase: Phase, agent: Any, replay: Any, scheduler: Any, state: PhaseState
     ) -> None:
-        self.rundir.flush()
         path = self.rundir.checkpoint_path(
             state.epoch, phase.name if len(self.phases) > 1 else None
         )
@@ -419,9 +392,7 @@ def load_policy(
     adapters = build_adapters(config)
     alignment = build_alignment(config, adapters) if config.kind == "finetune" else None
     model = PhaseModel(config, phase, adapters, alignment)
-    from seal.learner import Agent
-
-    agent = Agent(model.specs, run_agent_config(config, provenance.resolve_device(device)), 0)
+    agent = run_agent_config(config, provenance.resolve_device(device)).build(model.specs, 0)
     agent.load_state_dict(data["agent"])
     return config, model, agent, data
 

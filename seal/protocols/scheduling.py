@@ -41,18 +41,8 @@ def build(
 ) -> Scheduler:
     """The Scheduler of a protocol's scheduler config over `env_tasks`; `adapters` maps env ->
     adapter name. Errors name the file (`where`) and the `scheduler.key`."""
-    from seal.schedulers.registry import build_scheduler
+    from seal.schedulers.ratio import UniformConfig
 
-    try:
-        return build_scheduler(
-            config,
-            env_tasks,
-            seed=seed,
-            adapters=adapters,
-            episode_lengths=episode_lengths,
-            source=where,
-        )
-    except ConfigError:
-        raise
-    except (SealError, TypeError, ValueError) as exc:
-        raise ConfigError(f"{where}: scheduler: {exc}") from None
+    return (config or UniformConfig()).build(
+        env_tasks, seed=seed, adapters=adapters, episode_lengths=episode_lengths, source=where
+    )

@@ -39,7 +39,7 @@ from typing import Any, ClassVar, Self
 import numpy as np
 from pydantic import with_config
 
-from seal.errors import SealError, UnknownNameError
+from seal.errors import ConfigError, SealError, UnknownNameError
 from seal.typed_config import SCHEMA
 
 TaskKey = tuple[str, str]
@@ -329,6 +329,37 @@ class SchedulerConfig:
         """A copy with every schedule duration multiplied by `factor` (floor 1)."""
         changes = {name: scale_duration(getattr(self, name), factor) for name in self.DURATIONS}
         return dataclasses.replace(self, **changes)
+
+    def build(
+        self,
+        env_tasks: Mapping[str, Sequence[str]],
+        *,
+        seed: int = 0,
+        adapters: Mapping[str, str] | None = None,
+        episode_lengths: Mapping[str, int] | None = None,
+        source: str = "",
+    ) -> Scheduler:
+        """The scheduler of this config over `env_tasks` (env -> task names, in order).
+
+        `adapters` (env -> adapter name) lets presets find the kitchen and Meta-World envs,
+        `episode_lengths` gives SMT's default M and m, `seed` seeds SMT's first pick. Errors are
+        ConfigErrors naming `source` (the protocol file) and the `scheduler.key`.
+        """
+        from seal.schedulers.registry import build_scheduler
+
+        try:
+            return build_scheduler(
+                self,
+                env_tasks,
+                seed=seed,
+                adapters=adapters,
+                episode_lengths=episode_lengths,
+                source=source,
+            )
+        except ConfigError:
+            raise
+        except (SealError, TypeError, ValueError) as exc:
+            raise ConfigError(f"{source}: scheduler: {exc}") from None
 
     def to_table(self) -> dict[str, Any]:
         """The resolved [scheduler] table (for the run's saved config), `kind` first."""

@@ -1,0 +1,179 @@
+"""Loop callbacks that mirror a run's scalars to TensorBoard and to Weights & Biases.
+
+The CSV files of the run directory (`seal.protocols.rundir`) are the record; these loggers only
+mirror what the phase loop writes to them, at the same steps (the phase's gradient steps):
+
+    eval/<env>/<task>/success, eval/<env>/<task>/return    every evaluation (metrics.csv)
+    charts/<env>/mean_success                              every evaluation
+    losses/<env>/<key>, charts/<env>/<key>                 every train.csv row (keys ending in "loss"
+                                                           go under losses/)
+
+`[logging] tensorboard` turns on `TensorBoardLogger` (events under tb/), `[logging] wandb`
+("offline" or "online") turns on `WandbLogger` (files under wandb/; needs the `wandb` extra).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from seal.errors import SealError
+from seal.protocols.phase import LoopCallback
+from seal.protocols.rundir import atomic_write_text
+
+if TYPE_CHECKING:
+    from seal.protocols.config import ProtocolConfig
+    from seal.protocols.phase import PhaseLoop
+
+WANDB_EXTRA_HINT = 'pip install -e ".[wandb]"'
+"""How to install the optional wandb extra (named in the error when it is missing)."""
+
+
+def eval_scalars(loop: PhaseLoop) -> dict[str, float]:
+    """The scalars of the loop's latest evaluation: per-task success and return, per-env mean success."""
+    scalars: dict[str, float] = {}
+    for r in loop.last_rows:
+        scalars[f"eval/{r['env']}/{r['task']}/success"] = float(r["success"])
+        scalars[f"eval/{r['env']}/{r['task']}/return"] = float(r["return"])
+    for env, per_task in loop.state.last_success.items():
+        scalars[f"charts/{env}/mean_success"] = float(np.mean(list(per_task.values())))
+    return scalars
+
+
+def train_scalars(rows: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """train.csv rows as scalars: losses/<env>/<key> for keys ending in "loss", else charts/<env>/<key>."""
+    scalars: dict[str, float] = {}
+    for r in rows:
+        group = "losses" if str(r["key"]).endswith("loss") else "charts"
+        scalars[f"{group}/{r['env']}/{r['key']}"] = float(r["value"])
+    return scalars
+
+
+class ScalarLogger(LoopCallback):
+    """A loop callback that writes the evaluation and training scalars at the phase's gradient steps."""
+
+    def write(self, scalars: Mapping[str, float], step: int, loop: PhaseLoop) -> None:
+        """Write `scalars` at gradient step `step`."""
+        raise NotImplementedError
+
+    def flush(self) -> None:
+        """Push what is buffered to disk."""
+
+    def close(self) -> None:
+        """End the logger (the `Run` calls this once, after its last phase)."""
+
+    def on_evaluation(self, loop: PhaseLoop) -> None:
+        self.write(eval_scalars(loop), loop.state.grad_steps, loop)
+
+    def on_train_log(self, loop: PhaseLoop, rows: Sequence[Mapping[str, Any]]) -> None:
+        if rows:
+            self.write(train_scalars(rows), int(rows[0]["grad_steps"]), loop)
+
+    def on_checkpoint(self, loop: PhaseLoop) -> None:
+        self.flush()
+
+
+class TensorBoardLogger(ScalarLogger):
+    """TensorBoard events under <run_dir>/tb; `purge_step` hides events past a resumed checkpoint."""
+
+    def __init__(self, run_dir: Path, purge_step: int | None = None) -> None:
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.writer: SummaryWriter | None = SummaryWriter(
+            str(Path(run_dir) / "tb"), purge_step=purge_step
+        )
+
+    def write(self, scalars: Mapping[str, float], step: int, loop: PhaseLoop) -> None:
+        if self.writer is not None:
+            for tag, value in scalars.items():
+                self.writer.add_scalar(tag, value, step)
+
+    def flush(self) -> None:
+        if self.writer is not None:
+            self.writer.flush()
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
+
+
+class WandbLogger(ScalarLogger):
+    """A Weights & Biases run under <run_dir>/wandb, "offline" (never touches the network) or "online".
+
+    The run id is kept in <run_dir>/wandb/run_id, so a resumed run continues the same wandb run.
+    Each log carries `grad_steps` and `phase`; the scalars are plotted against `grad_steps`.
+    """
+
+    def __init__(self, run_dir: Path, mode: str, config: ProtocolConfig) -> None:
+        wandb = import_wandb(mode)
+        from seal.protocols.loader import config_to_dict
+
+        run_dir = Path(run_dir)
+        folder = run_dir / "wandb"
+        folder.mkdir(parents=True, exist_ok=True)
+        if mode == "offline":
+            os.environ["WANDB_MODE"] = "offline"
+        self.run = wandb.init(
+            project=config.name or "seal",
+            group=run_dir.parent.name,
+            name=f"{run_dir.parent.name}/{run_dir.name}",
+            id=wandb_run_id(folder),
+            resume="allow",
+            dir=str(folder),
+            mode=mode,
+            config=config_to_dict(config),
+        )
+        self.run.define_metric("grad_steps")
+        self.run.define_metric("*", step_metric="grad_steps")
+
+    def write(self, scalars: Mapping[str, float], step: int, loop: PhaseLoop) -> None:
+        if self.run is not None:
+            self.run.log({**scalars, "grad_steps": step, "phase": loop.phase.name})
+
+    def close(self) -> None:
+        if self.run is not None:
+            self.run.finish()
+            self.run = None
+
+
+def import_wandb(mode: str) -> Any:
+    """The wandb module; a one-line SealError naming the extra to install when it is missing."""
+    try:
+        import wandb
+    except ImportError:
+        raise SealError(
+            f"logging.wandb = {mode!r} needs the wandb package; install the extra: {WANDB_EXTRA_HINT}"
+        ) from None
+    return wandb
+
+
+def wandb_run_id(folder: Path) -> str:
+    """The wandb run id kept in `folder`/run_id, made (and saved) on the run's first start."""
+    path = folder / "run_id"
+    if path.is_file():
+        saved = path.read_text().strip()
+        if saved:
+            return saved
+    run_id = secrets.token_hex(8)
+    atomic_write_text(path, run_id + "\n")
+    return run_id
+
+
+def open_loggers(
+    config: ProtocolConfig, run_dir: Path, purge_step: int | None = None
+) -> list[ScalarLogger]:
+    """The loggers `[logging]` turns on for one run (TensorBoard is skipped if not installed)."""
+    loggers: list[ScalarLogger] = []
+    if config.logging.tensorboard:
+        with contextlib.suppress(ImportError):  # tensorboard missing: the CSVs remain the record
+            loggers.append(TensorBoardLogger(run_dir, purge_step))
+    if config.logging.wandb != "off":
+        loggers.append(WandbLogger(run_dir, config.logging.wandb, config))
+    return loggers
