@@ -96,7 +96,7 @@ def _check_spaces(adapter: EnvAdapter, env: gym.Env) -> list[str]:
     return errors
 
 
-def _check_observation(adapter: EnvAdapter, env: gym.Env, obs: Any, where: str) -> list[str]:
+def _check_observation(adapter: EnvAdapter, env: gym.Env, obs: object, where: str) -> list[str]:
     """One observation: an array of the declared shape and dtype, finite, inside the env's space."""
     space = adapter.observation_space
     if not isinstance(obs, np.ndarray):
