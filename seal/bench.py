@@ -198,7 +198,22 @@ def _copy_weights(ours: Agent, sb3: SAC) -> None:
         sb3.critic_target.load_state_dict(sb3.critic.state_dict())
 
 
-def bench_sac_vs_sb3(updates: int = 300, repeats: int = 3, seed: int = 0) -> dict[str, Any]:
+class SacVsSb3(TypedDict):
+    """`bench_sac_vs_sb3`'s figures."""
+
+    ours_updates_per_s: float
+    sb3_updates_per_s: float
+    sac_vs_sb3: float
+    ours_flops_per_update: int
+    sb3_flops_per_update: int
+    flops_ratio_sb3_over_ours: float
+    ours_gflops: float
+    sb3_gflops: float
+    updates_timed: int
+    repeats: int
+
+
+def bench_sac_vs_sb3(updates: int = 300, repeats: int = 3, seed: int = 0) -> SacVsSb3:
     """Gradient updates/s of our SAC and SB3's, each sampling batch 256 from its own filled replay."""
     from seal.learner import MultiTaskReplay
     from seal.learner.config import EnvSpec
@@ -380,9 +395,18 @@ def _random_batch(
     )
 
 
+class FlopCheck(TypedDict):
+    """FlopCounterMode's count of one update next to the formula's (`flop_formula_check`)."""
+
+    flop_counter: int
+    formula_as_implemented: int
+    formula_ideal: int
+    equal: bool
+
+
 def flop_formula_check(
     num_tasks: int = 3, per_task: int = 8, hidden: tuple[int, ...] = (32, 32, 32)
-) -> dict[str, Any]:
+) -> FlopCheck:
     """FlopCounterMode's count of one real update vs the formula set to what our update computes.
 
     Our update computes every policy and Q head (then gathers) and the critic's input gradient over
@@ -432,7 +456,19 @@ def _time_gemms(gemms: Sequence[Gemm], repeats: int) -> float:
     return total
 
 
-def bench_mt10_flops(updates: int = 50, repeats: int = 3, seed: int = 0) -> dict[str, Any]:
+class Mt10Flops(TypedDict):
+    """`bench_mt10_flops`' figures."""
+
+    ideal_flops_per_update: int
+    flop_counter_per_update: int
+    update_s: float
+    update_gflops: float
+    matmul_gflops_same_shapes: float
+    mt10_update_flops_fraction: float
+    updates_timed: int
+
+
+def bench_mt10_flops(updates: int = 50, repeats: int = 3, seed: int = 0) -> Mt10Flops:
     """FLOP/s of the MT10 MTMHSAC update (defaults: 3 x 400, 128 per task x 10) / torch.mm FLOP/s at its shapes."""
     shape = UpdateShape()
     gemms = ideal_update_gemms(shape)
@@ -541,7 +577,7 @@ def _agent_batches(specs: Sequence[EnvSpec], per_task: int, seed: int) -> dict[s
 
 def agent_flop_formula_check(
     specs: Sequence[EnvSpec], config: AgentConfig, per_task: int, seed: int = 0
-) -> dict[str, Any]:
+) -> FlopCheck:
     """FlopCounterMode's count of one real update of any agent vs the `as_implemented` formula (and the ideal count).
 
     The update counted is the second one (the first measures the ratio lever on copies). Give
@@ -869,9 +905,20 @@ LEARN = Path(__file__).resolve().parents[1] / "protocols" / "learn"
 """The learning-evidence protocols (point with and without the one-hot, reach-v3)."""
 
 
+class LearnResult(TypedDict):
+    """`learn_protocol`'s record of one run."""
+
+    env_steps: int
+    gradient_updates: int
+    epochs: int
+    wall_s: float
+    success: dict[str, float]
+    reached: dict[str, bool]
+
+
 def learn_protocol(
     name: str, seed: int = 0, overrides: Sequence[str] = (), out: Path | None = None
-) -> dict[str, Any]:
+) -> LearnResult:
     """Run `protocols/learn/<name>.toml` (one seed, this process, the runner's phase loop).
 
     Into `out` (default: a temporary directory, removed after). Returns the env steps and
@@ -991,7 +1038,7 @@ def run_bench(
     }
     if "sac_vs_sb3" in chosen:
         log("sac_vs_sb3: timing")
-        d = bench_sac_vs_sb3(settings.sac_updates, settings.repeats)
+        d: Mapping[str, Any] = bench_sac_vs_sb3(settings.sac_updates, settings.repeats)
         out["details"]["sac_vs_sb3"] = d
         out["sac_vs_sb3"] = d["sac_vs_sb3"]
     if "mt10_update_flops_fraction" in chosen:
