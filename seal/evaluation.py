@@ -23,7 +23,7 @@ from seal.errors import SealError
 
 if TYPE_CHECKING:
     from seal.envs.alignment import Alignment
-    from seal.learner.collection import Collector
+    from seal.learner.collection import Collector, Policy
     from seal.learner.sac import Agent
 
 PolicyFn = Callable[[str, np.ndarray, np.ndarray], np.ndarray]
@@ -80,7 +80,7 @@ class AgentPolicy:
 
 
 def evaluate(
-    policy: PolicyFn,
+    policy: Policy,
     adapters: Mapping[str, EnvAdapter],
     *,
     episodes: int,
