@@ -35,7 +35,8 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 import pandas as pd
@@ -43,10 +44,17 @@ import torch
 
 from seal.errors import SealError
 
+if TYPE_CHECKING:
+    import gymnasium as gym
+    from stable_baselines3 import SAC
+
+    from seal.envs.base import EnvAdapter
+    from seal.learner import Agent, AgentConfig, Batch, EnvSpec
+
 # ---------------------------------------------------------------- shared helpers
 
 
-def _timeit(fn: Callable[[], Any], repeats: int) -> float:
+def _timeit(fn: Callable[[], object], repeats: int) -> float:
     """Best-of-`repeats` wall time of fn(): the least-disturbed run on a shared machine."""
     best = math.inf
     for _ in range(repeats):
@@ -68,7 +76,17 @@ def torch_threads(n: int | None) -> Iterator[None]:
         torch.set_num_threads(before)
 
 
-def machine_load() -> dict[str, Any]:
+class MachineLoad(TypedDict):
+    """`machine_load`'s record."""
+
+    loadavg_1m: float
+    loadavg_5m: float
+    loadavg_15m: float
+    cpus: int | None
+    torch_threads: int
+
+
+def machine_load() -> MachineLoad:
     """Load averages and CPU count, recorded next to every figure."""
     one, five, fifteen = os.getloadavg()
     return {
@@ -92,7 +110,7 @@ SB3_OBS_DIM, SB3_ACT_DIM = 39, 4  # Meta-World's shapes
 SB3_WIDTHS = (400, 400)
 
 
-def _sb3_env() -> Any:
+def _sb3_env() -> gym.Env:
     import gymnasium as gym
 
     class BoxEnv(gym.Env):
@@ -112,7 +130,7 @@ def _sb3_env() -> Any:
     return BoxEnv()
 
 
-def _require_sb3() -> Any:
+def _require_sb3() -> ModuleType:
     try:
         import stable_baselines3
     except ImportError:
@@ -122,7 +140,7 @@ def _require_sb3() -> Any:
     return stable_baselines3
 
 
-def _twin_sacs(seed: int, batch_size: int, buffer_size: int) -> tuple[Any, Any]:
+def _twin_sacs(seed: int, batch_size: int, buffer_size: int) -> tuple[Agent, SAC]:
     """Our single-task SAC and an SB3 SAC with identical weights, (400, 400), on CPU."""
     _require_sb3()
     from stable_baselines3 import SAC
@@ -156,7 +174,7 @@ def _twin_sacs(seed: int, batch_size: int, buffer_size: int) -> tuple[Any, Any]:
     return ours, sb3
 
 
-def _copy_weights(ours: Any, sb3: Any) -> None:
+def _copy_weights(ours: Agent, sb3: SAC) -> None:
     """Load our networks' weights into SB3's (our layers store (in, out); torch Linear (out, in))."""
     key = ours._keys["bench"]
     actor, critic = ours.actor, ours.critic
@@ -180,7 +198,22 @@ def _copy_weights(ours: Any, sb3: Any) -> None:
         sb3.critic_target.load_state_dict(sb3.critic.state_dict())
 
 
-def bench_sac_vs_sb3(updates: int = 300, repeats: int = 3, seed: int = 0) -> dict[str, Any]:
+class SacVsSb3(TypedDict):
+    """`bench_sac_vs_sb3`'s figures."""
+
+    ours_updates_per_s: float
+    sb3_updates_per_s: float
+    sac_vs_sb3: float
+    ours_flops_per_update: int
+    sb3_flops_per_update: int
+    flops_ratio_sb3_over_ours: float
+    ours_gflops: float
+    sb3_gflops: float
+    updates_timed: int
+    repeats: int
+
+
+def bench_sac_vs_sb3(updates: int = 300, repeats: int = 3, seed: int = 0) -> SacVsSb3:
     """Gradient updates/s of our SAC and SB3's, each sampling batch 256 from its own filled replay."""
     from seal.learner import MultiTaskReplay
     from seal.learner.config import EnvSpec
@@ -337,7 +370,7 @@ def gemm_flops(gemms: Sequence[Gemm]) -> int:
     return sum(2 * m * k * n for m, k, n in gemms)
 
 
-def _mt10_agent(seed: int, num_tasks: int = 10, hidden: tuple[int, ...] = (400, 400, 400)) -> Any:
+def _mt10_agent(seed: int, num_tasks: int = 10, hidden: tuple[int, ...] = (400, 400, 400)) -> Agent:
     from seal.learner import Agent, AgentConfig, EnvSpec
 
     return Agent(
@@ -347,7 +380,7 @@ def _mt10_agent(seed: int, num_tasks: int = 10, hidden: tuple[int, ...] = (400, 
 
 def _random_batch(
     num_tasks: int, per_task: int, seed: int, obs_dim: int = 39, act_dim: int = 4
-) -> Any:
+) -> Batch:
     from seal.learner import Batch
 
     g = torch.Generator().manual_seed(seed)
@@ -362,9 +395,18 @@ def _random_batch(
     )
 
 
+class FlopCheck(TypedDict):
+    """FlopCounterMode's count of one update next to the formula's (`flop_formula_check`)."""
+
+    flop_counter: int
+    formula_as_implemented: int
+    formula_ideal: int
+    equal: bool
+
+
 def flop_formula_check(
     num_tasks: int = 3, per_task: int = 8, hidden: tuple[int, ...] = (32, 32, 32)
-) -> dict[str, Any]:
+) -> FlopCheck:
     """FlopCounterMode's count of one real update vs the formula set to what our update computes.
 
     Our update computes every policy and Q head (then gathers) and the critic's input gradient over
@@ -414,7 +456,19 @@ def _time_gemms(gemms: Sequence[Gemm], repeats: int) -> float:
     return total
 
 
-def bench_mt10_flops(updates: int = 50, repeats: int = 3, seed: int = 0) -> dict[str, Any]:
+class Mt10Flops(TypedDict):
+    """`bench_mt10_flops`' figures."""
+
+    ideal_flops_per_update: int
+    flop_counter_per_update: int
+    update_s: float
+    update_gflops: float
+    matmul_gflops_same_shapes: float
+    mt10_update_flops_fraction: float
+    updates_timed: int
+
+
+def bench_mt10_flops(updates: int = 50, repeats: int = 3, seed: int = 0) -> Mt10Flops:
     """FLOP/s of the MT10 MTMHSAC update (defaults: 3 x 400, 128 per task x 10) / torch.mm FLOP/s at its shapes."""
     shape = UpdateShape()
     gemms = ideal_update_gemms(shape)
@@ -452,7 +506,9 @@ def bench_mt10_flops(updates: int = 50, repeats: int = 3, seed: int = 0) -> dict
 QUICKSTART = Path(__file__).resolve().parents[1] / "protocols" / "quickstart.toml"
 
 
-def agent_update_shapes(specs: Sequence[Any], config: Any, per_task: int) -> list[UpdateShape]:
+def agent_update_shapes(
+    specs: Sequence[EnvSpec], config: AgentConfig, per_task: int
+) -> list[UpdateShape]:
     """One UpdateShape per env of an agent's update (ideal: only each sample's task head).
 
     SEAL env i's policy is one chain of layers, translator_i -> shared trunk -> head_i, so as
@@ -495,7 +551,7 @@ def as_implemented(shape: UpdateShape) -> UpdateShape:
     )
 
 
-def quickstart_setup(protocol: str | Path = QUICKSTART) -> tuple[list[Any], Any, int]:
+def quickstart_setup(protocol: str | Path = QUICKSTART) -> tuple[list[EnvSpec], AgentConfig, int]:
     """The quickstart's EnvSpecs (its envs' real obs/action sizes and task counts), its resolved
     AgentConfig on CPU and its batch_per_task; SealError when an env's adapter is not installed."""
     from seal.learner import EnvSpec
@@ -512,7 +568,7 @@ def quickstart_setup(protocol: str | Path = QUICKSTART) -> tuple[list[Any], Any,
     return specs, agent_cfg, int(config.training.batch_per_task)
 
 
-def _agent_batches(specs: Sequence[Any], per_task: int, seed: int) -> dict[str, Any]:
+def _agent_batches(specs: Sequence[EnvSpec], per_task: int, seed: int) -> dict[str, Batch]:
     return {
         s.name: _random_batch(s.num_tasks, per_task, seed + i, s.obs_dim, s.act_dim)
         for i, s in enumerate(specs)
@@ -520,8 +576,8 @@ def _agent_batches(specs: Sequence[Any], per_task: int, seed: int) -> dict[str, 
 
 
 def agent_flop_formula_check(
-    specs: Sequence[Any], config: Any, per_task: int, seed: int = 0
-) -> dict[str, Any]:
+    specs: Sequence[EnvSpec], config: AgentConfig, per_task: int, seed: int = 0
+) -> FlopCheck:
     """FlopCounterMode's count of one real update of any agent vs the `as_implemented` formula (and the ideal count).
 
     The update counted is the second one (the first measures the ratio lever on copies). Give
@@ -580,7 +636,7 @@ def bench_small_update_flops(
         for _ in range(repeats):
             for name, agent in agents.items():
 
-                def run(agent: Any = agent) -> None:
+                def run(agent: Agent = agent) -> None:
                     for _ in range(updates):
                         agent.update(batches)
 
@@ -626,7 +682,7 @@ def bench_small_update_flops(
 class _PlainLoop:
     """The reference: one process, one env after another, envs built by the same adapter (same wrappers)."""
 
-    def __init__(self, adapter: Any, env_name: str, seed: int) -> None:
+    def __init__(self, adapter: EnvAdapter, env_name: str, seed: int) -> None:
         from seal.learner.collection import instance_seed
 
         self.seeds = [instance_seed(seed, env_name, task) for task in adapter.tasks]
@@ -656,7 +712,7 @@ class _CollectorLoop:
     """Our Collector replaying a fixed action sequence through its batched policy call."""
 
     def __init__(
-        self, adapter: Any, env_name: str, seed: int, backend: str, num_workers: int | None
+        self, adapter: EnvAdapter, env_name: str, seed: int, backend: str, num_workers: int | None
     ) -> None:
         from seal.learner.collection import Collector
 
@@ -849,9 +905,20 @@ LEARN = Path(__file__).resolve().parents[1] / "protocols" / "learn"
 """The learning-evidence protocols (point with and without the one-hot, reach-v3)."""
 
 
+class LearnResult(TypedDict):
+    """`learn_protocol`'s record of one run."""
+
+    env_steps: int
+    gradient_updates: int
+    epochs: int
+    wall_s: float
+    success: dict[str, float]
+    reached: dict[str, bool]
+
+
 def learn_protocol(
     name: str, seed: int = 0, overrides: Sequence[str] = (), out: Path | None = None
-) -> dict[str, Any]:
+) -> LearnResult:
     """Run `protocols/learn/<name>.toml` (one seed, this process, the runner's phase loop).
 
     Into `out` (default: a temporary directory, removed after). Returns the env steps and
@@ -880,7 +947,7 @@ def learn_protocol(
     }
 
 
-def random_success(adapter: Any, episodes: int = 20, seed: int = 0) -> dict[str, float]:
+def random_success(adapter: EnvAdapter, episodes: int = 20, seed: int = 0) -> dict[str, float]:
     """Success rate per task of uniform random actions."""
     from seal.learner.collection import Collector
 
@@ -971,7 +1038,7 @@ def run_bench(
     }
     if "sac_vs_sb3" in chosen:
         log("sac_vs_sb3: timing")
-        d = bench_sac_vs_sb3(settings.sac_updates, settings.repeats)
+        d: Mapping[str, Any] = bench_sac_vs_sb3(settings.sac_updates, settings.repeats)
         out["details"]["sac_vs_sb3"] = d
         out["sac_vs_sb3"] = d["sac_vs_sb3"]
     if "mt10_update_flops_fraction" in chosen:

@@ -14,13 +14,16 @@ import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
 from seal.bench_transfer import Arm, code_versions, run_or_reuse
 from seal.errors import SealError, UnknownNameError
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 KITCHEN_LEARN = Path(__file__).resolve().parents[1] / "protocols" / "kitchen_learn"
 """The kitchen learning protocols."""
@@ -53,7 +56,18 @@ def arms(only: Sequence[str] | None = None) -> list[Arm]:
     return [a for a in ARMS if a.name in only]
 
 
-def run_figures(metrics: Any, threshold: float = DEFAULT_THRESHOLD) -> dict[str, Any]:
+class RunFigures(TypedDict):
+    """`run_figures`' record of one run."""
+
+    reached: bool
+    env_steps: int
+    grad_steps: int
+    updates_m: float
+    best_success: float
+    final_success: float
+
+
+def run_figures(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> RunFigures:
     """One run's figures: reached, env steps / gradient steps / M updates at the first >= threshold (else the run's totals), best success."""
     (row,) = first_reach(metrics, threshold).itertuples(index=False)
     last = metrics.sort_values(["epoch", "grad_steps"], kind="stable").iloc[-1]

@@ -13,12 +13,18 @@ import os
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from seal.envs.base import EnvAdapter
 from seal.errors import SealError
+
+if TYPE_CHECKING:
+    from seal.envs.alignment import Alignment
+    from seal.learner.collection import Collector, Policy
+    from seal.learner.sac import Agent
 
 PolicyFn = Callable[[str, np.ndarray, np.ndarray], np.ndarray]
 """(env name, raw observations [n, obs_dim], adapter task indices [n]) -> env actions [n, act_dim]."""
@@ -35,10 +41,10 @@ class AgentPolicy:
 
     def __init__(
         self,
-        agent: Any,
+        agent: Agent,
         *,
         deterministic: bool,
-        alignment: Any = None,
+        alignment: Alignment | None = None,
         agent_env: Mapping[str, str] | None = None,
         alignment_names: Mapping[str, str] | None = None,
     ) -> None:
@@ -74,13 +80,13 @@ class AgentPolicy:
 
 
 def evaluate(
-    policy: PolicyFn,
+    policy: Policy,
     adapters: Mapping[str, EnvAdapter],
     *,
     episodes: int,
     seed: int,
     tasks: Mapping[str, Sequence[str]] | None = None,
-    collector: Any = None,
+    collector: Collector | None = None,
     backend: str = "auto",
 ) -> dict[str, dict[str, dict[str, float]]]:
     """Success rate and mean return per task: {env: {task: {"success": s, "return": r}}}.
@@ -171,7 +177,7 @@ def _check_rendering() -> None:
         )
 
 
-def _mp4_writer() -> Any:
+def _mp4_writer() -> ModuleType:
     try:
         import imageio.v2 as imageio
         import imageio_ffmpeg  # noqa: F401 - imageio's MP4 backend
@@ -182,7 +188,7 @@ def _mp4_writer() -> Any:
     return imageio
 
 
-def _enable_rgb_rendering(env: Any, depth: int = 0) -> None:
+def _enable_rgb_rendering(env: object, depth: int = 0) -> None:
     """Switch an env built without a render mode, and the MuJoCo envs it wraps, to "rgb_array".
 
     Adapters build envs for training (no render mode); a kitchen env renders through an inner

@@ -104,5 +104,5 @@ def _options(pairs: list[str]) -> dict[str, Any]:
     return options
 
 
-def _fmt(value: Any) -> str:
+def _fmt(value: object) -> str:
     return f"{value:.3g}" if isinstance(value, float) else str(value)

@@ -8,10 +8,9 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
 
 
-def register(subparsers: Any) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `sweep` subcommand."""
     parser = subparsers.add_parser(
         "sweep",

@@ -20,10 +20,10 @@ and the goal is [73:76].
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from numpy.typing import DTypeLike
 
 from seal.envs.base import EnvAdapter
 from seal.errors import SealError, UnknownNameError
@@ -141,7 +141,7 @@ class Alignment:
         env: str,
         obs: np.ndarray,
         tasks: np.ndarray | Sequence[str] | str | int,
-        dtype: Any = np.float32,
+        dtype: DTypeLike = np.float32,
     ) -> np.ndarray:
         """Aligned observations (batch, obs_dim) from `env`'s raw observations (batch, env_obs_dim).
 
@@ -213,7 +213,9 @@ class Alignment:
             )
         return index
 
-    def _local_indices(self, plan: _EnvPlan, env: str, tasks: Any, n: int) -> np.ndarray:
+    def _local_indices(
+        self, plan: _EnvPlan, env: str, tasks: np.ndarray | Sequence[str] | str | int, n: int
+    ) -> np.ndarray:
         if isinstance(tasks, (str, int, np.integer)):
             return np.full(n, self._local_index(plan, env, tasks), dtype=np.intp)
         tasks = np.asarray(tasks)

@@ -47,7 +47,7 @@ def check_adapter(
 
 def _check_task(adapter: EnvAdapter, task: str, seed: int) -> dict[str, Any]:
     """API checks, then the semantic check; an exception is reported as an error, never raised."""
-    figures: dict[str, Any] = {}
+    figures: dict[str, float] = {}
     errors: list[str] = []
     try:
         env = adapter.make(task, seed)
@@ -96,7 +96,7 @@ def _check_spaces(adapter: EnvAdapter, env: gym.Env) -> list[str]:
     return errors
 
 
-def _check_observation(adapter: EnvAdapter, env: gym.Env, obs: Any, where: str) -> list[str]:
+def _check_observation(adapter: EnvAdapter, env: gym.Env, obs: object, where: str) -> list[str]:
     """One observation: an array of the declared shape and dtype, finite, inside the env's space."""
     space = adapter.observation_space
     if not isinstance(obs, np.ndarray):
@@ -115,7 +115,7 @@ def _check_observation(adapter: EnvAdapter, env: gym.Env, obs: Any, where: str) 
 
 
 def _check_rollout(
-    adapter: EnvAdapter, env: gym.Env, seed: int, figures: dict[str, Any]
+    adapter: EnvAdapter, env: gym.Env, seed: int, figures: dict[str, float]
 ) -> list[str]:
     """One full episode of seeded random actions: finite obs and reward, float success in {0, 1},
     no termination, and truncation exactly at `episode_length`."""

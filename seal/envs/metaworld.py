@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import functools
 import warnings
+from collections.abc import Callable, Sequence
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -46,7 +47,7 @@ _LAYOUT = ObsLayout.from_slices(
 
 
 @functools.lru_cache(maxsize=256)
-def _benchmark_goals(task: str, goal_seed: int) -> tuple[Any, ...]:
+def _benchmark_goals(task: str, goal_seed: int) -> tuple[metaworld.Task, ...]:
     """The task's 50 benchmark goals (metaworld `Task`s); cached, as drawing them costs ~0.5 s."""
     return tuple(metaworld.MT1(task, seed=goal_seed).train_tasks)
 
@@ -60,7 +61,7 @@ class MetaWorldTaskEnv(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """
 
     def __init__(
-        self, env: gym.Env, goals: tuple[Any, ...], seed: int, episode_length: int
+        self, env: gym.Env, goals: tuple[metaworld.Task, ...], seed: int, episode_length: int
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
             self, goals=goals, seed=seed, episode_length=episode_length
@@ -113,7 +114,7 @@ class MetaWorldAdapter(EnvAdapter):
 
     def __init__(
         self,
-        tasks: Any = None,
+        tasks: Sequence[str] | str | None = None,
         episode_length: int | None = None,
         goal_seed: int = 0,
         **options: Any,
@@ -128,7 +129,7 @@ class MetaWorldAdapter(EnvAdapter):
             )
 
     @classmethod
-    def resolve_tasks(cls, tasks: Any) -> tuple[str, ...]:
+    def resolve_tasks(cls, tasks: Sequence[str] | str | None) -> tuple[str, ...]:
         """Like EnvAdapter.resolve_tasks, but no tasks means MT10 rather than all 50."""
         return super().resolve_tasks("mt10" if tasks is None else tasks)
 
@@ -155,7 +156,7 @@ class MetaWorldAdapter(EnvAdapter):
         goals = _benchmark_goals(task, self.goal_seed)
         return MetaWorldTaskEnv(env, goals, seed, self.episode_length)
 
-    def expert(self, task: str) -> Any:
+    def expert(self, task: str) -> Callable[[np.ndarray], np.ndarray] | None:
         """metaworld's scripted policy for `task` (`metaworld.policies.ENV_POLICY_MAP`), or None."""
         from metaworld.policies import ENV_POLICY_MAP
 

@@ -44,7 +44,7 @@ class NotACheckpointError(SealError):
     """A file that is not a seal checkpoint of this version (or not readable as data only)."""
 
 
-def atomic_save(obj: Any, path: str | os.PathLike[str]) -> Path:
+def atomic_save(obj: object, path: str | os.PathLike[str]) -> Path:
     """torch.save `obj` to `path` atomically: temp file in the same directory, fsync, os.replace."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

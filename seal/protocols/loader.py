@@ -134,7 +134,7 @@ def scale_config(config: ProtocolConfig, factor: float) -> ProtocolConfig:
 # ---------------------------------------------------------------- the protocol
 
 
-def _build_envs(raw: Any, file: str) -> dict[str, EnvConfig]:
+def _build_envs(raw: object, file: str) -> dict[str, EnvConfig]:
     from seal.envs import adapter_class
 
     if not isinstance(raw, dict) or not raw:
@@ -239,7 +239,7 @@ def default_architecture(kind: str) -> str:
     return "seal" if kind == "joint" else "mtmhsac"
 
 
-def _build_agent(raw: Any, kind: str, device: str, file: str) -> AgentConfig:
+def _build_agent(raw: Mapping[str, Any] | None, kind: str, device: str, file: str) -> AgentConfig:
     from seal.learner.config import RENAMED_KEYS, AgentConfig
 
     table = dict(raw or {})
@@ -411,7 +411,7 @@ def _toml_key(key: str) -> str:
     return key if key and all(c.isalnum() or c in "-_" for c in key) else json.dumps(key)
 
 
-def toml_value(value: Any) -> str:
+def toml_value(value: object) -> str:
     """One value as inline TOML (`seal protocol explain`, a sweep sample's `--set` overrides).
 
     Documents are written by tomli-w (`dumps_toml`); it has no public inline-value writer.

@@ -9,11 +9,14 @@ builds the config with every value a distribution can take at its ends.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from seal.errors import ConfigError, SealError
+
+if TYPE_CHECKING:
+    from ray.tune.search.sample import Domain
 
 DISTRIBUTIONS: tuple[str, ...] = ("uniform", "loguniform", "choice", "int", "grid")
 """Distributions a [search] entry may name (`dist = ...`)."""
@@ -93,7 +96,7 @@ class Distribution:
     high: float | None = None
     values: tuple[Any, ...] = ()
 
-    def tune_domain(self) -> Any:
+    def tune_domain(self) -> Domain | dict[str, Iterable[object]]:
         """This distribution as a Ray Tune param_space entry (a `tune.uniform` ... domain; grid: `tune.grid_search`)."""
         from ray import tune
 
@@ -141,13 +144,13 @@ def flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def _number(value: Any, where: str) -> float:
+def _number(value: object, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise ConfigError(f"{where} = {value!r} is not valid; expected a finite number")
     return float(value)
 
 
-def parse_distribution(key: str, spec: Any, file: str) -> Distribution:
+def parse_distribution(key: str, spec: object, file: str) -> Distribution:
     """One `"table.key" = {dist = ..., ...}` entry of [search], checked."""
     where = f"{file}: search.{key}"
     if "." not in key:

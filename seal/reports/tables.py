@@ -50,14 +50,14 @@ class ReportResult:
     def to_json(self) -> dict[str, Any]:
         """Paths and update-count numbers as plain JSON values (NaN -> null)."""
 
-        def num(value: Any) -> Any:
+        def num(value: float | None) -> float | None:
             return (
                 None
                 if value is None or (isinstance(value, float) and not math.isfinite(value))
                 else value
             )
 
-        counts: dict[str, dict[str, dict[str, dict[str, Any]]]] = {}
+        counts: dict[str, dict[str, dict[str, dict[str, float | None]]]] = {}
         for row in self.update_counts.itertuples(index=False):
             counts.setdefault(row.column, {}).setdefault(row.env, {})[row.task] = {
                 "mean": num(float(row.updates_mean)),

@@ -292,7 +292,7 @@ class Scheduler(abc.ABC):
         epoch: int,
         env_steps: int,
         status: Mapping[TaskKey, str],
-        **extras: Mapping[TaskKey, Any],
+        **extras: Mapping[TaskKey, float | None],
     ) -> None:
         """Append one snapshot (a row per task) to the timeline."""
         for key in self.task_keys:

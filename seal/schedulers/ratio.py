@@ -13,7 +13,7 @@ collects every epoch).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal
 
@@ -143,7 +143,7 @@ class RatioScheduler(Scheduler):
     def __init__(
         self,
         env_tasks: Mapping[str, Sequence[str]],
-        fractions_at: Any,
+        fractions_at: Callable[[int], dict[str, float]],
         collect: CollectMode = "all",
         label: str = "ratio",
         absent: Mapping[str, int] | None = None,
