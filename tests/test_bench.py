@@ -4,14 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from seal.bench import (
-    UpdateShape,
-    bench_collection,
-    flop_formula_check,
-    format_table,
-    gemm_flops,
-    ideal_update_gemms,
-)
+from seal.bench.collection import bench_collection
+from seal.bench.flops import UpdateShape, flop_formula_check, gemm_flops, ideal_update_gemms
+from seal.bench.suite import format_table
 from seal.cli.main import main
 from seal.learner import collection
 
@@ -34,7 +29,7 @@ def test_flop_formula_equals_flop_counter_on_our_update() -> None:
 
 
 def test_seal_update_flop_formula_by_hand() -> None:
-    from seal.bench import agent_update_gemms, agent_update_shapes
+    from seal.bench.flops import agent_update_gemms, agent_update_shapes
     from seal.learner import AgentConfig, EnvSpec
 
     # SEAL, obs 2, act 1, one task without one-hot, translator (3,) -> latent 3 -> trunk (3,),
@@ -58,7 +53,7 @@ def test_seal_update_flop_formula_by_hand() -> None:
 
 @pytest.mark.parametrize("critic_sharing", ["per_env", "shared"])
 def test_seal_flop_formula_equals_flop_counter_on_a_seal_update(critic_sharing: str) -> None:
-    from seal.bench import agent_flop_formula_check
+    from seal.bench.flops import agent_flop_formula_check
     from seal.learner import AgentConfig, EnvSpec
 
     config = AgentConfig(
@@ -114,7 +109,7 @@ def test_unknown_benchmark_key_is_a_one_line_user_error(capsys: pytest.CaptureFi
 
 
 def test_ratio_lever_bench_reports_every_mode_with_gradient_norm_ratios() -> None:
-    from seal.bench import bench_ratio_lever
+    from seal.bench.lever import bench_ratio_lever
 
     # Smoke size (2 warm-up updates, 4 per task): what is reported, not the figure itself.
     small = {

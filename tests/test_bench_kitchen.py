@@ -7,7 +7,7 @@ import dataclasses
 import pandas as pd
 import pytest
 
-from seal.bench_kitchen import ARMS, arms, format_result, run_figures, run_kitchen_bench
+from seal.bench.kitchen import ARMS, arms, format_result, run_figures, run_kitchen_bench
 from seal.errors import SealError
 from seal.protocols import load_protocol
 

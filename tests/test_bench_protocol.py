@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from seal.bench_protocol import bench_protocol
+from seal.bench.protocol import bench_protocol
 from seal.cli.main import main
 
 PROTOCOL = """

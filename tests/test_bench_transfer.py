@@ -7,7 +7,7 @@ import math
 import pandas as pd
 import pytest
 
-from seal.bench_transfer import (
+from seal.bench.transfer import (
     ARMS,
     TargetCost,
     agent_mismatches,

@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
 
     import torch
 
-    from seal.bench import BenchSettings, format_table, run_bench
+    from seal.bench.suite import BenchSettings, format_table, run_bench
     from seal.errors import SealError
 
     def log(msg: str) -> None:
@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     if args.arms and args.learn not in ("transfer", "kitchen"):
         raise SealError("--arms only applies to --learn transfer and --learn kitchen")
     if args.learn == "kitchen":
-        from seal.bench_kitchen import format_result, run_kitchen_bench
+        from seal.bench.kitchen import format_result, run_kitchen_bench
 
         result = run_kitchen_bench(
             seeds=2 if args.seeds is None else args.seeds,
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(result, indent=2, default=float) if args.json else format_result(result))
         return 0
     if args.protocol is not None:
-        from seal.bench_protocol import bench_protocol, format_protocol_bench
+        from seal.bench.protocol import bench_protocol, format_protocol_bench
 
         if args.threads is not None:
             torch.set_num_threads(max(1, args.threads))
@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(result, indent=2) if args.json else format_protocol_bench(result))
         return 0
     if args.learn == "transfer":
-        from seal.bench_transfer import format_result, run_transfer_bench
+        from seal.bench.transfer import format_result, run_transfer_bench
 
         result = run_transfer_bench(
             full=args.full,

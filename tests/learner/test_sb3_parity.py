@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from seal.bench import SB3_ACT_DIM, SB3_OBS_DIM, _rel, _twin_sacs
+from seal.bench.sb3 import SB3_ACT_DIM, SB3_OBS_DIM, _rel, _twin_sacs
 
 pytest.importorskip("stable_baselines3")
 

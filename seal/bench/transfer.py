@@ -33,7 +33,7 @@ import pandas as pd
 from seal.errors import SealError, UnknownNameError
 from seal.metrics import DEFAULT_THRESHOLD, first_reach, format_count, format_number
 
-TESTBED = Path(__file__).resolve().parents[1] / "protocols" / "testbed"
+TESTBED = Path(__file__).resolve().parents[2] / "protocols" / "testbed"
 """The testbed's protocol files."""
 TARGET_ENV = "target"
 """The [envs.<name>] of the target in every testbed protocol."""
@@ -414,7 +414,7 @@ def run_transfer_bench(
     `reuse` takes finished runs under `out` whose resolved config is today's (`finished_run`).
     """
     from seal import load_run
-    from seal.bench import machine_load
+    from seal.bench.timing import machine_load
 
     if seeds < 1:
         raise SealError(f"--seeds must be >= 1, got {seeds}")

@@ -18,14 +18,14 @@ from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
-from seal.bench_transfer import Arm, code_versions, run_or_reuse
+from seal.bench.transfer import Arm, code_versions, run_or_reuse
 from seal.errors import SealError, UnknownNameError
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
 if TYPE_CHECKING:
     import pandas as pd
 
-KITCHEN_LEARN = Path(__file__).resolve().parents[1] / "protocols" / "kitchen_learn"
+KITCHEN_LEARN = Path(__file__).resolve().parents[2] / "protocols" / "kitchen_learn"
 """The kitchen learning protocols."""
 ENV_STEP_BUDGET = 150_000
 """Env steps per task within which each arm must reach 90% (issue 11)."""
@@ -93,7 +93,7 @@ def run_kitchen_bench(
 ) -> dict[str, Any]:
     """Run (or, with `reuse`, take finished runs of) every arm's seeds; the figures as a JSON-able dict."""
     from seal import load_run
-    from seal.bench import machine_load
+    from seal.bench.timing import machine_load
 
     if seeds < 1:
         raise SealError(f"--seeds must be >= 1, got {seeds}")

@@ -1,0 +1,250 @@
+"""`seal bench`: speed of the learner and of collection, side by side in one run, as ratios.
+
+Every figure is a ratio of two measurements taken in the same process, one after the other, so
+machine load affects both sides (the load is recorded with the results):
+
+- ``sac_vs_sb3``: gradient updates/s of our single-task SAC / stable-baselines3 SAC (widths
+  (400, 400), batch 256, CPU, same torch threads), both including replay sampling. That the two
+  compute the same update is a test (tests/learner/test_sb3_parity.py).
+- ``mt10_update_flops_fraction``: matmul FLOPs an ideal MT10 MTMHSAC update needs
+  (`ideal_update_gemms`), per second of our update, / the FLOP/s torch.mm reaches on exactly those
+  GEMM shapes. Equivalently: time of the update's GEMMs alone / time of the whole update.
+- ``small_update_flops_fraction``: the same for the quickstart's SEAL update (protocols/quickstart.toml:
+  its two envs' real sizes, 128 samples per task, 128-wide networks), always on one torch thread;
+  eager and with agent.compile side by side (the compiled figure is the headline when it compiles).
+- ``ratio_lever``: at a 90/10 data ratio, the 90% environment's share of the shared policy trunk's
+  step (`Agent.ratio_lever`) under the default ``shared_update = "weighted"``; the details list
+  every mode with the ratio of the two environments' trunk gradient norms, the weighted mode's
+  share of the raw (pre-Adam, unclipped) gradient, and the share that a noise-dominated gradient
+  allows any sample-count weighting. Not a timing.
+- ``collect_mt10_speedup`` / ``collect_fk_speedup``: env steps/s of `Collector` over the 10 tasks /
+  a plain single-process loop over envs built by the same adapter (same wrappers), with the same
+  actions; both must end on identical observations.
+
+`seal bench --learn` adds the learning evidence (MTMHSAC on `point` with and without the one-hot,
+SAC on Meta-World reach-v3); it is slow and not part of CI.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from seal.bench.collection import bench_collection
+from seal.bench.flops import (
+    agent_flop_formula_check,
+    bench_mt10_flops,
+    bench_small_update_flops,
+    flop_formula_check,
+    quickstart_setup,
+)
+from seal.bench.learn import run_learn
+from seal.bench.lever import bench_ratio_lever
+from seal.bench.sb3 import bench_sac_vs_sb3
+from seal.bench.timing import machine_load
+from seal.errors import SealError
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    """Repeat counts of `seal bench`; `quick()` is for smoke runs (numbers are noisier)."""
+
+    sac_updates: int = 200
+    """Updates per timed run of each side of sac_vs_sb3."""
+    flops_updates: int = 30
+    """Updates per timed run of the MT10 update."""
+    repeats: int = 3
+    """Timed runs of everything; the best counts."""
+    collect_episodes: int = 1
+    """Episodes of all 10 tasks per timed collection run (MT10: 5,000 env steps; kitchens: 2,800)."""
+    mt10_episode_length: int | None = None  # None: the adapter's 500
+    fk_episode_length: int | None = None  # None: the adapter's 280
+
+    @classmethod
+    def quick(cls) -> BenchSettings:
+        """Few repeats and short episodes."""
+        return cls(
+            sac_updates=40,
+            flops_updates=10,
+            repeats=1,
+            collect_episodes=1,
+            mt10_episode_length=100,
+            fk_episode_length=60,
+        )
+
+
+def run_bench(
+    settings: BenchSettings,
+    only: Sequence[str] | None = None,
+    learn: bool = False,
+    log: Callable[[str], None] = lambda _: None,
+) -> dict[str, Any]:
+    """Run the benchmarks (all, or the keys in `only`) and return one JSON-able dict."""
+    keys = (
+        "sac_vs_sb3",
+        "mt10_update_flops_fraction",
+        "small_update_flops_fraction",
+        "collect_mt10_speedup",
+        "collect_fk_speedup",
+        "ratio_lever",
+    )
+    chosen = list(only or keys)
+    unknown = [k for k in chosen if k not in keys]
+    if unknown:
+        from seal.errors import UnknownNameError
+
+        raise UnknownNameError("benchmark", unknown[0], keys)
+    out: dict[str, Any] = {
+        "load_before": machine_load(),
+        "settings": settings.__dict__,
+        "details": {},
+    }
+    if "sac_vs_sb3" in chosen:
+        log("sac_vs_sb3: timing")
+        d: Mapping[str, Any] = bench_sac_vs_sb3(settings.sac_updates, settings.repeats)
+        out["details"]["sac_vs_sb3"] = d
+        out["sac_vs_sb3"] = d["sac_vs_sb3"]
+    if "mt10_update_flops_fraction" in chosen:
+        log("mt10_update_flops_fraction")
+        out["details"]["flop_formula_check"] = flop_formula_check()
+        d = bench_mt10_flops(settings.flops_updates, settings.repeats)
+        out["details"]["mt10_update_flops"] = d
+        out["mt10_update_flops_fraction"] = d["mt10_update_flops_fraction"]
+    if "small_update_flops_fraction" in chosen:
+        log("small_update_flops_fraction")
+        try:
+            specs, config, per_task = quickstart_setup()
+        except SealError as exc:
+            out["details"]["small_update_flops"] = {"skipped": str(exc)}
+            out["small_update_flops_fraction"] = None
+        else:
+            two_tasks = [dataclasses.replace(sp, num_tasks=max(2, sp.num_tasks)) for sp in specs]
+            out["details"]["small_flop_formula_check"] = agent_flop_formula_check(
+                two_tasks, config, per_task
+            )
+            d = bench_small_update_flops(settings.flops_updates, settings.repeats)
+            out["details"]["small_update_flops"] = d
+            out["small_update_flops_fraction"] = d["small_update_flops_fraction"]
+    for key, adapter, length in (
+        ("collect_mt10_speedup", "metaworld", settings.mt10_episode_length),
+        ("collect_fk_speedup", "franka_kitchen_dense", settings.fk_episode_length),
+    ):
+        if key in chosen:
+            log(key)
+            try:
+                d = bench_collection(
+                    adapter, settings.collect_episodes, length, repeats=settings.repeats
+                )
+            except SealError as exc:
+                out["details"][key] = {"skipped": str(exc)}
+                out[key] = None
+                continue
+            out["details"][key] = d
+            out[key] = d["speedup"]
+    if "ratio_lever" in chosen:
+        log("ratio_lever")
+        d = bench_ratio_lever()
+        out["details"]["ratio_lever"] = d
+        out["ratio_lever"] = d["ratio_lever"]
+    if learn:
+        out["learn"] = run_learn(log)
+    out["load_after"] = machine_load()
+    return out
+
+
+GOALS = {
+    "sac_vs_sb3": 1.3,
+    "mt10_update_flops_fraction": 0.75,
+    "small_update_flops_fraction": 0.6,
+    "collect_mt10_speedup": 1.7,
+    "collect_fk_speedup": 1.7,
+    "ratio_lever": 0.8,
+}
+
+
+def _small_detail(small: Mapping[str, Any], check: Mapping[str, Any]) -> str:
+    parts = []
+    for name, p in small["paths"].items():
+        text = f"{name} {p['small_update_flops_fraction']:.2f} ({p['update_s'] * 1e3:.1f} ms, {p['update_gflops']:.1f} GFLOP/s"
+        if name == "compiled":
+            diff = max(p["loss_max_rel_diff"].values())
+            text += f"; compiled {p['compile_seconds']:.0f} s; losses vs eager {diff:.0e} rel"
+            if not p["compiled"]:
+                text += "; FELL BACK TO EAGER"
+        parts.append(text + ")")
+    return (
+        f"{small['headline_path']} shown; {', '.join(parts)}; mm {small['matmul_gflops_same_shapes']:.1f} GFLOP/s, "
+        f"{small['ideal_flops_per_update'] / 1e6:.0f} MFLOP, 1 thread; formula==FlopCounter: {check['equal']}"
+    )
+
+
+def format_table(result: Mapping[str, Any]) -> str:
+    """The human-readable summary of `run_bench` output."""
+    lines = [f"{'key':<28} {'value':>8} {'goal':>7}  detail", "-" * 90]
+    d = result["details"]
+    detail = {
+        "sac_vs_sb3": lambda: (
+            f"ours {d['sac_vs_sb3']['ours_updates_per_s']:.1f}/s ({d['sac_vs_sb3'].get('ours_gflops', 0):.1f} GFLOP/s), "
+            f"sb3 {d['sac_vs_sb3']['sb3_updates_per_s']:.1f}/s ({d['sac_vs_sb3'].get('sb3_gflops', 0):.1f} GFLOP/s); "
+            f"sb3/ours FLOPs {d['sac_vs_sb3'].get('flops_ratio_sb3_over_ours', float('nan')):.2f}"
+        ),
+        "mt10_update_flops_fraction": lambda: (
+            f"update {d['mt10_update_flops']['update_gflops']:.1f} GFLOP/s, mm {d['mt10_update_flops']['matmul_gflops_same_shapes']:.1f} GFLOP/s "
+            f"({d['mt10_update_flops']['update_s'] * 1e3:.1f} ms/update); formula==FlopCounter: {d['flop_formula_check']['equal']}"
+        ),
+    }
+    small = d.get("small_update_flops", {})
+    if "skipped" in small:
+        detail["small_update_flops_fraction"] = lambda: f"skipped: {small['skipped']}"
+    elif small:
+        detail["small_update_flops_fraction"] = lambda: _small_detail(
+            small, d["small_flop_formula_check"]
+        )
+    if "ratio_lever" in d:
+        detail["ratio_lever"] = lambda: (
+            "; ".join(
+                f"{mode} {m['lever']:.2f} (|g_A|/|g_B| {m['grad_norm_ratio_a_over_b']:.2f})"
+                for mode, m in d["ratio_lever"]["modes"].items()
+            )
+            + f"; {d['ratio_lever']['ratio']:.0%} of the batch from A, after {d['ratio_lever']['warmup_updates']} updates"
+            + (
+                f"; weighted raw-gradient share {d['ratio_lever']['gradient_lever']:.2f}"
+                if "gradient_lever" in d["ratio_lever"]
+                else ""
+            )
+            + f", pure-noise ceiling {d['ratio_lever']['noise_ceiling']:.2f}"
+        )
+    for key in ("collect_mt10_speedup", "collect_fk_speedup"):
+        if key in d and "backends" in d[key]:
+            c = d[key]
+            parts = ", ".join(
+                f"{b} {v['steps_per_s']:.0f} (x{v['speedup']:.2f})"
+                for b, v in c["backends"].items()
+            )
+            detail[key] = lambda c=c, parts=parts: (
+                f"plain {c['plain_steps_per_s']:.0f} steps/s; {parts}; auto={c['auto_backend']}; same final obs"
+            )
+        elif key in d:
+            detail[key] = lambda k=key: f"skipped: {d[k]['skipped']}"
+    for key, goal in GOALS.items():
+        if key not in result:
+            continue
+        value = result[key]
+        shown = "n/a" if value is None else f"{value:.2f}"
+        lines.append(f"{key:<28} {shown:>8} {'>=' + str(goal):>7}  {detail[key]()}")
+    load = result["load_before"]
+    lines.append(
+        f"load before: {load['loadavg_1m']} (1 min) on {load['cpus']} CPUs, torch threads {load['torch_threads']}; after: {result['load_after']['loadavg_1m']}"
+    )
+    if "learn" in result:
+        learn = result["learn"]
+        for key in ("point_mtmhsac", "point_no_one_hot", "reach_v3_sac"):
+            r = learn[key]
+            lines.append(
+                f"{key}: success {r['success']}; {r['env_steps']} env steps, {r['gradient_updates']} updates, {r['wall_s']:.0f} s"
+            )
+        lines.append(f"point_random: {learn['point_random']}")
+        lines.append(f"checks: {learn['checks']}")
+    return "\n".join(lines)
