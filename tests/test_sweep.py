@@ -20,17 +20,10 @@ import pytest
 
 from seal.errors import ConfigError, SealError
 from seal.protocols import load_protocol
-from seal.sweep import (
-    TrialRecord,
-    count_trials,
-    is_finished,
-    parse_resources,
-    parse_search,
-    rank_trials,
-    read_evaluations,
-    sample_overrides,
-    with_overrides,
-)
+from seal.sweep.ray_session import parse_resources
+from seal.sweep.samples import count_trials, parse_search, sample_overrides, with_overrides
+from seal.sweep.tables import rank_trials
+from seal.sweep.trials import TrialRecord, is_finished, read_evaluations
 
 TINY = """
 [protocol]
@@ -179,7 +172,7 @@ def test_resources_table(tmp_path: Path) -> None:
 
 
 def test_evaluations_per_run_sets_ashas_horizon(tmp_path: Path) -> None:
-    from seal.sweep import evaluation_horizon, evaluations_per_run
+    from seal.sweep.samples import evaluation_horizon, evaluations_per_run
 
     # 20 epochs, interval 10: evaluations at 10 and 20 -> 2; 25 epochs: 10, 20 and the last (25) -> 3.
     assert evaluations_per_run(load_protocol(write_protocol(tmp_path))) == 2
@@ -285,7 +278,7 @@ def test_cli_mistakes_are_one_line_errors(
 
 
 def test_a_search_space_the_schema_rejects_fails_at_load_without_ray(tmp_path: Path) -> None:
-    from seal.sweep import search
+    from seal.sweep.search import search
 
     # A learning rate of exactly 0 is not a valid Adam rate. The whole search space is checked
     # when the protocol loads (each searched value at the ends of its distribution), so the
@@ -335,7 +328,7 @@ def tune_draws(tmp_path: Path, seed: int) -> list[dict[str, object]]:
     """The configs Ray Tune draws for SEARCH_SPACE with `seed`, by sample index (a trial that only reports)."""
     from ray import tune
 
-    from seal.sweep import plain_sample, search_algorithm, search_space, trial_index
+    from seal.sweep.samples import plain_sample, search_algorithm, search_space, trial_index
 
     spec = parse_search(
         load_protocol(
@@ -410,7 +403,7 @@ def test_two_seeds_give_two_run_dirs_and_one_table(
 
 
 def test_search_ranks_the_config_that_cannot_learn_last(ray_session, tmp_path: Path) -> None:  # noqa: ANN001
-    from seal.sweep import search
+    from seal.sweep.search import search
 
     extra = """
     [search]
@@ -445,7 +438,7 @@ def test_search_ranks_the_config_that_cannot_learn_last(ray_session, tmp_path: P
 def test_resume_runs_the_pending_samples_as_drawn_and_keeps_finished_ones(
     ray_session, tmp_path: Path
 ) -> None:  # noqa: ANN001
-    from seal.sweep import search
+    from seal.sweep.search import search
 
     extra = """
     [search]
@@ -486,7 +479,7 @@ def test_resume_runs_the_pending_samples_as_drawn_and_keeps_finished_ones(
 
 
 def test_failing_sample_is_recorded_while_the_others_finish(ray_session, tmp_path: Path) -> None:  # noqa: ANN001
-    from seal.sweep import search
+    from seal.sweep.search import search
 
     # init_alpha = 1e300 makes the first update's losses inf/NaN: "training diverged".
     extra = """
@@ -513,7 +506,7 @@ def test_failing_sample_is_recorded_while_the_others_finish(ray_session, tmp_pat
 def test_failing_trial_is_reported_others_complete_and_resume_keeps_finished(
     ray_session, tmp_path: Path
 ) -> None:  # noqa: ANN001
-    from seal.sweep import sweep
+    from seal.sweep.grid import sweep
 
     good = write_protocol(tmp_path, "good")
     # init_alpha = 1e300 makes the entropy term infinite: the first update's losses are inf/NaN
@@ -542,7 +535,7 @@ def test_failing_trial_is_reported_others_complete_and_resume_keeps_finished(
 
 
 def test_resume_of_a_missing_sweep_dir_is_a_user_error(tmp_path: Path) -> None:
-    from seal.sweep import sweep
+    from seal.sweep.grid import sweep
 
     with pytest.raises(SealError, match="not a sweep directory"):
         sweep(resume=tmp_path)

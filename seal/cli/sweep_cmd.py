@@ -98,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the sweep or search; exit 1 when a trial failed or did not finish (everything is still written)."""
     from seal.cli.run_cmd import parse_seeds
     from seal.errors import SealError
-    from seal.sweep import search, sweep
+    from seal.sweep.grid import sweep
+    from seal.sweep.search import search
 
     def say(message: str) -> None:
         print(f"seal sweep: {message}", file=sys.stderr, flush=True)

@@ -1,0 +1,190 @@
+"""`seal sweep FILE... [--seeds 0-4]`: every (protocol, seed) pair as its own Ray task.
+
+`sweep` makes (or, with `--resume`, re-reads) the sweep directory, sends each unfinished trial to
+Ray as one `execute_trial` task, records each trial in sweep.json as it ends, and then writes the
+trials table and the aggregated `seal report` tables of the finished runs.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from seal.errors import SealError
+from seal.protocols.config import ProtocolConfig
+from seal.protocols.loader import config_to_dict, dumps_toml, load_protocol
+from seal.protocols.rundir import new_group_id, seed_dir
+from seal.sweep.manifest import (
+    SweepResult,
+    _command,
+    _load_configs,
+    _now,
+    _save_configs,
+    _saved_config_path,
+    _write_manifest,
+    read_manifest,
+)
+from seal.sweep.ray_session import RaySession, check_address, check_feasible, parse_resources
+from seal.sweep.tables import _aggregate, _write_trials_table
+from seal.sweep.trials import TrialRecord, _outcome, _write_error, execute_trial, is_finished
+
+
+def _resume_sweep(
+    sweep_dir: Path,
+) -> tuple[dict[str, Any], list[TrialRecord], dict[str, ProtocolConfig]]:
+    """(manifest, trials, configs by name) of an earlier sweep directory."""
+    manifest = read_manifest(sweep_dir)
+    if manifest.get("kind") != "sweep":
+        raise SealError(
+            f"--resume {sweep_dir}: this is a {manifest.get('kind')!r} directory; resume it with --search"
+        )
+    trials = manifest["trials"]
+    configs = {
+        name: load_protocol(_saved_config_path(sweep_dir, name))
+        for name in dict.fromkeys(t.protocol for t in trials)
+    }
+    for t in trials:
+        t.wall_s = 0.0
+    return manifest, trials, configs
+
+
+def _new_sweep(
+    paths: Sequence[str | Path],
+    seeds: Sequence[int] | None,
+    overrides: Sequence[str],
+    scale: float | None,
+    out: str | Path,
+    command: Sequence[str],
+) -> tuple[Path, dict[str, Any], list[TrialRecord], dict[str, ProtocolConfig]]:
+    """(sweep directory, manifest, trials, configs by name) of a new sweep, its groups created."""
+    from seal.protocols.runner import new_group_dir
+
+    loaded = _load_configs(paths, overrides, scale)
+    groups = {c.name: new_group_dir(c, out).resolve() for c in loaded}
+    if len(loaded) == 1:
+        sweep_dir = groups[loaded[0].name]
+    else:
+        stamp = new_group_id(json.dumps([dumps_toml(config_to_dict(c)) for c in loaded]))
+        sweep_dir = Path(out).resolve() / "sweeps" / stamp
+    trials = [
+        TrialRecord(
+            trial=f"{c.name}/seed-{s}",
+            protocol=c.name,
+            seed=s,
+            run_dir=str(seed_dir(groups[c.name], s)),
+        )
+        for c in loaded
+        for s in dict.fromkeys(seeds if seeds is not None else c.seeds)
+    ]
+    sweep_dir.mkdir(parents=True, exist_ok=True)
+    for group in groups.values():
+        group.mkdir(parents=True, exist_ok=True)
+    _save_configs(sweep_dir, loaded)
+    manifest = {
+        "created": _now(),
+        "command": " ".join(command),
+        "protocols": [str(p) for p in paths],
+        "groups": {n: str(g) for n, g in groups.items()},
+    }
+    return sweep_dir, manifest, trials, {c.name: c for c in loaded}
+
+
+def _run_trials(
+    ray: Any,
+    configs: Mapping[str, ProtocolConfig],
+    trials: list[TrialRecord],
+    save: Callable[[], None],
+    command: Sequence[str],
+    say: Callable[[str], None],
+) -> None:
+    """Each unfinished trial as its own Ray task; `trials` updated and `save`d as they end."""
+    remote = ray.remote(execute_trial)
+    pending: dict[Any, TrialRecord] = {}
+    for record in trials:
+        if is_finished(record.run_dir):  # resume: a finished run is not sent to Ray at all
+            record.start, record.status = "kept", "finished"
+            record.refresh()
+            continue
+        res = parse_resources(configs[record.protocol])
+        task = remote.options(
+            num_cpus=res.cpus,
+            num_gpus=res.gpus,
+            max_retries=0,
+            name=f"seal-sweep:{record.trial}",
+        )
+        pending[
+            task.remote(configs[record.protocol], record, threads=res.threads, command=command)
+        ] = record
+    done_count, total = len(trials) - len(pending), len(trials)
+    try:
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            ref = ready[0]
+            record = pending.pop(ref)
+            try:
+                result: TrialRecord = ray.get(ref)
+                trials[trials.index(record)] = result
+                record = result
+            except Exception as exc:  # noqa: BLE001 - a crashed worker is this trial's failure
+                record.status, record.error = "failed", _write_error(Path(record.run_dir), exc)
+                record.refresh()
+            done_count += 1
+            say(f"[{done_count}/{total}] {record.trial}: {_outcome(record)}")
+            save()
+    except KeyboardInterrupt:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        save()
+        raise
+
+
+def sweep(
+    paths: Sequence[str | Path] = (),
+    *,
+    seeds: Sequence[int] | None = None,
+    overrides: Sequence[str] = (),
+    scale: float | None = None,
+    out: str | Path = "reports",
+    address: str | None = None,
+    num_cpus: int | None = None,
+    resume: str | Path | None = None,
+    command: Sequence[str] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> SweepResult:
+    """Run every (protocol, seed) pair as its own Ray task; each writes the run directory `seal run` writes.
+
+    `seeds` default to each protocol's own. All seeds of a protocol go into one new group
+    `<out>/<protocol>/<group-id>/`. `resume` continues an earlier sweep directory instead (paths,
+    seeds, overrides and scale are then taken from it). Failing trials are recorded, not raised.
+    """
+    command = _command(command)
+    check_address(address)
+    if resume is not None:
+        sweep_dir = Path(resume)
+        manifest, trials, configs = _resume_sweep(sweep_dir)
+    else:
+        sweep_dir, manifest, trials, configs = _new_sweep(
+            paths, seeds, overrides, scale, out, command
+        )
+    extra = {k: v for k, v in manifest.items() if k not in ("kind", "trials")}
+    say = progress or (lambda _msg: None)
+
+    def save() -> None:
+        _write_manifest(sweep_dir, "sweep", trials, extra)
+
+    save()
+    say(f"sweep directory: {sweep_dir}")
+    with RaySession(address, num_cpus) as ray:
+        for config in configs.values():
+            check_feasible(ray, config, parse_resources(config))
+        _run_trials(ray, configs, trials, save, command, say)
+
+    notes: list[str] = []
+    trials_table = _write_trials_table(sweep_dir / "trials", trials, ranked=False)
+    table = _aggregate(sweep_dir, trials, notes) or trials_table
+    save()
+    return SweepResult(
+        sweep_dir=sweep_dir, trials=trials, table=table, trials_table=trials_table, notes=notes
+    )

@@ -1,0 +1,119 @@
+"""The Ray side of a sweep: what each trial asks of Ray, and the Ray connection.
+
+`parse_resources` reads the protocol's [resources] table, `RaySession` starts a private local Ray
+or joins a cluster (and shuts down only what it started), and `check_address` / `check_feasible`
+fail early with a SealError where Ray itself would retry or wait forever. Ray is imported only by
+`import_ray`, when a session opens.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from seal.errors import SealError
+from seal.protocols import sweep_tables
+from seal.protocols.config import ProtocolConfig
+from seal.protocols.sweep_tables import Resources
+
+
+def parse_resources(config: ProtocolConfig) -> Resources:
+    """The protocol's [resources] table (already checked when it loaded)."""
+    return sweep_tables.parse_resources(config.resources, config.path)
+
+
+class RaySession:
+    """`with RaySession(address):` a Ray connection; shut down on exit only if this opened it.
+
+    address None starts a private local Ray in this process's machine (address="local", never an
+    unrelated cluster found through RAY_ADDRESS); "auto" or "HOST:PORT" joins an existing cluster.
+    If Ray is already initialised (e.g. by a test fixture or a notebook), that session is used.
+    """
+
+    def __init__(self, address: str | None = None, num_cpus: int | None = None) -> None:
+        self.address = address
+        self.num_cpus = num_cpus
+        self.started = False
+
+    def __enter__(self) -> Any:
+        ray = import_ray()
+        if ray.is_initialized():
+            return ray
+        kwargs: dict[str, Any] = {
+            "include_dashboard": False,
+            "log_to_driver": False,
+            "logging_level": "warning",
+        }
+        if self.address is None:
+            # Ray counts the machine's CPUs itself (cgroup limits included) unless told otherwise.
+            kwargs.update(address="local", **({"num_cpus": self.num_cpus} if self.num_cpus else {}))
+        else:
+            kwargs["address"] = self.address
+        try:
+            ray.init(**kwargs)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            where = (
+                "a local Ray"
+                if self.address is None
+                else f"the Ray cluster at --address {self.address}"
+            )
+            hint = (
+                ""
+                if self.address is None
+                else " (start it with `ray start --head` on the head node, or drop --address for a local Ray; "
+                "if the cluster uses token authentication, set RAY_AUTH_MODE=token and RAY_AUTH_TOKEN to the "
+                "token `ray get-auth-token` prints on the head node)"
+            )
+            raise SealError(f"cannot start or join {where}: {exc}{hint}") from None
+        self.started = True
+        return ray
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.started:
+            import_ray().shutdown()
+
+
+def check_feasible(ray: Any, config: ProtocolConfig, res: Resources) -> None:
+    """SealError when no node could ever hold one trial (Ray would otherwise wait forever)."""
+    total = ray.cluster_resources()
+    for key, name, asked in (("CPU", "cpus", res.cpus), ("GPU", "gpus", res.gpus)):
+        have = float(total.get(key, 0.0))
+        if asked > have:
+            raise SealError(
+                f"{config.path}: resources.{name} = {asked:g} per trial, but the Ray cluster has {have:g} {key}s in all; "
+                f"lower resources.{name}, start the local Ray with more (--num-cpus), or join a bigger cluster (--address)"
+            )
+
+
+def check_address(address: str | None, timeout_s: float = 5.0) -> None:
+    """SealError unless something listens at a HOST:PORT --address (Ray itself would retry for minutes).
+
+    None (local Ray), "auto", "local" and "ray://" client addresses are left to Ray.
+    """
+    if address is None or address in ("auto", "local") or "://" in address:
+        return
+    host, sep, port = address.rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise SealError(
+            f"--address {address!r}: expected auto or HOST:PORT, e.g. 10.0.0.1:6379 (the address `ray start --head` printed)"
+        )
+    import socket
+
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout_s):
+            pass
+    except OSError as exc:
+        raise SealError(
+            f"--address {address}: no Ray cluster answers there ({exc.strerror or exc}); start one with "
+            f"`ray start --head --port={port}` on that node, or drop --address to use a local Ray"
+        ) from None
+
+
+def import_ray() -> Any:
+    """The `ray` module, or SealError saying how to install it."""
+    try:
+        import ray
+    except ImportError:
+        raise SealError(
+            "seal sweep needs Ray: pip install 'seal[ray]' (or pip install 'ray[tune]')"
+        ) from None
+    return ray
