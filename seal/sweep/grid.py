@@ -10,7 +10,8 @@ from __future__ import annotations
 import json
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 from seal.errors import SealError
 from seal.protocols.config import ProtocolConfig
@@ -29,6 +30,9 @@ from seal.sweep.manifest import (
 from seal.sweep.ray_session import RaySession, check_address, check_feasible, parse_resources
 from seal.sweep.tables import _aggregate, _write_trials_table
 from seal.sweep.trials import TrialRecord, _outcome, _write_error, execute_trial, is_finished
+
+if TYPE_CHECKING:  # Ray is imported only where it is used (see the package docstring)
+    from ray import ObjectRef
 
 
 def _resume_sweep(
@@ -92,7 +96,7 @@ def _new_sweep(
 
 
 def _run_trials(
-    ray: Any,
+    ray: ModuleType,
     configs: Mapping[str, ProtocolConfig],
     trials: list[TrialRecord],
     save: Callable[[], None],
@@ -101,7 +105,7 @@ def _run_trials(
 ) -> None:
     """Each unfinished trial as its own Ray task; `trials` updated and `save`d as they end."""
     remote = ray.remote(execute_trial)
-    pending: dict[Any, TrialRecord] = {}
+    pending: dict[ObjectRef[TrialRecord], TrialRecord] = {}
     for record in trials:
         if is_finished(record.run_dir):  # resume: a finished run is not sent to Ray at all
             record.start, record.status = "kept", "finished"

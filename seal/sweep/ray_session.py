@@ -8,6 +8,7 @@ fail early with a SealError where Ray itself would retry or wait forever. Ray is
 
 from __future__ import annotations
 
+from types import ModuleType
 from typing import Any
 
 from seal.errors import SealError
@@ -34,7 +35,7 @@ class RaySession:
         self.num_cpus = num_cpus
         self.started = False
 
-    def __enter__(self) -> Any:
+    def __enter__(self) -> ModuleType:
         ray = import_ray()
         if ray.is_initialized():
             return ray
@@ -67,12 +68,12 @@ class RaySession:
         self.started = True
         return ray
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         if self.started:
             import_ray().shutdown()
 
 
-def check_feasible(ray: Any, config: ProtocolConfig, res: Resources) -> None:
+def check_feasible(ray: ModuleType, config: ProtocolConfig, res: Resources) -> None:
     """SealError when no node could ever hold one trial (Ray would otherwise wait forever)."""
     total = ray.cluster_resources()
     for key, name, asked in (("CPU", "cpus", res.cpus), ("GPU", "gpus", res.gpus)):
@@ -108,7 +109,7 @@ def check_address(address: str | None, timeout_s: float = 5.0) -> None:
         ) from None
 
 
-def import_ray() -> Any:
+def import_ray() -> ModuleType:
     """The `ray` module, or SealError saying how to install it."""
     try:
         import ray

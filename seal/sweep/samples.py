@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 from seal.errors import ConfigError, SealError
@@ -21,6 +21,7 @@ from seal.protocols.sweep_tables import SEARCH_OPTIONS, Distribution, SearchSpec
 
 if TYPE_CHECKING:  # Ray is imported only where it is used (see the package docstring)
     from ray.tune.search.basic_variant import BasicVariantGenerator
+    from ray.tune.search.sample import Domain
 
 
 def parse_search(config: ProtocolConfig, num_samples: int | None = None) -> SearchSpec:
@@ -65,7 +66,7 @@ def describe_sample(sample: Mapping[str, Any]) -> str:
     return ", ".join(parts)
 
 
-def search_space(spec: SearchSpec) -> dict[str, Any]:
+def search_space(spec: SearchSpec) -> dict[str, Domain | dict[str, Iterable[object]]]:
     """The [search] table as Tune's param_space: each "table.key" to its Tune distribution."""
     return {p.key: p.tune_domain() for p in spec.params}
 
