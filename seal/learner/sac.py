@@ -44,7 +44,7 @@ import math
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -128,18 +128,38 @@ def _step_counters(states: Sequence[dict[str, torch.Tensor]]) -> torch.Tensor:
     return flat
 
 
-def _adam_step(optimizers: Sequence[torch.optim.Optimizer]) -> None:
-    """`step()` of each of these fused Adams, done as one `torch._fused_adam_` call per setting.
+class _AdamPlan(NamedTuple):
+    """One `torch._fused_adam_` call's fixed arguments: parameters and states of one setting."""
 
-    The same kernel and arithmetic as Adam(fused=True).step(), without its per-call grouping
-    and checks (~0.2 ms a call on CPU; an update steps 3-4 optimisers). Parameters without a
-    gradient are left alone, as Adam does. Falls back to plain step() for a first step (no
-    state yet) or any setting this does not cover (amsgrad, weight decay, maximize, ...).
-    """
+    lr: float
+    betas: tuple[float, float]
+    eps: float
+    positions: list[int]  # where these parameters' gradients sit in the step's gradient list
+    params: list[torch.Tensor]
+    exp_avgs: list[torch.Tensor]
+    exp_avg_sqs: list[torch.Tensor]
+    counters: torch.Tensor  # every `step` as a view of this one tensor (`_step_counters`)
+    steps: list[torch.Tensor]
+
+
+def _adam_token(optimizers: Sequence[torch.optim.Optimizer]) -> tuple[object, ...]:
+    """What an `_AdamPlan` of these optimisers depends on: their state dicts and learning rates
+    (load_state_dict replaces `state`; a first step fills it; set_lr_factor changes `lr`)."""
+    return tuple(
+        (id(o.state), len(o.state), *(g["lr"] for g in o.param_groups)) for o in optimizers
+    )
+
+
+def _adam_plans(
+    optimizers: Sequence[torch.optim.Optimizer], num_grads: int
+) -> list[_AdamPlan] | None:
+    """The fused calls stepping `optimizers` as Adam(fused=True).step() would, grouped by
+    setting; None when a setting is not covered (amsgrad, weight decay, maximize, ...), a
+    parameter has no state yet (a first step), or torch has no `_fused_adam_`."""
     if not hasattr(torch, "_fused_adam_"):  # a private op: a torch without it steps plainly
-        return _plain_steps(optimizers)
-    calls: dict[tuple[float, float, float, float], list[list[torch.Tensor]]] = {}
-    states: dict[tuple[float, float, float, float], list[dict[str, torch.Tensor]]] = {}
+        return None
+    by_setting: dict[tuple[float, float, float, float], list[tuple[int, torch.Tensor, dict]]] = {}
+    position = 0
     for optimizer in optimizers:
         for group in optimizer.param_groups:
             if (
@@ -152,51 +172,104 @@ def _adam_step(optimizers: Sequence[torch.optim.Optimizer]) -> None:
                 or group["differentiable"]
                 or not isinstance(group["lr"], float)
             ):
-                return _plain_steps(optimizers)
+                return None
             beta1, beta2 = group["betas"]
             key = (group["lr"], float(beta1), float(beta2), float(group["eps"]))
-            lists = calls.setdefault(key, [[], [], [], [], []])
-            group_states = states.setdefault(key, [])
             for p in group["params"]:
-                if p.grad is None:
-                    continue
                 state = optimizer.state.get(p)
                 if not state:
-                    return _plain_steps(optimizers)
-                for out, t in zip(
-                    lists[:4], (p, p.grad, state["exp_avg"], state["exp_avg_sq"]), strict=True
-                ):
-                    out.append(t)
-                group_states.append(state)
-    for key, (params, grads, exp_avgs, exp_avg_sqs, steps) in calls.items():
-        if not params:
-            continue
-        lr, beta1, beta2, eps = key
-        counters = _step_counters(states[key])
-        counters.add_(1)
-        steps.extend(counters.unbind())
+                    return None
+                by_setting.setdefault(key, []).append((position, p, state))
+                position += 1
+    if position != num_grads:
+        raise ValueError(f"{num_grads} gradients for {position} optimised parameters")
+    plans = []
+    for (lr, beta1, beta2, eps), members in by_setting.items():
+        states = [state for _, _, state in members]
+        counters = _step_counters(states)
+        plans.append(
+            _AdamPlan(
+                lr=lr,
+                betas=(beta1, beta2),
+                eps=eps,
+                positions=[i for i, _, _ in members],
+                params=[p for _, p, _ in members],
+                exp_avgs=[state["exp_avg"] for state in states],
+                exp_avg_sqs=[state["exp_avg_sq"] for state in states],
+                counters=counters,
+                steps=list(counters.unbind()),
+            )
+        )
+    return plans
+
+
+def _adam_step(
+    optimizers: Sequence[torch.optim.Optimizer],
+    grads: Sequence[torch.Tensor | None],
+    cache: dict[tuple[int, ...], tuple[tuple[object, ...], list[_AdamPlan]]],
+) -> None:
+    """`step()` of each of these fused Adams on `grads` (one per parameter, in the optimisers'
+    order), done as one `torch._fused_adam_` call per setting.
+
+    The same kernel and arithmetic as Adam(fused=True).step(), without its per-call grouping
+    and checks (~0.2 ms a call on CPU; an update steps 3-4 optimisers): the calls' lists are
+    built once and kept in `cache` while the optimisers' states and learning rates stay the
+    same (`_adam_token`). A parameter whose gradient is None is left alone, as Adam does. Falls
+    back to setting `.grad` and plain step() where `_adam_plans` does not cover the optimisers.
+    """
+    key = tuple(id(o) for o in optimizers)
+    token = _adam_token(optimizers)
+    cached = cache.get(key)
+    if cached is not None and cached[0] == token:
+        plans: list[_AdamPlan] | None = cached[1]
+    else:
+        plans = _adam_plans(optimizers, len(grads))
+        if plans is None:
+            params = [p for o in optimizers for g in o.param_groups for p in g["params"]]
+            for p, g in zip(params, grads, strict=True):
+                p.grad = g
+            for optimizer in optimizers:
+                optimizer.step()
+            return
+        cache[key] = (token, plans)
+    for plan in plans:
+        plan_grads = [grads[i] for i in plan.positions]
+        params, exp_avgs, exp_avg_sqs, steps = (
+            plan.params,
+            plan.exp_avgs,
+            plan.exp_avg_sqs,
+            plan.steps,
+        )
+        if any(g is None for g in plan_grads):
+            kept = [i for i, g in enumerate(plan_grads) if g is not None]
+            if not kept:
+                continue
+            params, exp_avgs, exp_avg_sqs, steps = (
+                [x[i] for i in kept] for x in (params, exp_avgs, exp_avg_sqs, steps)
+            )
+            for i, step in enumerate(plan.steps):
+                if plan_grads[i] is not None:
+                    step.add_(1)
+            plan_grads = [plan_grads[i] for i in kept]
+        else:
+            plan.counters.add_(1)
         torch._fused_adam_(
             params,
-            grads,
+            plan_grads,
             exp_avgs,
             exp_avg_sqs,
             [],
             steps,
             amsgrad=False,
-            lr=lr,
-            beta1=beta1,
-            beta2=beta2,
+            lr=plan.lr,
+            beta1=plan.betas[0],
+            beta2=plan.betas[1],
             weight_decay=0.0,
-            eps=eps,
+            eps=plan.eps,
             maximize=False,
             grad_scale=None,
             found_inf=None,
         )
-
-
-def _plain_steps(optimizers: Sequence[torch.optim.Optimizer]) -> None:
-    for optimizer in optimizers:
-        optimizer.step()
 
 
 class Agent:
@@ -304,7 +377,6 @@ class Agent:
         """Path of the last checkpoint written by seal.learner.checkpoint.save_checkpoint."""
         self._initialise()
         self._compiled: dict[str, Any] = {}
-        self._compiled_keys: set[tuple[Any, ...]] = set()
         self.compile_seconds = 0.0
         """Wall seconds of the compiled stage calls that compiled (config.compile); 0 when eager."""
         if config.compile:
@@ -329,6 +401,10 @@ class Agent:
         """Fresh Adam states: one actor and one critic Adam per optimiser slot, one for temperatures."""
         # measured: fused Adam is ~8x faster than foreach on CPU here
         adam = {"fused": True, "eps": self.config.adam_eps}
+        self._adam_cache: dict[tuple[int, ...], tuple[tuple[object, ...], list[_AdamPlan]]] = {}
+        # New parameters or states may fail the compiled stages' guards: the next call of each
+        # stage key may recompile, so it traces again (`_stage`).
+        self._compiled_keys: set[tuple[Any, ...]] = set()
         self.actor_optimizers: list[torch.optim.Adam] = []
         self.critic_optimizers: list[torch.optim.Adam] = []
         self._actor_params: list[list[nn.Parameter]] = []
@@ -402,12 +478,17 @@ class Agent:
         eager = self._critic_stage if kind == "critic" else self._actor_stage
         compiled = self._compiled.get(kind)
         if compiled is not None:
-            stage, kept, _, _, weights = args
-            key = (kind, tuple(stage), tuple(kept), tuple(sorted(weights.items())))
+            stage, kept, inputs, _, weights = args
+            sizes = tuple((n, batch.obs.shape[0]) for n, (batch, *_) in inputs.items())
+            key = (kind, tuple(stage), tuple(kept), sizes, tuple(sorted(weights.items())))
             start = time.perf_counter()
             try:
-                with torch._dynamo.config.patch(trace_autograd_ops=True):
-                    out = compiled(*args)
+                if key in self._compiled_keys:
+                    out = compiled(*args)  # compiled for this key: no tracing, no config patch
+                else:
+                    # Tracing autograd.grad needs this flag; patching costs ~50 us, so only here.
+                    with torch._dynamo.config.patch(trace_autograd_ops=True):
+                        out = compiled(*args)
             except Exception as exc:  # any compiler failure means: run eager
                 import warnings
 
@@ -633,12 +714,8 @@ class Agent:
         Unused parameters have no grad, so Adam leaves them alone (`_grads` clipped them).
         """
         slots = self._slots(role, names)
-        all_params = self._actor_params if role == "actor" else self._critic_params
         optimizers = self.actor_optimizers if role == "actor" else self.critic_optimizers
-        params = [p for s in slots for p in all_params[s]]
-        for p, g in zip(params, grads, strict=True):
-            p.grad = g
-        _adam_step([optimizers[s] for s in slots])
+        _adam_step([optimizers[s] for s in slots], grads, self._adam_cache)
 
     def _inputs(
         self, batches: Mapping[str, Batch]
@@ -751,9 +828,7 @@ class Agent:
         if alpha_terms:
             alpha_loss = alpha_terms[0] if len(alpha_terms) == 1 else torch.stack(alpha_terms).sum()
             grads = torch.autograd.grad(alpha_loss, self._alpha_params, allow_unused=True)
-            for p, g in zip(self._alpha_params, grads, strict=True):
-                p.grad = g
-            _adam_step([self.alpha_optimizer])
+            _adam_step([self.alpha_optimizer], grads, self._adam_cache)
 
         # ---- target critics: Polyak averaging in place
         with torch.no_grad():

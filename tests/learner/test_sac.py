@@ -424,3 +424,33 @@ def test_compiled_update_agrees_with_eager_and_is_deterministic() -> None:
     got, want = np.array(losses["first"]), np.array(losses["eager"])
     np.testing.assert_allclose(got[0], want[0], rtol=1e-4)
     np.testing.assert_allclose(got[19], want[19], rtol=1e-3)
+
+
+def test_fused_adam_step_matches_torch_adam_with_a_missing_gradient_and_a_reload() -> None:
+    """`_adam_step` (cached fused calls) gives Adam(fused=True).step()'s parameters, bit for bit:
+    over steps where one parameter has no gradient (left alone, its step count too), after a
+    learning-rate change and after load_state_dict (the cached lists must follow the new states)."""
+    from seal.learner.sac import _adam_step
+
+    gen = torch.Generator().manual_seed(0)
+    ours = [torch.nn.Parameter(torch.randn(3, 2, generator=gen)) for _ in range(2)]
+    ref = [torch.nn.Parameter(p.detach().clone()) for p in ours]
+    opt_ours = torch.optim.Adam(ours, lr=1e-2, fused=True, eps=1e-5)
+    opt_ref = torch.optim.Adam(ref, lr=1e-2, fused=True, eps=1e-5)
+    cache: dict = {}
+    for step in range(6):
+        grads = [torch.randn(3, 2, generator=gen) for _ in range(2)]
+        if step in (2, 3):
+            grads[1] = None  # unused this step
+        if step == 4:
+            for opt in (opt_ours, opt_ref):
+                opt.param_groups[0]["lr"] = 3e-3
+                opt.load_state_dict(opt.state_dict())
+        for p, g in zip(ref, grads, strict=True):
+            p.grad = g
+        opt_ref.step()
+        _adam_step([opt_ours], grads, cache)
+        for a, b in zip(ours, ref, strict=True):
+            assert torch.equal(a, b), step
+    assert [float(opt_ours.state[p]["step"]) for p in ours] == [6.0, 4.0]
+    assert [float(opt_ref.state[p]["step"]) for p in ref] == [6.0, 4.0]
