@@ -432,6 +432,8 @@ class Agent:
                     torch.optim.Adam(owned, lr=getattr(self.config, lr) * self._lr_factor, **adam)
                 )
         self._alpha_params = list(self.log_alpha.values())
+        alpha_keys = list(self.log_alpha.keys())
+        self._alpha_slot = {n: alpha_keys.index(self._keys[n]) for n in self.specs}
         self.alpha_optimizer = torch.optim.Adam(self._alpha_params, lr=self.config.alpha_lr, **adam)
         self._online_critic = list(self.critic.parameters())
         self._target_critic = list(self.critic_target.parameters())
@@ -783,7 +785,7 @@ class Agent:
         names = list(inputs)
         stages = [names] if self.config.shared_update == "weighted" else [[n] for n in names]
         scalars: list[torch.Tensor] = []
-        alpha_terms: list[torch.Tensor] = []
+        alpha_grads: list[torch.Tensor | None] = [None] * len(self._alpha_params)
         # Eager or compiled (config.compile), each stage computes its losses and their gradients
         # (`_critic_stage`, `_actor_stage`); the optimiser steps happen here, eagerly.
         for stage in stages:
@@ -794,22 +796,17 @@ class Agent:
             if kept:
                 self._step("critic", kept, grads)
 
-            # ---- actor: with the critic just updated, as in cleanrl
+            # ---- actor and temperature: with the critic just updated, as in cleanrl
             noise = self._draw_noise(stage, inputs)
-            actor_terms, grads = self._stage("actor", stage, kept, inputs, noise, weights)
+            actor_terms, grads, kept_alpha_grads = self._stage(
+                "actor", stage, kept, inputs, noise, weights
+            )
             if kept:
                 self._step("actor", kept, grads)
-
-            # ---- temperature: one log_alpha per task, trained towards the env's target entropy
+            for name, grad in zip(kept, kept_alpha_grads, strict=True):
+                alpha_grads[self._alpha_slot[name]] = grad
             for name in stage:
-                batch, alpha, _, _ = inputs[name]
-                log_pi = actor_terms[name][1].detach()
-                env_alpha_loss = (
-                    -self.log_alpha[self._keys[name]][batch.task_ids]
-                    * (log_pi + self.target_entropy[name])
-                ).mean()
-                if name != drop:
-                    alpha_terms.append(env_alpha_loss)
+                actor_loss, log_pi, env_alpha_loss = actor_terms[name]
                 qf1, qf2, qf_a_values = critic_terms[name]
                 scalars.append(
                     torch.stack(
@@ -817,18 +814,17 @@ class Agent:
                             qf1,
                             qf2,
                             0.5 * (qf1 + qf2),
-                            actor_terms[name][0],
+                            actor_loss,
                             env_alpha_loss,
                             qf_a_values.mean(),
                             -log_pi.mean(),
                         )
-                    ).detach()
+                    )
                 )
-                scalars.append(alpha)
-        if alpha_terms:
-            alpha_loss = alpha_terms[0] if len(alpha_terms) == 1 else torch.stack(alpha_terms).sum()
-            grads = torch.autograd.grad(alpha_loss, self._alpha_params, allow_unused=True)
-            _adam_step([self.alpha_optimizer], grads, self._adam_cache)
+                scalars.append(inputs[name][1])
+        if any(g is not None for g in alpha_grads):
+            # ---- temperature: one step for every env's log_alpha, after all stages
+            _adam_step([self.alpha_optimizer], alpha_grads, self._adam_cache)
 
         # ---- target critics: Polyak averaging in place
         with torch.no_grad():
@@ -864,17 +860,33 @@ class Agent:
         inputs: Mapping[str, tuple[Batch, torch.Tensor, torch.Tensor, torch.Tensor]],
         noise: Mapping[str, torch.Tensor],
         weights: Mapping[str, float],
-    ) -> tuple[dict[str, tuple[torch.Tensor, ...]], tuple[torch.Tensor | None, ...]]:
-        """Actor losses and log-probabilities of `stage`'s envs (detached), the actor gradients of `kept`'s."""
-        terms = {
-            name: self._actor_loss(name, obs_in, batch.task_ids, alpha, noise[name])
-            for name, (batch, alpha, obs_in, _) in inputs.items()
-            if name in stage
-        }
+    ) -> tuple[
+        dict[str, tuple[torch.Tensor, ...]],
+        tuple[torch.Tensor | None, ...],
+        tuple[torch.Tensor | None, ...],
+    ]:
+        """Actor losses, log-probabilities and temperature losses of `stage`'s envs (detached), the
+        actor gradients of `kept`'s and the gradients of `kept`'s log_alpha (in `kept` order)."""
+        terms = {}
+        for name, (batch, alpha, obs_in, _) in inputs.items():
+            if name in stage:
+                actor_loss, log_pi = self._actor_loss(
+                    name, obs_in, batch.task_ids, alpha, noise[name]
+                )
+                # one log_alpha per task, trained towards the env's target entropy
+                alpha_loss = (
+                    -self.log_alpha[self._keys[name]][batch.task_ids]
+                    * (log_pi.detach() + self.target_entropy[name])
+                ).mean()
+                terms[name] = (actor_loss, log_pi, alpha_loss)
         grads: tuple[torch.Tensor | None, ...] = ()
+        alpha_grads: tuple[torch.Tensor | None, ...] = ()
         if kept:
             grads = self._grads("actor", kept, {n: terms[n][0] for n in kept}, weights)
-        return {n: tuple(t.detach() for t in ts) for n, ts in terms.items()}, grads
+            alpha_loss = torch.stack([terms[n][2] for n in kept]).sum()
+            alpha_params = [self.log_alpha[self._keys[n]] for n in kept]
+            alpha_grads = torch.autograd.grad(alpha_loss, alpha_params)
+        return {n: tuple(t.detach() for t in ts) for n, ts in terms.items()}, grads, alpha_grads
 
     # ------------------------------------------------------------------ the ratio lever
     def _clone(self) -> Agent:
