@@ -2,9 +2,10 @@
 
 `PhaseLoop` runs a phase's epochs in steps (plan, collect, train, evaluate, end of epoch,
 checkpoint) over typed parts (agent, replay, scheduler, collector) and calls its
-`LoopCallback`s: the progress bar, the TensorBoard and wandb loggers (`seal.protocols.loggers`)
-and a sweep's Ray Tune reporting.
-The `Run` that owns it (`seal.protocols.runner`) keeps the run directory and the file formats.
+`LoopCallback`s: the progress bar, the TensorBoard and wandb loggers (`seal.protocols.loggers`),
+a sweep's Ray Tune reporting and the `Checkpointer` (`seal.protocols.checkpointing`), which writes
+the checkpoints the loop calls for. The `Run` that owns it (`seal.protocols.runner`) keeps the run
+directory and registers the callbacks.
 """
 
 from __future__ import annotations
@@ -24,11 +25,13 @@ import torch
 from seal.envs.base import EnvAdapter
 from seal.errors import SealError, TrainingDivergedError
 from seal.evaluation import AgentPolicy, evaluate, mean_success, reaches
-from seal.learner.checkpoint import save_checkpoint
 from seal.protocols.config import ProtocolConfig
 
 if TYPE_CHECKING:
+    from tqdm import tqdm
+
     from seal.learner.collection import Collector
+    from seal.protocols.checkpointing import EpochCheckpoint
     from seal.protocols.runner import Run
 
 ALIGNED_ENV = "aligned"
@@ -162,10 +165,18 @@ class PhaseState:
 
 
 class LoopCallback:
-    """Hooks a `PhaseLoop` calls; subclasses override what they need (progress bar, loggers, Ray Tune)."""
+    """Hooks a `PhaseLoop` calls, in the order the callbacks were given; subclasses override what they need.
+
+    The runner registers the progress bar, the loggers (`seal.protocols.loggers`), its caller's
+    callbacks (e.g. a sweep's Ray Tune reporter) and the `Checkpointer`
+    (`seal.protocols.checkpointing`), which implements the two `write_*` hooks.
+    """
 
     def on_phase_start(self, loop: PhaseLoop) -> None:
         """Before the phase's first (or, resumed, next) epoch; metrics.csv holds what came before."""
+
+    def write_best(self, loop: PhaseLoop) -> None:
+        """After an evaluation whose mean success beats the phase's best, before any `on_evaluation`."""
 
     def on_evaluation(self, loop: PhaseLoop) -> None:
         """After each evaluation (its rows are in metrics.csv, `loop.state.last_success` holds them)."""
@@ -174,7 +185,10 @@ class LoopCallback:
         """After train.csv rows (TRAIN_COLUMNS: the mean logged values of an interval) are written."""
 
     def on_checkpoint(self, loop: PhaseLoop) -> None:
-        """Just before an epoch checkpoint is saved (loggers flush, so a resume purges exactly)."""
+        """An epoch checkpoint is due; called before it is written (loggers flush, so a resume purges exactly)."""
+
+    def write_checkpoint(self, loop: PhaseLoop) -> None:
+        """Write the due epoch checkpoint; called after every callback's `on_checkpoint`."""
 
     def on_epoch_end(self, loop: PhaseLoop) -> None:
         """After each epoch's collection, updates, evaluation and checkpoint."""
@@ -186,7 +200,11 @@ class LoopCallback:
 class ProgressBar(LoopCallback):
     """tqdm over the phase's epochs, with env steps/s, updates/s and the last success per env."""
 
-    def __init__(self, loop: PhaseLoop) -> None:
+    def __init__(self) -> None:
+        self.bar: tqdm | None = None
+        self.tick = (0.0, 0, 0)
+
+    def on_phase_start(self, loop: PhaseLoop) -> None:
         self.bar = _progress_bar(loop.phase, loop.state.epoch)
         self.tick = (time.monotonic(), loop.env_steps(), loop.state.grad_steps)
 
@@ -195,22 +213,32 @@ class ProgressBar(LoopCallback):
         then, env_then, grad_then = self.tick
         dt = max(now - then, 1e-9)
         postfix = _postfix(env_now - env_then, grad_now - grad_then, dt, loop.state.last_success)
-        self.bar.set_postfix_str(postfix, refresh=False)
-        self.bar.update(1)
+        if self.bar is not None:
+            self.bar.set_postfix_str(postfix, refresh=False)
+            self.bar.update(1)
         self.tick = (now, env_now, grad_now)
 
     def on_phase_end(self, loop: PhaseLoop) -> None:
-        self.bar.close()
+        if self.bar is not None:
+            self.bar.close()
 
 
 class PhaseLoop:
     """One phase's epochs: plan, collect, update, evaluate, checkpoint, then the callbacks.
 
     Holds the phase's parts (agent, replay, scheduler, collector) and its counters (`state`,
-    saved in every checkpoint); `run` (the `Run`) owns the run directory and the file formats.
+    saved in every checkpoint); `run` (the `Run`) owns the run directory. The loop decides when a
+    checkpoint is due (a new best evaluation; every `checkpoint.interval` epochs and the phase's
+    last) and its callbacks write it (`LoopCallback.write_best`, `write_checkpoint`).
     """
 
-    def __init__(self, run: Run, phase: Phase, payload: Mapping[str, Any] | None) -> None:
+    def __init__(
+        self,
+        run: Run,
+        phase: Phase,
+        payload: EpochCheckpoint | None,
+        callbacks: Sequence[LoopCallback] = (),
+    ) -> None:
         from seal.learner.replay import MultiTaskReplay
         from seal.learner.sac import Agent
         from seal.schedulers.base import Scheduler
@@ -255,11 +283,7 @@ class PhaseLoop:
         self.pending_logs: dict[tuple[str, ...], torch.Tensor] = {}
         """Sums on the device of the agent's log values (by name tuple) since `_read_logs`."""
         self.pending_since = self.agent.num_updates
-        self.callbacks: list[LoopCallback] = [
-            *([] if run.quiet else [ProgressBar(self)]),
-            *run.loggers,
-            *run.callbacks,
-        ]
+        self.callbacks = tuple(callbacks)
 
     def _new_collector(self, anchor: int) -> Collector:
         """The phase's env instances, seeded from (seed, phase, epoch of the last checkpoint).
@@ -526,11 +550,8 @@ class PhaseLoop:
         mean = mean_success(results)
         if mean > state.best_mean_success:
             state.best_mean_success = mean
-            save_checkpoint(
-                owner.rundir.best_path(phase.name if len(owner.phases) > 1 else None),
-                self.agent,
-                fields=owner._fields(phase, None, state, best=True),
-            )
+            for callback in self.callbacks:
+                callback.write_best(self)  # best.pt (the Checkpointer): evaluation time
         state.add_time("evaluate", since)
         for callback in self.callbacks:
             callback.on_evaluation(self)
@@ -648,13 +669,15 @@ class PhaseLoop:
         return last_epoch
 
     def _checkpoint(self, reseed: bool) -> None:
+        """An epoch checkpoint: `on_checkpoint` (loggers flush), then `write_checkpoint` (the Checkpointer)."""
         state = self.state
         state.wall_s = time.monotonic() - self.started
         state.anchor_epoch = state.epoch
         since = time.perf_counter()
         for callback in self.callbacks:
             callback.on_checkpoint(self)
-        self.owner._checkpoint(self.phase, self.agent, self.replay, self.scheduler, state)
+        for callback in self.callbacks:
+            callback.write_checkpoint(self)
         state.add_time("checkpoint", since)
         if reseed:
             # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
