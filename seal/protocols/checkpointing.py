@@ -121,7 +121,9 @@ class Checkpointer(LoopCallback):
 
     def clear_torn(self) -> None:
         """Delete the temporary files of saves cut short by a kill (their rename never happened)."""
-        for torn in self.rundir.checkpoints.glob(".*.tmp-*"):
+        folder = self.rundir.checkpoints
+        # atomic_save's .<name>.<random>.tmp, and atomic_write_text's .<name>.tmp-<pid>
+        for torn in [*folder.glob(".*.tmp"), *folder.glob(".*.tmp-*")]:
             torn.unlink(missing_ok=True)
 
     def _fields(self, loop: PhaseLoop, best: bool) -> CheckpointFields:

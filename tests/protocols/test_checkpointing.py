@@ -82,3 +82,19 @@ def test_checkpoint_fields(tmp_path: Path) -> None:
     assert set(best) == common | reserved and best["best"] is True
     assert best["replay"] is None and best["scheduler"] is None and best["runner"] is None
     assert best["mean_success"] == epoch["mean_success"]
+
+
+def test_resume_deletes_torn_checkpoint_files(tmp_path: Path) -> None:
+    from seal.learner.checkpoint import atomic_save
+
+    config = load_protocol(protocol(tmp_path, BASELINE_ENVS, kind="baseline", epochs=2))
+    run = run_seed(config, 0, tmp_path / "g").run_dir
+    folder = run / "checkpoints"
+    # What a kill during atomic_save leaves: its temporary file, never renamed (a big one when it
+    # holds the replay).
+    saved = atomic_save({"x": 1}, folder / "scratch.pt")
+    torn = folder / ".ckpt-0000004.pt.k2j3h4.tmp"
+    saved.rename(torn)
+    run_seed(config, 0, tmp_path / "g", resume=True)
+    assert not torn.exists()
+    assert sorted(p.name for p in folder.iterdir()) == ["best.pt", "ckpt-0000002.pt"]
