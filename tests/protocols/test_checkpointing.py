@@ -6,8 +6,15 @@ from pathlib import Path
 
 from seal.learner.checkpoint import read_checkpoint
 from seal.protocols import load_protocol, run_seed
+from seal.protocols.config import ProtocolConfig
 from seal.protocols.phase import LoopCallback, PhaseLoop
 from tests.protocols.test_runner import BASELINE_ENVS, protocol
+
+
+def _config(tmp_path: Path, epochs: int) -> ProtocolConfig:
+    """test_runner's tiny baseline (a checkpoint every 2 epochs), without TensorBoard."""
+    path = protocol(tmp_path, BASELINE_ENVS, kind="baseline", epochs=epochs)
+    return load_protocol(path, ["logging.tensorboard=false"])
 
 
 class _Recorder(LoopCallback):
@@ -35,7 +42,7 @@ def test_callbacks_flush_before_the_checkpoint_is_written_and_see_best_after(
     tmp_path: Path,
 ) -> None:
     # 3 epochs, a checkpoint every 2 and after the last: epochs 2 and 3.
-    config = load_protocol(protocol(tmp_path, BASELINE_ENVS, kind="baseline", epochs=3))
+    config = _config(tmp_path, epochs=3)
     recorder = _Recorder()
     result = run_seed(config, 0, tmp_path / "g", callbacks=[recorder])
     by_hook = {(hook, epoch): files for hook, epoch, files in recorder.events}
@@ -55,7 +62,7 @@ def test_callbacks_flush_before_the_checkpoint_is_written_and_see_best_after(
 
 
 def test_checkpoint_fields(tmp_path: Path) -> None:
-    config = load_protocol(protocol(tmp_path, BASELINE_ENVS, kind="baseline", epochs=2))
+    config = _config(tmp_path, epochs=2)
     run = run_seed(config, 0, tmp_path / "g").run_dir
     common = {"config_toml", "seed", "phase", "phase_envs", "epoch", "best", "mean_success"}
     reserved = {"seal_checkpoint", "agent", "replay", "scheduler", "runner"}
@@ -87,7 +94,7 @@ def test_checkpoint_fields(tmp_path: Path) -> None:
 def test_resume_deletes_torn_checkpoint_files(tmp_path: Path) -> None:
     from seal.learner.checkpoint import atomic_save
 
-    config = load_protocol(protocol(tmp_path, BASELINE_ENVS, kind="baseline", epochs=2))
+    config = _config(tmp_path, epochs=2)
     run = run_seed(config, 0, tmp_path / "g").run_dir
     folder = run / "checkpoints"
     # What a kill during atomic_save leaves: its temporary file, never renamed (a big one when it
