@@ -80,7 +80,21 @@ class EpochCheckpoint(EpochFields):
 
     seal_checkpoint: int
     agent: dict[str, Any]
+    """`Agent.state_dict()`."""
     replay: dict[str, Any] | None
+    """`MultiTaskReplay.state_dict()` (None with checkpoint.save_replay = false)."""
+
+
+class BestCheckpoint(BestFields):
+    """best.pt as `read_checkpoint` returns it."""
+
+    seal_checkpoint: int
+    agent: dict[str, Any]
+    replay: None
+
+
+RunCheckpoint = EpochCheckpoint | BestCheckpoint
+"""A checkpoint `seal run` writes, either kind (`seal eval` takes both)."""
 
 
 class Checkpointer(LoopCallback):

@@ -31,7 +31,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, TypedDict, cast
 
 import torch
 
@@ -41,7 +41,7 @@ from seal.envs.base import EnvAdapter
 from seal.errors import ConfigError, SealError
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.config import AgentConfig
-from seal.protocols.checkpointing import Checkpointer, EpochCheckpoint
+from seal.protocols.checkpointing import Checkpointer, EpochCheckpoint, RunCheckpoint
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
 from seal.protocols.loggers import ScalarLogger, open_loggers
@@ -56,7 +56,22 @@ from seal.protocols.phase import (
 )
 from seal.protocols.rundir import RunDir, new_group_id, parse_seed_dir, seed_dir
 
+if TYPE_CHECKING:
+    from seal.envs.alignment import Alignment
+    from seal.learner.sac import Agent
+
 # ---------------------------------------------------------------- results and phases
+
+
+class PhaseTiming(TypedDict):
+    """Where one phase's wall time went (`RunResult.timing`, `seal bench --protocol`)."""
+
+    seconds: dict[str, float]
+    """Part -> wall seconds: collect, update, evaluate (best.pt included), checkpoint, demos."""
+    calls: dict[str, int]
+    """Part -> how many times it ran (update: gradient steps; evaluate: evaluations)."""
+    epochs: int
+    grad_steps: int
 
 
 @dataclass(frozen=True)
@@ -68,7 +83,7 @@ class RunResult:
     """env -> task -> millions of that task's transitions consumed by updates when it first reached the threshold (0 = never)."""
     final_success: dict[str, dict[str, float]]
     """env -> task -> success rate at the last evaluation of the phase that trained on env."""
-    timing: dict[str, dict[str, Any]] = field(default_factory=dict)
+    timing: dict[str, PhaseTiming] = field(default_factory=dict)
     """phase -> {"seconds", "calls"} of its collect/update/evaluate/checkpoint parts, "epochs", "grad_steps" (`seal bench --protocol`)."""
 
 
@@ -100,7 +115,7 @@ def build_adapters(
     }
 
 
-def build_alignment(config: ProtocolConfig, adapters: Mapping[str, EnvAdapter]) -> Any:
+def build_alignment(config: ProtocolConfig, adapters: Mapping[str, EnvAdapter]) -> Alignment:
     """The pad-and-fine-tune alignment over source then target adapters (Table 3 unless overridden)."""
     from seal.envs.alignment import Alignment
 
@@ -198,7 +213,7 @@ class Run:
     def run(self) -> RunResult:
         """Run (or resume) every phase; returns the run's headline numbers."""
         resume_payload = self._resume_point()
-        start_phase = 0 if resume_payload is None else resume_payload["runner"]["phase_index"]
+        start_phase = 0 if resume_payload is None else int(resume_payload["runner"]["phase_index"])
         purge = None
         if resume_payload is not None and start_phase == 0:
             # Hide TensorBoard events written after the checkpoint (they are written again). Steps
@@ -248,7 +263,7 @@ class Run:
                 tasks = self.adapters[env].tasks
                 counts[env] = {t: float(state.reached.get(env, {}).get(t, 0.0)) for t in tasks}
                 final[env] = {t: float(state.last_success.get(env, {}).get(t, 0.0)) for t in tasks}
-        timing: dict[str, dict[str, Any]] = {
+        timing: dict[str, PhaseTiming] = {
             name: {
                 "seconds": dict(state.seconds),
                 "calls": dict(state.calls),
@@ -260,7 +275,7 @@ class Run:
         return RunResult(self.rundir.path, counts, final, timing)
 
     # ------------------------------------------------------------ building blocks
-    def _initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Any:
+    def _initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Agent:
         agent = self.agent_cfg.build(model.specs, derive_seed(self.seed, "agent", phase.index))
         if resuming:
             return agent  # the checkpoint's agent state replaces everything (lr factor included)
@@ -354,11 +369,11 @@ def resume_run(
 
 def load_policy(
     checkpoint: str | Path, device: str = "auto"
-) -> tuple[ProtocolConfig, PhaseModel, Any, dict[str, Any]]:
+) -> tuple[ProtocolConfig, PhaseModel, Agent, RunCheckpoint]:
     """(config, phase model, agent with the saved weights, raw checkpoint) of a run checkpoint."""
     import tomllib
 
-    data = read_checkpoint(checkpoint)
+    data = cast("RunCheckpoint", read_checkpoint(checkpoint))
     config = config_from_dict(tomllib.loads(data["config_toml"]), f"{checkpoint} (saved config)")
     phases = {p.name: p for p in plan_phases(config)}
     phase = phases[data["phase"]]
