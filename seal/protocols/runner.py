@@ -16,10 +16,11 @@ The epoch (garage MTSAC convention, issue 4's table)::
     checkpoint (every checkpoint.interval)
 
 Exact resume: a checkpoint (written by the `Checkpointer` callback, `seal.protocols.checkpointing`)
-holds the agent, the replay, the scheduler, the counters and the RNG states, and the CSV row counts. Env instances continue their own RNG streams from episode to
-episode, which a checkpoint cannot capture, so the collector's env instances are rebuilt
-with seeds derived from (seed, phase, epoch) right after every checkpoint, in uninterrupted and in
-resumed runs alike: a resumed run then replays exactly what the uninterrupted run did.
+holds the agent, the replay, the scheduler, the counters and the RNG states, and the CSV row
+counts. Env instances continue their own RNG streams from episode to episode, which a checkpoint
+cannot capture, so the collector's env instances are rebuilt with seeds derived from (seed,
+phase, epoch) right after every checkpoint, in uninterrupted and in resumed runs alike: a resumed
+run then replays exactly what the uninterrupted run did.
 Training and evaluation episodes share the env instances (see `PhaseLoop._new_collector`).
 """
 
@@ -239,9 +240,8 @@ class Run:
         latest = self.rundir.latest_checkpoint()
         if latest is None:
             if (self.rundir.path / "metrics.csv").exists():
-                self.rundir.truncate_to(
-                    {}
-                )  # killed before the first checkpoint: start over cleanly
+                # Killed before the first checkpoint: start over cleanly.
+                self.rundir.truncate_to({})
             return None
         payload = cast("EpochCheckpoint", read_checkpoint(latest))
         self.rundir.truncate_to(payload["runner"]["rows"])
