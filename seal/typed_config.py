@@ -22,7 +22,8 @@ import typing
 from collections.abc import Mapping
 from typing import Any, TypeVar
 
-from pydantic import ConfigDict, TypeAdapter, ValidationError
+from pydantic import ConfigDict, JsonValue, TypeAdapter, ValidationError
+from pydantic_core import ErrorDetails
 
 from seal.errors import ConfigError, SealError
 
@@ -47,7 +48,7 @@ _EXPECTED = {
 
 
 @functools.cache
-def _adapter(cls: type) -> TypeAdapter[Any]:
+def _adapter(cls: type[T]) -> TypeAdapter[T]:
     return TypeAdapter(cls)
 
 
@@ -60,7 +61,7 @@ def field_docs(cls: type) -> dict[str, str]:
     }
 
 
-def _toml_to_json(value: Any) -> Any:
+def _toml_to_json(value: object) -> JsonValue:
     """TOML values as JSON-ready ones: integral floats become ints (an int field takes them, a
     float field takes ints); dates and times become a table, which every typed field refuses."""
     if isinstance(value, Mapping):
@@ -74,8 +75,11 @@ def _toml_to_json(value: Any) -> Any:
     return {"<toml>": str(value)}
 
 
-def _field_type(tp: Any, part: str | int) -> Any:
-    """The type one step down a validation error's location: a dataclass field or a sequence item."""
+def _field_type(tp: object, part: str | int) -> object:
+    """The type one step down a validation error's location: a dataclass field or a sequence item.
+
+    Type forms are `object`s here (3.11 has no TypeForm).
+    """
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin is typing.Annotated:
         return _field_type(args[0], part)
@@ -91,7 +95,7 @@ def _field_type(tp: Any, part: str | int) -> Any:
     return Any
 
 
-def _literal(tp: Any) -> Any:
+def _literal(tp: object) -> object:
     """The Literal inside an Annotated or optional annotation."""
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin is typing.Annotated:
@@ -103,15 +107,13 @@ def _literal(tp: Any) -> Any:
     return tp
 
 
-def _message(error: Mapping[str, Any], data: Mapping[str, Any], cls: type, where: str) -> str:
+def _message(error: ErrorDetails, data: Mapping[str, object], cls: type, where: str) -> str:
     """One pydantic error as the one line the user reads."""
     loc = [p for p in error["loc"] if isinstance(p, (str, int))]
-    value: Any = data
+    value: object = data
     for part in loc:
-        value = (
-            value[part] if isinstance(value, (Mapping, list, tuple)) and _has(value, part) else None
-        )
-    owner: Any = cls  # the table class that holds the bad key
+        value = _item(value, part)
+    owner: object = cls  # the table class that holds the bad key
     for part in loc[:-1]:
         owner = _field_type(owner, part)
     path = where + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc)
@@ -142,14 +144,24 @@ def _message(error: Mapping[str, Any], data: Mapping[str, Any], cls: type, where
     return f"{shown} is not valid: {error['msg']}"
 
 
-def _has(container: Any, part: str | int) -> bool:
+def _item(container: object, part: str | int) -> object:
+    """container[part] for a table key or a list index it has, else None."""
     if isinstance(container, Mapping):
-        return part in container
-    return isinstance(part, int) and 0 <= part < len(container)
+        return container.get(part)
+    if (
+        isinstance(container, (list, tuple))
+        and isinstance(part, int)
+        and 0 <= part < len(container)
+    ):
+        return container[part]
+    return None
 
 
 def build(
-    cls: type[T], table: Mapping[str, Any], where: str, defaults: Mapping[str, Any] | None = None
+    cls: type[T],
+    table: Mapping[str, object],
+    where: str,
+    defaults: Mapping[str, object] | None = None,
 ) -> T:
     """An instance of the table class `cls` from a TOML table, every key and value checked.
 

@@ -73,7 +73,7 @@ def save_checkpoint(
     path: str | os.PathLike[str],
     agent: Agent,
     replay: MultiTaskReplay | None = None,
-    fields: Mapping[str, Any] | None = None,
+    fields: Mapping[str, object] | None = None,
 ) -> Path:
     """Write `agent` (+ `replay`, + the caller's `fields`) to `path` atomically.
 

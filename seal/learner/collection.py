@@ -33,7 +33,8 @@ import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
-from typing import Any, Protocol
+from multiprocessing.process import BaseProcess
+from typing import Protocol, cast
 
 import gymnasium as gym
 import numpy as np
@@ -65,7 +66,7 @@ class TransitionSink(Protocol):
         rewards: np.ndarray,
         next_obs: np.ndarray,
         terminations: np.ndarray,
-    ) -> Any: ...
+    ) -> object: ...
 
 
 def instance_seed(seed: int, env: str, task: str) -> int:
@@ -123,6 +124,13 @@ class _Instance:
 StepArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 # Per environment: which of its instances (indices into Collector.tasks[env]) to address.
 Selection = dict[str, np.ndarray]
+# The messages between the main process and a share of the instances (a worker's pipe or
+# _InlineConn): (command, payload) one way, ("ok", answer) or ("error", traceback) back.
+ResetRequest = dict[str, np.ndarray]  # env -> the share's local indices to reset
+StepRequest = dict[str, tuple[np.ndarray, np.ndarray]]  # env -> (local indices, their actions)
+Request = tuple[str, ResetRequest | StepRequest | None]  # "reset", "step", "close" or "ready"
+Answer = dict[str, np.ndarray] | dict[str, StepArrays] | None  # observations, steps, nothing
+Reply = tuple[str, Answer | str]
 
 
 class _EnvGroup:
@@ -133,7 +141,7 @@ class _EnvGroup:
         self.envs = [inst.make() for inst in instances]
         self.first = [True] * len(instances)
 
-    def reset(self, local: Sequence[int]) -> np.ndarray:
+    def reset(self, local: Sequence[int] | np.ndarray) -> np.ndarray:
         out = []
         for j in local:
             # The first reset repeats the instance seed (make() already used it); later resets
@@ -143,7 +151,7 @@ class _EnvGroup:
             out.append(obs)
         return np.stack(out)
 
-    def step(self, local: Sequence[int], actions: np.ndarray) -> StepArrays:
+    def step(self, local: Sequence[int] | np.ndarray, actions: np.ndarray) -> StepArrays:
         k = len(local)
         rew, term, trunc, succ = np.empty(k), np.empty(k, bool), np.empty(k, bool), np.empty(k)
         obs = []
@@ -198,12 +206,16 @@ class _SyncBackend(_Backend):
             group.close()
 
 
-def _handle(live: dict[str, _EnvGroup], cmd: str, payload: Any) -> Any:
+def _handle(
+    live: dict[str, _EnvGroup], cmd: str, payload: ResetRequest | StepRequest | None
+) -> Answer:
     """Execute one reset/step/close message on the envs of one worker (or of the main process)."""
     if cmd == "reset":
-        return {env: live[env].reset(local) for env, local in payload.items()}
+        resets = cast("ResetRequest", payload)
+        return {env: live[env].reset(local) for env, local in resets.items()}
     if cmd == "step":
-        return {env: live[env].step(local, acts) for env, (local, acts) in payload.items()}
+        steps = cast("StepRequest", payload)
+        return {env: live[env].step(local, acts) for env, (local, acts) in steps.items()}
     if cmd == "close":
         for group in live.values():
             group.close()
@@ -248,12 +260,12 @@ class _InlineConn:
 
     def __init__(self, groups: dict[str, list[_Instance]]) -> None:
         self.live = {env: _EnvGroup(insts) for env, insts in groups.items()}
-        self._message: tuple[str, Any] | None = ("ready", None)
+        self._message: Request | None = ("ready", None)
 
-    def send(self, message: tuple[str, Any]) -> None:
+    def send(self, message: Request) -> None:
         self._message = message
 
-    def recv(self) -> tuple[str, Any]:
+    def recv(self) -> Reply:
         assert self._message is not None
         cmd, payload = self._message
         self._message = None
@@ -287,8 +299,8 @@ class _SubprocBatchedBackend(_Backend):
         self.num_workers = max(1, min(num_workers, max(len(v) for v in groups.values())))
         self.inline = inline
         w_count = self.num_workers
-        self.conns: list[Any] = []
-        self.procs: list[Any] = []
+        self.conns: list[Connection | _InlineConn] = []
+        self.procs: list[BaseProcess | None] = []
         for w in range(w_count):
             mine = {env: list(insts)[w::w_count] for env, insts in groups.items() if len(insts) > w}
             if inline and w == 0:
@@ -313,7 +325,7 @@ class _SubprocBatchedBackend(_Backend):
             self._receive(w)
         self._pending: tuple[Selection, dict[int, dict[str, np.ndarray]]] | None = None
 
-    def _receive(self, w: int) -> Any:
+    def _receive(self, w: int) -> Answer:
         conn = self.conns[w]
         if self.inline and w > 0:
             # The main process has finished its own share and has nothing else to do: spin
@@ -324,11 +336,12 @@ class _SubprocBatchedBackend(_Backend):
         try:
             status, payload = conn.recv()
         except EOFError:
-            code = self.procs[w].exitcode if self.procs[w] is not None else None
+            proc = self.procs[w]
+            code = proc.exitcode if proc is not None else None
             raise RuntimeError(f"collection worker {w} died (exit code {code})") from None
         if status != "ok":
             raise RuntimeError(f"collection worker {w} failed:\n{payload}")
-        return payload
+        return cast("Answer", payload)
 
     def _split(self, sel: Selection) -> dict[int, dict[str, np.ndarray]]:
         """Per worker, per env: which rows of the selection it owns (positions into sel[env])."""
@@ -345,7 +358,7 @@ class _SubprocBatchedBackend(_Backend):
         split = self._split(sel)
         for w, rows_by_env in split.items():
             if actions is None:
-                payload: Any = {
+                payload: ResetRequest | StepRequest = {
                     env: sel[env][rows] // self.num_workers for env, rows in rows_by_env.items()
                 }
             else:
@@ -360,7 +373,7 @@ class _SubprocBatchedBackend(_Backend):
         split = self._send("reset", sel, None)
         out: dict[str, np.ndarray] = {}
         for w, rows_by_env in split.items():
-            answer = self._receive(w)
+            answer = cast("dict[str, np.ndarray]", self._receive(w))
             for env, rows in rows_by_env.items():
                 if env not in out:
                     out[env] = np.empty((len(sel[env]), *answer[env].shape[1:]), answer[env].dtype)
@@ -376,7 +389,7 @@ class _SubprocBatchedBackend(_Backend):
         self._pending = None
         out: dict[str, list[np.ndarray]] = {}
         for w, rows_by_env in split.items():
-            answer = self._receive(w)
+            answer = cast("dict[str, StepArrays]", self._receive(w))
             for env, rows in rows_by_env.items():
                 if env not in out:
                     out[env] = [

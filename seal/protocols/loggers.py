@@ -19,7 +19,8 @@ import os
 import secrets
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,6 +31,7 @@ from seal.protocols.rundir import atomic_write_text
 if TYPE_CHECKING:
     from seal.protocols.config import ProtocolConfig
     from seal.protocols.phase import PhaseLoop
+    from seal.protocols.rundir import TrainRow
 
 WANDB_EXTRA_HINT = 'pip install -e ".[wandb]"'
 """How to install the optional wandb extra (named in the error when it is missing)."""
@@ -46,7 +48,7 @@ def eval_scalars(loop: PhaseLoop) -> dict[str, float]:
     return scalars
 
 
-def train_scalars(rows: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+def train_scalars(rows: Sequence[TrainRow]) -> dict[str, float]:
     """train.csv rows as scalars: losses/<env>/<key> for keys ending in "loss", else charts/<env>/<key>."""
     scalars: dict[str, float] = {}
     for r in rows:
@@ -71,7 +73,7 @@ class ScalarLogger(LoopCallback):
     def on_evaluation(self, loop: PhaseLoop) -> None:
         self.write(eval_scalars(loop), loop.state.grad_steps, loop)
 
-    def on_train_log(self, loop: PhaseLoop, rows: Sequence[Mapping[str, Any]]) -> None:
+    def on_train_log(self, loop: PhaseLoop, rows: Sequence[TrainRow]) -> None:
         if rows:
             self.write(train_scalars(rows), int(rows[0]["grad_steps"]), loop)
 
@@ -143,7 +145,7 @@ class WandbLogger(ScalarLogger):
             self.run = None
 
 
-def import_wandb(mode: str) -> Any:
+def import_wandb(mode: str) -> ModuleType:
     """The wandb module; a one-line SealError naming the extra to install when it is missing."""
     try:
         import wandb

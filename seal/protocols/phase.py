@@ -2,9 +2,10 @@
 
 `PhaseLoop` runs a phase's epochs in steps (plan, collect, train, evaluate, end of epoch,
 checkpoint) over typed parts (agent, replay, scheduler, collector) and calls its
-`LoopCallback`s: the progress bar, the TensorBoard and wandb loggers (`seal.protocols.loggers`)
-and a sweep's Ray Tune reporting.
-The `Run` that owns it (`seal.protocols.runner`) keeps the run directory and the file formats.
+`LoopCallback`s: the progress bar, the TensorBoard and wandb loggers (`seal.protocols.loggers`),
+a sweep's Ray Tune reporting and the `Checkpointer` (`seal.protocols.checkpointing`), which writes
+the checkpoints the loop calls for. The `Run` that owns it (`seal.protocols.runner`) keeps the run
+directory and registers the callbacks.
 """
 
 from __future__ import annotations
@@ -24,12 +25,19 @@ import torch
 from seal.envs.base import EnvAdapter
 from seal.errors import SealError, TrainingDivergedError
 from seal.evaluation import AgentPolicy, evaluate, mean_success, reaches
-from seal.learner.checkpoint import save_checkpoint
 from seal.protocols.config import ProtocolConfig
 
 if TYPE_CHECKING:
+    from tqdm import tqdm
+
+    from seal.envs.alignment import Alignment
     from seal.learner.collection import Collector
+    from seal.learner.replay import MultiTaskReplay
+    from seal.learner.sac import Agent
+    from seal.protocols.checkpointing import EpochCheckpoint
+    from seal.protocols.rundir import MetricsRow, TrainRow
     from seal.protocols.runner import Run
+    from seal.schedulers.base import Plan, Scheduler, ScoreRequest
 
 ALIGNED_ENV = "aligned"
 """The agent's name for the single padded pseudo-environment of pad-and-fine-tune."""
@@ -60,7 +68,7 @@ class PhaseModel:
         config: ProtocolConfig,
         phase: Phase,
         adapters: Mapping[str, EnvAdapter],
-        alignment: Any,
+        alignment: Alignment | None,
     ) -> None:
         from seal.learner import EnvSpec
 
@@ -81,10 +89,10 @@ class PhaseModel:
             self.specs = [
                 EnvSpec(
                     ALIGNED_ENV,
-                    alignment.obs_dim,
+                    self.alignment.obs_dim,
                     a.act_dim,
-                    alignment.num_ids,
-                    act_pad_to=alignment.act_dim,
+                    self.alignment.num_ids,
+                    act_pad_to=self.alignment.act_dim,
                 )
             ]
         # The replay keeps one buffer per task of the env even where tasks share an aligned id
@@ -105,7 +113,7 @@ class PhaseModel:
         """protocol env -> alignment env name (the adapter's name)."""
         return {e: a.name for e, a in self.adapters.items()}
 
-    def policy(self, agent: Any, deterministic: bool) -> AgentPolicy:
+    def policy(self, agent: Agent, deterministic: bool) -> AgentPolicy:
         """The agent as a collector policy over this phase's raw envs."""
         return AgentPolicy(
             agent,
@@ -162,19 +170,30 @@ class PhaseState:
 
 
 class LoopCallback:
-    """Hooks a `PhaseLoop` calls; subclasses override what they need (progress bar, loggers, Ray Tune)."""
+    """Hooks a `PhaseLoop` calls, in the order the callbacks were given; subclasses override what they need.
+
+    The runner registers the progress bar, the loggers (`seal.protocols.loggers`), its caller's
+    callbacks (e.g. a sweep's Ray Tune reporter) and the `Checkpointer`
+    (`seal.protocols.checkpointing`), which implements the two `write_*` hooks.
+    """
 
     def on_phase_start(self, loop: PhaseLoop) -> None:
         """Before the phase's first (or, resumed, next) epoch; metrics.csv holds what came before."""
 
+    def write_best(self, loop: PhaseLoop) -> None:
+        """After an evaluation whose mean success beats the phase's best, before any `on_evaluation`."""
+
     def on_evaluation(self, loop: PhaseLoop) -> None:
         """After each evaluation (its rows are in metrics.csv, `loop.state.last_success` holds them)."""
 
-    def on_train_log(self, loop: PhaseLoop, rows: Sequence[Mapping[str, Any]]) -> None:
+    def on_train_log(self, loop: PhaseLoop, rows: Sequence[TrainRow]) -> None:
         """After train.csv rows (TRAIN_COLUMNS: the mean logged values of an interval) are written."""
 
     def on_checkpoint(self, loop: PhaseLoop) -> None:
-        """Just before an epoch checkpoint is saved (loggers flush, so a resume purges exactly)."""
+        """An epoch checkpoint is due; called before it is written (loggers flush, so a resume purges exactly)."""
+
+    def write_checkpoint(self, loop: PhaseLoop) -> None:
+        """Write the due epoch checkpoint; called after every callback's `on_checkpoint`."""
 
     def on_epoch_end(self, loop: PhaseLoop) -> None:
         """After each epoch's collection, updates, evaluation and checkpoint."""
@@ -186,7 +205,11 @@ class LoopCallback:
 class ProgressBar(LoopCallback):
     """tqdm over the phase's epochs, with env steps/s, updates/s and the last success per env."""
 
-    def __init__(self, loop: PhaseLoop) -> None:
+    def __init__(self) -> None:
+        self.bar: tqdm | None = None
+        self.tick = (0.0, 0, 0)
+
+    def on_phase_start(self, loop: PhaseLoop) -> None:
         self.bar = _progress_bar(loop.phase, loop.state.epoch)
         self.tick = (time.monotonic(), loop.env_steps(), loop.state.grad_steps)
 
@@ -195,25 +218,32 @@ class ProgressBar(LoopCallback):
         then, env_then, grad_then = self.tick
         dt = max(now - then, 1e-9)
         postfix = _postfix(env_now - env_then, grad_now - grad_then, dt, loop.state.last_success)
-        self.bar.set_postfix_str(postfix, refresh=False)
-        self.bar.update(1)
+        if self.bar is not None:
+            self.bar.set_postfix_str(postfix, refresh=False)
+            self.bar.update(1)
         self.tick = (now, env_now, grad_now)
 
     def on_phase_end(self, loop: PhaseLoop) -> None:
-        self.bar.close()
+        if self.bar is not None:
+            self.bar.close()
 
 
 class PhaseLoop:
     """One phase's epochs: plan, collect, update, evaluate, checkpoint, then the callbacks.
 
     Holds the phase's parts (agent, replay, scheduler, collector) and its counters (`state`,
-    saved in every checkpoint); `run` (the `Run`) owns the run directory and the file formats.
+    saved in every checkpoint); `run` (the `Run`) owns the run directory. The loop decides when a
+    checkpoint is due (a new best evaluation; every `checkpoint.interval` epochs and the phase's
+    last) and its callbacks write it (`LoopCallback.write_best`, `write_checkpoint`).
     """
 
-    def __init__(self, run: Run, phase: Phase, payload: Mapping[str, Any] | None) -> None:
-        from seal.learner.replay import MultiTaskReplay
-        from seal.learner.sac import Agent
-        from seal.schedulers.base import Scheduler
+    def __init__(
+        self,
+        run: Run,
+        phase: Phase,
+        payload: EpochCheckpoint | None,
+        callbacks: Sequence[LoopCallback] = (),
+    ) -> None:
         from seal.schedulers.ratio import UniformConfig
 
         cfg = self.cfg = run.config
@@ -250,16 +280,12 @@ class PhaseLoop:
         self.started = time.monotonic() - self.state.wall_s
         self.batch_now: dict[str, np.ndarray] = {}
         """The per-task batch of the latest update (metrics.csv's `batch`)."""
-        self.last_rows: list[dict[str, Any]] = []
+        self.last_rows: list[MetricsRow] = []
         """metrics.csv rows of the latest evaluation, one per (env, task)."""
         self.pending_logs: dict[tuple[str, ...], torch.Tensor] = {}
         """Sums on the device of the agent's log values (by name tuple) since `_read_logs`."""
         self.pending_since = self.agent.num_updates
-        self.callbacks: list[LoopCallback] = [
-            *([] if run.quiet else [ProgressBar(self)]),
-            *run.loggers,
-            *run.callbacks,
-        ]
+        self.callbacks = tuple(callbacks)
 
     def _new_collector(self, anchor: int) -> Collector:
         """The phase's env instances, seeded from (seed, phase, epoch of the last checkpoint).
@@ -271,14 +297,15 @@ class PhaseLoop:
         seed = derive_seed(self.owner.seed, "envs", self.phase.index, anchor)
         return self.cfg.training.build_collector(self.model.adapters, seed)
 
-    def _restore(self, payload: Mapping[str, Any]) -> None:
+    def _restore(self, payload: EpochCheckpoint) -> None:
         """Agent, replay, scheduler, counters and RNG streams from a checkpoint's payload."""
         self.agent.load_state_dict(payload["agent"])
-        if payload.get("replay") is None:
+        replay = payload.get("replay")
+        if replay is None:
             raise SealError(
                 f"{self.owner.rundir.path}: the checkpoint holds no replay (checkpoint.save_replay = false), so the run cannot resume exactly"
             )
-        self.replay.load_state_dict(payload["replay"])
+        self.replay.load_state_dict(replay)
         self.scheduler.load_state_dict(payload["scheduler"])
         self.state = PhaseState(**payload["runner"]["state"])
         torch.set_rng_state(payload["runner"]["torch_rng"])
@@ -317,7 +344,7 @@ class PhaseLoop:
                 callback.on_phase_end(self)
         return self.state
 
-    def _plan(self) -> Any:
+    def _plan(self) -> Plan:
         from seal.schedulers import Progress
 
         state = self.state
@@ -335,7 +362,7 @@ class PhaseLoop:
             )
         )
 
-    def _collect(self, plan: Any) -> dict[str, int]:
+    def _collect(self, plan: Plan) -> dict[str, int]:
         """One episode per planned task: warm-up envs act uniformly at random, the others with the policy.
 
         Returns env -> the longest episode it collected (envs that collected nothing are absent).
@@ -374,7 +401,7 @@ class PhaseLoop:
         state.add_time("collect", since)
         return lengths
 
-    def _train(self, plan: Any, lengths: Mapping[str, int]) -> None:
+    def _train(self, plan: Plan, lengths: Mapping[str, int]) -> None:
         """The epoch's gradient steps, once every env has finished its warm-up (evaluating every K steps)."""
         state, model, cfg = self.state, self.model, self.cfg
         self.batch_now = {e: np.zeros(len(model.env_tasks[e]), np.int64) for e in self.phase.envs}
@@ -472,7 +499,7 @@ class PhaseLoop:
                 )
         return figures
 
-    def _grad_steps(self, plan: Any, collected_lengths: Mapping[str, int]) -> int:
+    def _grad_steps(self, plan: Plan, collected_lengths: Mapping[str, int]) -> int:
         from seal.schedulers import GRAD_STEPS_COLLECTED
 
         if plan.grad_steps is not None:
@@ -485,7 +512,7 @@ class PhaseLoop:
 
     def _train_rows(
         self, epoch: int, grad_steps: int, values: Mapping[str, float]
-    ) -> list[dict[str, Any]]:
+    ) -> list[TrainRow]:
         """train.csv rows of the mean logged values (`train_rows_for` names them)."""
         return [
             {
@@ -526,20 +553,19 @@ class PhaseLoop:
         mean = mean_success(results)
         if mean > state.best_mean_success:
             state.best_mean_success = mean
-            save_checkpoint(
-                owner.rundir.best_path(phase.name if len(owner.phases) > 1 else None),
-                self.agent,
-                fields=owner._fields(phase, None, state, best=True),
-            )
+            for callback in self.callbacks:
+                callback.write_best(self)  # best.pt (the Checkpointer): evaluation time
         state.add_time("evaluate", since)
         for callback in self.callbacks:
             callback.on_evaluation(self)
 
-    def _eval_rows(self, results: Mapping[str, Mapping[str, Any]]) -> list[dict[str, Any]]:
+    def _eval_rows(
+        self, results: Mapping[str, Mapping[str, Mapping[str, float]]]
+    ) -> list[MetricsRow]:
         """metrics.csv rows of one evaluation; records each task's first crossing in `state.reached`."""
         state, model, batch = self.state, self.model, self.batch_now
         wall = time.monotonic() - self.started
-        rows = []
+        rows: list[MetricsRow] = []
         for env in self.phase.envs:
             consumed = np.asarray(self.replay.consumed[model.agent_env[env]], dtype=np.int64)
             for i, task in enumerate(model.env_tasks[env]):
@@ -566,7 +592,7 @@ class PhaseLoop:
                     state.reached.setdefault(env, {})[task] = updates
         return rows
 
-    def _scores(self, request: Any, epoch: int) -> dict[tuple[str, str], float]:
+    def _scores(self, request: ScoreRequest, epoch: int) -> dict[tuple[str, str], float]:
         """SMT Eq. 5 scores: mean over episodes of sum_t gamma^t r_t - log pi(a_t|s_t) (stochastic policy).
 
         The entropy term needs `agent.log_prob(env, obs, actions, task_ids)`; an agent without it
@@ -596,7 +622,8 @@ class PhaseLoop:
                     obs: np.ndarray,
                     actions: np.ndarray,
                     rewards: np.ndarray,
-                    *_: Any,
+                    next_obs: np.ndarray,
+                    terminations: np.ndarray,
                     _t: dict[str, np.ndarray] = t_of,
                 ) -> None:
                     names = model.adapters[env].tasks
@@ -648,13 +675,15 @@ class PhaseLoop:
         return last_epoch
 
     def _checkpoint(self, reseed: bool) -> None:
+        """An epoch checkpoint: `on_checkpoint` (loggers flush), then `write_checkpoint` (the Checkpointer)."""
         state = self.state
         state.wall_s = time.monotonic() - self.started
         state.anchor_epoch = state.epoch
         since = time.perf_counter()
         for callback in self.callbacks:
             callback.on_checkpoint(self)
-        self.owner._checkpoint(self.phase, self.agent, self.replay, self.scheduler, state)
+        for callback in self.callbacks:
+            callback.write_checkpoint(self)
         state.add_time("checkpoint", since)
         if reseed:
             # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
@@ -703,7 +732,7 @@ def train_rows_for(key: str, value: float, model: PhaseModel) -> list[tuple[str,
     return [(env, _TRAIN_KEYS.get(short, "/".join(parts[2:])), value)]
 
 
-def _progress_bar(phase: Phase, initial: int) -> Any:
+def _progress_bar(phase: Phase, initial: int) -> tqdm:
     from tqdm import tqdm
 
     return tqdm(
@@ -729,7 +758,7 @@ def _postfix(
 class _ReplaySink:
     """Feeds collector transitions to the replay, aligning observations for pad-and-fine-tune."""
 
-    def __init__(self, replay: Any, model: PhaseModel) -> None:
+    def __init__(self, replay: MultiTaskReplay, model: PhaseModel) -> None:
         self.replay = replay
         self.model = model
 

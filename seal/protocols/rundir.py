@@ -27,7 +27,7 @@ import os
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 from seal.errors import SealError
 
@@ -47,6 +47,43 @@ METRICS_COLUMNS: tuple[str, ...] = (
 )
 TRAIN_COLUMNS: tuple[str, ...] = ("seed", "phase", "epoch", "grad_steps", "env", "key", "value")
 CSV_FILES: tuple[str, ...] = ("metrics.csv", "train.csv", "scheduler.csv")
+
+# A row as written, one type per column ("return" is a keyword, hence the functional form).
+MetricsRow = TypedDict(
+    "MetricsRow",
+    {
+        "seed": int,
+        "phase": str,
+        "epoch": int,
+        "env": str,
+        "task": str,
+        "success": float,
+        "return": float,
+        "grad_steps": int,
+        "env_steps": int,
+        "updates": float,
+        "batch": int,
+        "wall_s": float,
+    },
+)
+"""One metrics.csv row: one task at one evaluation (METRICS_COLUMNS)."""
+
+
+class TrainRow(TypedDict):
+    """One train.csv row: one logged value's mean over an interval (TRAIN_COLUMNS)."""
+
+    seed: int
+    phase: str
+    epoch: int
+    grad_steps: int
+    env: str
+    """"" for values that belong to no env."""
+    key: str
+    value: float
+
+
+CsvRow = Mapping[str, object]
+"""A row of one of the CSV files: column -> cell (a MetricsRow, a TrainRow, a scheduler timeline row)."""
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -74,7 +111,7 @@ class CsvLog:
         if not path.exists():
             atomic_write_text(path, ",".join(self.columns) + "\n")
 
-    def append(self, rows: Iterable[Mapping[str, Any]]) -> None:
+    def append(self, rows: Iterable[CsvRow]) -> None:
         """Append rows (dicts keyed by column) and fsync, so a kill loses no row already returned."""
         buf = io.StringIO()
         writer = csv.DictWriter(buf, fieldnames=self.columns, lineterminator="\n")
@@ -102,7 +139,7 @@ class CsvLog:
         atomic_write_text(self.path, b"\n".join(kept).decode() + "\n")
 
 
-def _fmt(value: Any) -> Any:
+def _fmt(value: object) -> object:
     if isinstance(value, float):
         return repr(
             value
@@ -163,15 +200,15 @@ class RunDir:
         self.write_provenance(data)
 
     # ------------------------------------------------------------ logs
-    def log_eval(self, rows: Iterable[Mapping[str, Any]]) -> None:
+    def log_eval(self, rows: Iterable[MetricsRow]) -> None:
         """Append evaluation rows (METRICS_COLUMNS)."""
         self.metrics.append(rows)
 
-    def log_train(self, rows: Iterable[Mapping[str, Any]]) -> None:
+    def log_train(self, rows: Iterable[TrainRow]) -> None:
         """Append train.csv rows (TRAIN_COLUMNS)."""
         self.train.append(rows)
 
-    def log_scheduler(self, rows: Sequence[Mapping[str, Any]]) -> None:
+    def log_scheduler(self, rows: Sequence[CsvRow]) -> None:
         """Append scheduler timeline rows; the columns are the first row's keys."""
         if not rows:
             return

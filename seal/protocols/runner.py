@@ -15,11 +15,12 @@ The epoch (garage MTSAC convention, issue 4's table)::
     log losses (every logging.train_interval), evaluate (every evaluation.interval),
     checkpoint (every checkpoint.interval)
 
-Exact resume: a checkpoint holds the agent, the replay, the scheduler, the counters and the RNG
-states, and the CSV row counts. Env instances continue their own RNG streams from episode to
-episode, which a checkpoint cannot capture, so the collector's env instances are rebuilt
-with seeds derived from (seed, phase, epoch) right after every checkpoint, in uninterrupted and in
-resumed runs alike: a resumed run then replays exactly what the uninterrupted run did.
+Exact resume: a checkpoint (written by the `Checkpointer` callback, `seal.protocols.checkpointing`)
+holds the agent, the replay, the scheduler, the counters and the RNG states, and the CSV row
+counts. Env instances continue their own RNG streams from episode to episode, which a checkpoint
+cannot capture, so the collector's env instances are rebuilt with seeds derived from (seed,
+phase, epoch) right after every checkpoint, in uninterrupted and in resumed runs alike: a resumed
+run then replays exactly what the uninterrupted run did.
 Training and evaluation episodes share the env instances (see `PhaseLoop._new_collector`).
 """
 
@@ -28,11 +29,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import random
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict, cast
 
 import torch
 
@@ -40,8 +40,9 @@ from seal import provenance
 from seal.envs import make_adapter
 from seal.envs.base import EnvAdapter
 from seal.errors import ConfigError, SealError
-from seal.learner.checkpoint import read_checkpoint, save_checkpoint
+from seal.learner.checkpoint import read_checkpoint
 from seal.learner.config import AgentConfig
+from seal.protocols.checkpointing import Checkpointer, EpochCheckpoint, RunCheckpoint
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
 from seal.protocols.loggers import ScalarLogger, open_loggers
@@ -51,11 +52,27 @@ from seal.protocols.phase import (
     PhaseLoop,
     PhaseModel,
     PhaseState,
+    ProgressBar,
     derive_seed,
 )
 from seal.protocols.rundir import RunDir, new_group_id, parse_seed_dir, seed_dir
 
+if TYPE_CHECKING:
+    from seal.envs.alignment import Alignment
+    from seal.learner.sac import Agent
+
 # ---------------------------------------------------------------- results and phases
+
+
+class PhaseTiming(TypedDict):
+    """Where one phase's wall time went (`RunResult.timing`, `seal bench --protocol`)."""
+
+    seconds: dict[str, float]
+    """Part -> wall seconds: collect, update, evaluate (best.pt included), checkpoint, demos."""
+    calls: dict[str, int]
+    """Part -> how many times it ran (update: gradient steps; evaluate: evaluations)."""
+    epochs: int
+    grad_steps: int
 
 
 @dataclass(frozen=True)
@@ -67,7 +84,7 @@ class RunResult:
     """env -> task -> millions of that task's transitions consumed by updates when it first reached the threshold (0 = never)."""
     final_success: dict[str, dict[str, float]]
     """env -> task -> success rate at the last evaluation of the phase that trained on env."""
-    timing: dict[str, dict[str, Any]] = field(default_factory=dict)
+    timing: dict[str, PhaseTiming] = field(default_factory=dict)
     """phase -> {"seconds", "calls"} of its collect/update/evaluate/checkpoint parts, "epochs", "grad_steps" (`seal bench --protocol`)."""
 
 
@@ -99,7 +116,7 @@ def build_adapters(
     }
 
 
-def build_alignment(config: ProtocolConfig, adapters: Mapping[str, EnvAdapter]) -> Any:
+def build_alignment(config: ProtocolConfig, adapters: Mapping[str, EnvAdapter]) -> Alignment:
     """The pad-and-fine-tune alignment over source then target adapters (Table 3 unless overridden)."""
     from seal.envs.alignment import Alignment
 
@@ -190,26 +207,14 @@ class Run:
         self.results: dict[str, PhaseState] = {}
         self.loggers: list[ScalarLogger] = []
         """The run's TensorBoard and wandb loggers while it runs (`seal.protocols.loggers`)."""
+        self.checkpointer = Checkpointer(self)
+        """Writes best.pt and the epoch checkpoints (`seal.protocols.checkpointing`)."""
 
     # ------------------------------------------------------------ driver
     def run(self) -> RunResult:
         """Run (or resume) every phase; returns the run's headline numbers."""
-        start_phase, resume_payload = 0, None
-        for torn in self.rundir.checkpoints.glob(".*.tmp-*"):
-            torn.unlink(missing_ok=True)  # a save cut short by a kill (the rename never happened)
-        latest = self.rundir.latest_checkpoint()
-        if latest is not None:
-            resume_payload = read_checkpoint(latest)
-            start_phase = int(resume_payload["runner"]["phase_index"])
-            self.rundir.truncate_to(resume_payload["runner"]["rows"])
-            resumes = self.rundir.read_provenance().get("resumes", [])
-            self.rundir.update_provenance(
-                resumes=[*resumes, {"time": provenance.utc_now(), "from": latest.name}]
-            )
-            for name, state in resume_payload["runner"].get("finished_phases", {}).items():
-                self.results[name] = PhaseState(**state)
-        elif (self.rundir.path / "metrics.csv").exists():
-            self.rundir.truncate_to({})  # killed before the first checkpoint: start over cleanly
+        resume_payload = self._resume_point()
+        start_phase = 0 if resume_payload is None else int(resume_payload["runner"]["phase_index"])
         purge = None
         if resume_payload is not None and start_phase == 0:
             # Hide TensorBoard events written after the checkpoint (they are written again). Steps
@@ -220,17 +225,36 @@ class Run:
         self.loggers = open_loggers(self.config, self.rundir.path, purge_step=purge)
         try:
             for phase in self.phases[start_phase:]:
-                payload = (
-                    resume_payload
-                    if resume_payload is not None and phase.index == start_phase
-                    else None
-                )
+                payload = resume_payload if phase.index == start_phase else None
                 self.results[phase.name] = self._run_phase(phase, payload)
         finally:
             for logger in self.loggers:
                 logger.close()
             self.loggers = []
         self.rundir.update_provenance(end_time=provenance.utc_now())
+        return self._result()
+
+    def _resume_point(self) -> EpochCheckpoint | None:
+        """The latest epoch checkpoint, with the CSVs cut back to it and the resume recorded; None: start over."""
+        self.checkpointer.clear_torn()
+        latest = self.rundir.latest_checkpoint()
+        if latest is None:
+            if (self.rundir.path / "metrics.csv").exists():
+                # Killed before the first checkpoint: start over cleanly.
+                self.rundir.truncate_to({})
+            return None
+        payload = cast("EpochCheckpoint", read_checkpoint(latest))
+        self.rundir.truncate_to(payload["runner"]["rows"])
+        resumes = self.rundir.read_provenance().get("resumes", [])
+        self.rundir.update_provenance(
+            resumes=[*resumes, {"time": provenance.utc_now(), "from": latest.name}]
+        )
+        for name, state in payload["runner"].get("finished_phases", {}).items():
+            self.results[name] = PhaseState(**state)
+        return payload
+
+    def _result(self) -> RunResult:
+        """The headline numbers and the per-part timing of the finished phases."""
         counts: dict[str, dict[str, float]] = {}
         final: dict[str, dict[str, float]] = {}
         for phase in self.phases:
@@ -239,7 +263,7 @@ class Run:
                 tasks = self.adapters[env].tasks
                 counts[env] = {t: float(state.reached.get(env, {}).get(t, 0.0)) for t in tasks}
                 final[env] = {t: float(state.last_success.get(env, {}).get(t, 0.0)) for t in tasks}
-        timing = {
+        timing: dict[str, PhaseTiming] = {
             name: {
                 "seconds": dict(state.seconds),
                 "calls": dict(state.calls),
@@ -251,7 +275,7 @@ class Run:
         return RunResult(self.rundir.path, counts, final, timing)
 
     # ------------------------------------------------------------ building blocks
-    def _initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Any:
+    def _initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Agent:
         agent = self.agent_cfg.build(model.specs, derive_seed(self.seed, "agent", phase.index))
         if resuming:
             return agent  # the checkpoint's agent state replaces everything (lr factor included)
@@ -281,51 +305,15 @@ class Run:
         return agent
 
     # ------------------------------------------------------------ the epoch loop
-    def _run_phase(self, phase: Phase, payload: Mapping[str, Any] | None) -> PhaseState:
-        return PhaseLoop(self, phase, payload).run()
-
-    def _fields(
-        self,
-        phase: Phase,
-        scheduler: Any,
-        state: PhaseState,
-        best: bool = False,
-    ) -> dict[str, Any]:
-        """The runner's checkpoint fields beside the agent and replay (seal.learner.checkpoint)."""
-        return {
-            "config_toml": dumps_toml(config_to_dict(self.config)),
-            "seed": self.seed,
-            "phase": phase.name,
-            "phase_envs": list(phase.envs),
-            "epoch": state.epoch,
-            "best": best,
-            "mean_success": state.best_mean_success,
-            "scheduler": scheduler.state_dict() if scheduler is not None else None,
-            "runner": None
-            if best
-            else {
-                "phase_index": phase.index,
-                "state": dataclasses.asdict(state),
-                "rows": self.rundir.row_counts(),
-                "torch_rng": torch.get_rng_state(),
-                "py_rng": random.getstate(),
-                "finished_phases": {k: dataclasses.asdict(v) for k, v in self.results.items()},
-            },
-        }
-
-    def _checkpoint(
-        self, phase: Phase, agent: Any, replay: Any, scheduler: Any, state: PhaseState
-    ) -> None:
-        path = self.rundir.checkpoint_path(
-            state.epoch, phase.name if len(self.phases) > 1 else None
-        )
-        save_checkpoint(
-            path,
-            agent,
-            replay if self.config.checkpoint.save_replay else None,
-            self._fields(phase, scheduler, state),
-        )
-        self.rundir.prune(self.config.checkpoint.keep_last)
+    def _run_phase(self, phase: Phase, payload: EpochCheckpoint | None) -> PhaseState:
+        """One phase's loop, with the progress bar, the loggers, the caller's callbacks and the checkpoints."""
+        callbacks = [
+            *([] if self.quiet else [ProgressBar()]),
+            *self.loggers,
+            *self.callbacks,
+            self.checkpointer,
+        ]
+        return PhaseLoop(self, phase, payload, callbacks).run()
 
 
 # ---------------------------------------------------------------- public API
@@ -381,11 +369,11 @@ def resume_run(
 
 def load_policy(
     checkpoint: str | Path, device: str = "auto"
-) -> tuple[ProtocolConfig, PhaseModel, Any, dict[str, Any]]:
+) -> tuple[ProtocolConfig, PhaseModel, Agent, RunCheckpoint]:
     """(config, phase model, agent with the saved weights, raw checkpoint) of a run checkpoint."""
     import tomllib
 
-    data = read_checkpoint(checkpoint)
+    data = cast("RunCheckpoint", read_checkpoint(checkpoint))
     config = config_from_dict(tomllib.loads(data["config_toml"]), f"{checkpoint} (saved config)")
     phases = {p.name: p for p in plan_phases(config)}
     phase = phases[data["phase"]]

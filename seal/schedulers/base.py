@@ -51,6 +51,10 @@ envs and tasks together (Stable-Baselines3's `gradient_steps=-1`, the report's s
 that this differs from `[training].grad_steps_per_epoch = -1` (one episode's worth of steps)."""
 
 
+TimelineRow = dict[str, int | float | str | None]
+"""One record of `Scheduler.timeline()`: epoch, env_steps, env, task, status and extras."""
+
+
 @dataclass(frozen=True)
 class Progress:
     """Where training stands, passed to `Scheduler.plan` at the start of every epoch."""
@@ -207,7 +211,7 @@ class Scheduler(abc.ABC):
         self.task_keys: tuple[TaskKey, ...] = tuple(
             (e, t) for e, ts in self.env_tasks.items() for t in ts
         )
-        self._timeline: list[dict[str, Any]] = []
+        self._timeline: list[TimelineRow] = []
 
     # ---- the runner's calls --------------------------------------------------------------
     @abc.abstractmethod
@@ -260,7 +264,7 @@ class Scheduler(abc.ABC):
         """Restore what `state_dict` returned."""
         self._timeline = [dict(r) for r in state.get("timeline", [])]
 
-    def timeline(self) -> list[dict[str, Any]]:
+    def timeline(self) -> list[TimelineRow]:
         """Records of pool or phase membership over time, one row per (env, task) per snapshot.
 
         Every record has `epoch`, `env_steps`, `env`, `task`, `status` (pool or phase
@@ -296,7 +300,7 @@ class Scheduler(abc.ABC):
     ) -> None:
         """Append one snapshot (a row per task) to the timeline."""
         for key in self.task_keys:
-            row: dict[str, Any] = {
+            row: TimelineRow = {
                 "epoch": int(epoch),
                 "env_steps": int(env_steps),
                 "env": key[0],

@@ -9,7 +9,6 @@ from __future__ import annotations
 import zlib
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any
 
 import matplotlib
 
@@ -26,7 +25,7 @@ STATUS_COLOURS: dict[str, str] = {
 }
 
 
-def _frame(records: Iterable[Mapping[str, Any]] | pd.DataFrame) -> pd.DataFrame:
+def _frame(records: Iterable[Mapping[str, object]] | pd.DataFrame) -> pd.DataFrame:
     df = records.copy() if isinstance(records, pd.DataFrame) else pd.DataFrame(list(records))
     if df.empty:
         raise ValueError("the timeline has no records to plot")
@@ -35,7 +34,7 @@ def _frame(records: Iterable[Mapping[str, Any]] | pd.DataFrame) -> pd.DataFrame:
 
 
 def plot_budget_usage(
-    records: Iterable[Mapping[str, Any]] | pd.DataFrame,
+    records: Iterable[Mapping[str, object]] | pd.DataFrame,
     path: str | Path,
     total_budget: float | None = None,
 ) -> Path:
@@ -68,7 +67,7 @@ def plot_budget_usage(
 
 
 def plot_membership(
-    records: Iterable[Mapping[str, Any]] | pd.DataFrame, path: str | Path, x: str = "env_steps"
+    records: Iterable[Mapping[str, object]] | pd.DataFrame, path: str | Path, x: str = "env_steps"
 ) -> Path:
     """A bar per task coloured by its pool (SMT) or phase membership (curricula) over `x`."""
     df = _frame(records)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import time
 import types
 from pathlib import Path
 from typing import Any
@@ -139,6 +140,11 @@ def test_resume_purges_tensorboard_events_past_the_checkpoint(tmp_path: Path) ->
     first = _events(run)
     # As if killed after epoch 3's events but before its checkpoint: resume from epoch 2's.
     (run / "checkpoints" / "ckpt-0000003.pt").unlink()
+    # Event files are read in name order, events.out.tfevents.<second>.<host>.<pid>.<n>, where
+    # <n> counts writers in this process: within one second writer 10 would be read before
+    # writer 9, and the resumed run's purge before the events it purges. A resumed run is a new
+    # process started later; here, start it in the next second.
+    time.sleep(1.0 - time.time() % 1.0)
     run_seed(config, 0, tmp_path / "g", resume=True)
     events = _events(run)
     assert [s for s, _ in events["charts/pt/mean_success"]] == [10, 20, 30]

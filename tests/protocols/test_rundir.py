@@ -56,3 +56,10 @@ def test_dumps_toml_round_trips_protocol_values() -> None:
         "quoted": {'we"ird key': 'a "b" \\ c'},
     }
     assert tomllib.loads(dumps_toml(data)) == data
+
+
+def test_row_types_name_the_csv_columns() -> None:
+    from seal.protocols.rundir import METRICS_COLUMNS, TRAIN_COLUMNS, MetricsRow, TrainRow
+
+    assert tuple(MetricsRow.__annotations__) == METRICS_COLUMNS
+    assert tuple(TrainRow.__annotations__) == TRAIN_COLUMNS

@@ -1,0 +1,156 @@
+"""Checkpoints as a loop callback: the `Checkpointer` writes a run's best and epoch checkpoints.
+
+The `PhaseLoop` decides when a checkpoint is due and the `Checkpointer` writes it:
+
+- after an evaluation whose mean success beats the phase's best, the loop calls `write_best`
+  (before any callback's `on_evaluation`, inside the evaluation's timing): best.pt
+  (best-<phase>.pt in a run with several phases), the agent only;
+- every `checkpoint.interval` epochs and after the phase's last epoch, the loop records the
+  checkpoint's epoch (`PhaseState.anchor_epoch`), calls every callback's `on_checkpoint` (the
+  loggers flush, so a resume purges exactly what comes after the checkpoint), then
+  `write_checkpoint`: ckpt-<epoch>.pt (ckpt-<phase>-<epoch>.pt) with the agent, the replay and
+  the fields below, keeping the last `checkpoint.keep_last`; then the loop re-seeds its env
+  instances (see `seal.protocols.runner`). All of it counts as the loop's "checkpoint" time.
+
+The file format is `seal.learner.checkpoint`'s: an atomic, data-only `torch.save`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import random
+from typing import TYPE_CHECKING, Any, TypedDict
+
+import torch
+
+from seal.learner.checkpoint import save_checkpoint
+from seal.protocols.loader import config_to_dict, dumps_toml
+from seal.protocols.phase import LoopCallback, PhaseLoop
+
+if TYPE_CHECKING:
+    from seal.protocols.rundir import RunDir
+    from seal.protocols.runner import Run
+
+
+class RunnerFields(TypedDict):
+    """An epoch checkpoint's "runner" field: what resume needs besides the agent, replay and scheduler."""
+
+    phase_index: int
+    state: dict[str, Any]
+    """`dataclasses.asdict` of the phase's `PhaseState`."""
+    rows: dict[str, int]
+    """CSV file -> its rows when the checkpoint was taken (`RunDir.row_counts`)."""
+    torch_rng: torch.Tensor
+    py_rng: tuple[Any, ...]
+    """random.getstate() (lists instead of tuples once read back)."""
+    finished_phases: dict[str, dict[str, Any]]
+    """Phase name -> `dataclasses.asdict` of its final `PhaseState`."""
+
+
+class CheckpointFields(TypedDict):
+    """The fields `seal run` adds to every checkpoint, beside `seal.learner.checkpoint`'s own."""
+
+    config_toml: str
+    seed: int
+    phase: str
+    phase_envs: list[str]
+    epoch: int
+    best: bool
+    mean_success: float
+    """The phase's best mean success so far."""
+
+
+class EpochFields(CheckpointFields):
+    """An epoch checkpoint's (ckpt-*.pt) fields."""
+
+    scheduler: dict[str, Any]
+    """`Scheduler.state_dict()`."""
+    runner: RunnerFields
+
+
+class BestFields(CheckpointFields):
+    """best.pt's fields (no scheduler, no runner, no replay: it is a policy, not a resume point)."""
+
+    scheduler: None
+    runner: None
+
+
+class EpochCheckpoint(EpochFields):
+    """An epoch checkpoint as `read_checkpoint` returns it: the point a resume continues from."""
+
+    seal_checkpoint: int
+    agent: dict[str, Any]
+    """`Agent.state_dict()`."""
+    replay: dict[str, Any] | None
+    """`MultiTaskReplay.state_dict()` (None with checkpoint.save_replay = false)."""
+
+
+class BestCheckpoint(BestFields):
+    """best.pt as `read_checkpoint` returns it."""
+
+    seal_checkpoint: int
+    agent: dict[str, Any]
+    replay: None
+
+
+RunCheckpoint = EpochCheckpoint | BestCheckpoint
+"""A checkpoint `seal run` writes, either kind (`seal eval` takes both)."""
+
+
+class Checkpointer(LoopCallback):
+    """Writes the run's checkpoints when the loop says one is due (see the module docstring)."""
+
+    def __init__(self, run: Run) -> None:
+        self.run = run
+        self.config_toml = dumps_toml(config_to_dict(run.config))
+        """The run's config, saved in every checkpoint (it loads back with `seal eval`)."""
+
+    @property
+    def rundir(self) -> RunDir:
+        return self.run.rundir
+
+    def write_best(self, loop: PhaseLoop) -> None:
+        fields: BestFields = {**self._fields(loop, best=True), "scheduler": None, "runner": None}
+        save_checkpoint(self.rundir.best_path(self._label(loop)), loop.agent, fields=fields)
+
+    def write_checkpoint(self, loop: PhaseLoop) -> None:
+        state, checkpoint = loop.state, self.run.config.checkpoint
+        fields: EpochFields = {
+            **self._fields(loop, best=False),
+            "scheduler": loop.scheduler.state_dict(),
+            "runner": {
+                "phase_index": loop.phase.index,
+                "state": dataclasses.asdict(state),
+                "rows": self.rundir.row_counts(),
+                "torch_rng": torch.get_rng_state(),
+                "py_rng": random.getstate(),
+                "finished_phases": {k: dataclasses.asdict(v) for k, v in self.run.results.items()},
+            },
+        }
+        replay = loop.replay if checkpoint.save_replay else None
+        save_checkpoint(
+            self.rundir.checkpoint_path(state.epoch, self._label(loop)), loop.agent, replay, fields
+        )
+        self.rundir.prune(checkpoint.keep_last)
+
+    def clear_torn(self) -> None:
+        """Delete the temporary files of saves cut short by a kill (their rename never happened)."""
+        folder = self.rundir.checkpoints
+        # atomic_save's .<name>.<random>.tmp, and atomic_write_text's .<name>.tmp-<pid>
+        for torn in [*folder.glob(".*.tmp"), *folder.glob(".*.tmp-*")]:
+            torn.unlink(missing_ok=True)
+
+    def _fields(self, loop: PhaseLoop, best: bool) -> CheckpointFields:
+        return {
+            "config_toml": self.config_toml,
+            "seed": self.run.seed,
+            "phase": loop.phase.name,
+            "phase_envs": list(loop.phase.envs),
+            "epoch": loop.state.epoch,
+            "best": best,
+            "mean_success": loop.state.best_mean_success,
+        }
+
+    def _label(self, loop: PhaseLoop) -> str | None:
+        """The phase's name in file names, in a run with several phases."""
+        return loop.phase.name if len(self.run.phases) > 1 else None
