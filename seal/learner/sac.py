@@ -42,9 +42,9 @@ from __future__ import annotations
 import copy
 import math
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypedDict
 
 import numpy as np
 import torch
@@ -76,6 +76,21 @@ _SCALARS = (
     "charts/{}/mean_q",
     "charts/{}/entropy",
 )
+
+
+StageInputs = Mapping[str, tuple[Batch, torch.Tensor, torch.Tensor, torch.Tensor]]
+"""Per env, what both update stages read (`Agent._inputs`): batch, alpha, actor input, next actor input."""
+
+
+class RatioLever(TypedDict):
+    """`Agent.ratio_lever`'s measurement (see its docstring)."""
+
+    lever: float
+    env: str
+    share: float
+    step_norm: float
+    effect: dict[str, float]
+    grad_norm: dict[str, float]
 
 
 def _module_key(name: str) -> str:
@@ -376,7 +391,7 @@ class Agent:
         self.last_checkpoint: str | None = None
         """Path of the last checkpoint written by seal.learner.checkpoint.save_checkpoint."""
         self._initialise()
-        self._compiled: dict[str, Any] = {}
+        self._compiled: dict[str, Callable[..., object]] = {}
         self.compile_seconds = 0.0
         """Wall seconds of the compiled stage calls that compiled (config.compile); 0 when eager."""
         if config.compile:
@@ -404,7 +419,7 @@ class Agent:
         self._adam_cache: dict[tuple[int, ...], tuple[tuple[object, ...], list[_AdamPlan]]] = {}
         # New parameters or states may fail the compiled stages' guards: the next call of each
         # stage key may recompile, so it traces again (`_stage`).
-        self._compiled_keys: set[tuple[Any, ...]] = set()
+        self._compiled_keys: set[tuple[object, ...]] = set()
         self.actor_optimizers: list[torch.optim.Adam] = []
         self.critic_optimizers: list[torch.optim.Adam] = []
         self._actor_params: list[list[nn.Parameter]] = []
@@ -614,9 +629,7 @@ class Agent:
         return self.specs[env_name]
 
     # ------------------------------------------------------------------ the update
-    def _draw_noise(
-        self, names: Iterable[str], inputs: Mapping[str, Any]
-    ) -> dict[str, torch.Tensor]:
+    def _draw_noise(self, names: Iterable[str], inputs: StageInputs) -> dict[str, torch.Tensor]:
         """The update's standard normal policy noise (B, act_dim) of each env, in `names` order."""
         return {
             name: torch.randn(
@@ -835,7 +848,7 @@ class Agent:
         self,
         stage: list[str],
         kept: list[str],
-        inputs: Mapping[str, tuple[Batch, torch.Tensor, torch.Tensor, torch.Tensor]],
+        inputs: StageInputs,
         noise: Mapping[str, torch.Tensor],
         weights: Mapping[str, float],
     ) -> tuple[dict[str, tuple[torch.Tensor, ...]], tuple[torch.Tensor | None, ...]]:
@@ -857,7 +870,7 @@ class Agent:
         self,
         stage: list[str],
         kept: list[str],
-        inputs: Mapping[str, tuple[Batch, torch.Tensor, torch.Tensor, torch.Tensor]],
+        inputs: StageInputs,
         noise: Mapping[str, torch.Tensor],
         weights: Mapping[str, float],
     ) -> tuple[
@@ -897,7 +910,7 @@ class Agent:
         finally:
             self._compiled = compiled
 
-    def ratio_lever(self, batches: Mapping[str, Batch]) -> dict[str, Any]:
+    def ratio_lever(self, batches: Mapping[str, Batch]) -> RatioLever:
         """How much of the shared policy trunk's step each env causes, measured on copies of the agent.
 
         Δ = the trunk's parameter change of one full update (clipping and Adam included); Δ₋X =
