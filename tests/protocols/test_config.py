@@ -175,13 +175,16 @@ def test_every_shipped_protocol_is_valid_and_paper_scale() -> None:
         config = load_protocol(PROTOCOLS / f"{name}.toml")
         assert config.protocol.epochs == 10_000 and config.protocol.seeds == 2
         assert config.evaluation.episodes == 50 and config.evaluation.interval == 100
+    paper_scale = {p.stem for p in PROTOCOLS.glob("*.toml") if "GPU-scale" in p.read_text()}
+    assert expected - {"quickstart"} <= paper_scale
+    for name in paper_scale:
         # The header states the run's cost: a `seal bench --protocol` measurement where one was
         # made (with its projection per seed), else an estimate in GPU-hours labelled as one.
         header = (PROTOCOLS / f"{name}.toml").read_text().split("[protocol]")[0]
         measured = (
             f"seal bench --protocol protocols/{name}.toml" in header and "h per seed" in header
         )
-        assert measured or "Estimate, not a measurement" in header and "GPU-hours" in header
+        assert measured or "Estimate, not a measurement" in header and "GPU-hours" in header, name
     assert load_protocol(PROTOCOLS / "high_fk.toml").scheduler.preset == "high_fk"
 
 
