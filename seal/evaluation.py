@@ -88,21 +88,29 @@ def evaluate(
     tasks: Mapping[str, Sequence[str]] | None = None,
     collector: Collector | None = None,
     backend: str = "auto",
+    draw: int | None = None,
 ) -> dict[str, dict[str, dict[str, float]]]:
     """Success rate and mean return per task: {env: {task: {"success": s, "return": r}}}.
 
     `policy` should be deterministic. Pass a persistent `collector` (built with a seed of its
-    own) to avoid rebuilding envs; otherwise one is built from `adapters`, `seed` and `tasks`.
+    own, ideally with `evaluation_replicas` replicas) to avoid rebuilding envs; otherwise one is
+    built from `adapters`, `seed` and `tasks`, with several instances per task so episodes run
+    in parallel. `draw` picks the set of episodes (see `Collector.evaluate`).
     """
-    from seal.learner.collection import Collector
+    from seal.learner.collection import Collector, evaluation_replicas
 
     if episodes < 1:
         raise SealError(f"evaluation episodes must be >= 1, got {episodes}")
     own = collector is None
     if own:
-        collector = Collector(adapters, seed=seed, tasks=tasks, backend=backend)
+        count = sum(
+            len(tasks[env]) if tasks is not None and env in tasks else len(a.tasks)
+            for env, a in adapters.items()
+        )
+        replicas = evaluation_replicas(episodes, count)
+        collector = Collector(adapters, seed=seed, tasks=tasks, backend=backend, replicas=replicas)
     try:
-        raw = collector.evaluate(policy, episodes)
+        raw = collector.evaluate(policy, episodes, draw=draw)
     finally:
         if own:
             collector.close()

@@ -69,11 +69,47 @@ class TransitionSink(Protocol):
     ) -> object: ...
 
 
-def instance_seed(seed: int, env: str, task: str) -> int:
-    """The seed of the (env, task) instance: stable across processes, backends and task subsets."""
+def instance_seed(seed: int, env: str, task: str, replica: int = 0) -> int:
+    """The seed of the (env, task) instance: stable across processes, backends and task subsets.
+
+    Replica 0 is a Collector's one instance per task; replicas >= 1 are evaluation copies.
+    """
     # crc32, not hash(): Python's str hash is salted per process.
-    key = (zlib.crc32(env.encode()), zlib.crc32(task.encode()))
+    key: tuple[int, ...] = (zlib.crc32(env.encode()), zlib.crc32(task.encode()))
+    if replica:
+        key = (*key, int(replica))
     return int(np.random.SeedSequence(seed, spawn_key=key).generate_state(1, np.uint32)[0])
+
+
+# Tags the spawn keys of evaluation episode seeds apart from instance seeds.
+_EPISODE_KEY = 0x45564131
+
+
+def episode_seed(seed: int, env: str, task: str, draw: int, episode: int) -> int:
+    """The reset seed of evaluation episode `episode` of (env, task) in evaluation `draw`.
+
+    It fixes the episode by itself: the same on every backend, replica count and round.
+    """
+    key = (zlib.crc32(env.encode()), zlib.crc32(task.encode()), _EPISODE_KEY, draw, episode)
+    return int(np.random.SeedSequence(seed, spawn_key=key).generate_state(1, np.uint32)[0])
+
+
+# evaluation_replicas: at most this many evaluation instances in all (memory: a Meta-World env
+# holds ~25 MB, a kitchen env ~100 MB), and about this many per worker process/share.
+EVAL_MAX_INSTANCES = 64
+EVAL_INSTANCES_PER_WORKER = 4
+
+
+def evaluation_replicas(episodes: int, tasks: int, workers: int | None = None) -> int:
+    """Env instances per task for evaluating `episodes` episodes of `tasks` tasks at once."""
+    workers = _cpu_count() if workers is None else max(1, int(workers))
+    tasks = max(1, int(tasks))
+    # Replicas: enough for ~4 instances per worker (parallel steps, bigger policy batches), never
+    # more than `episodes` nor 64 instances in all; then as few rounds as that allows, evened out.
+    most = min(episodes, max(1, EVAL_MAX_INSTANCES // tasks))
+    wanted = min(most, max(1, -(-EVAL_INSTANCES_PER_WORKER * workers // tasks)))
+    rounds = -(-episodes // wanted)
+    return max(1, -(-episodes // rounds))
 
 
 @dataclass
@@ -124,9 +160,12 @@ class _Instance:
 StepArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 # Per environment: which of its instances (indices into Collector.tasks[env]) to address.
 Selection = dict[str, np.ndarray]
+# Per environment: reset seeds of the selected instances (same order as the Selection).
+Seeds = dict[str, np.ndarray]
 # The messages between the main process and a share of the instances (a worker's pipe or
 # _InlineConn): (command, payload) one way, ("ok", answer) or ("error", traceback) back.
-ResetRequest = dict[str, np.ndarray]  # env -> the share's local indices to reset
+# env -> (the share's local indices to reset, their reset seeds or None)
+ResetRequest = dict[str, tuple[np.ndarray, np.ndarray | None]]
 StepRequest = dict[str, tuple[np.ndarray, np.ndarray]]  # env -> (local indices, their actions)
 Request = tuple[str, ResetRequest | StepRequest | None]  # "reset", "step", "close" or "ready"
 Answer = dict[str, np.ndarray] | dict[str, StepArrays] | None  # observations, steps, nothing
@@ -141,12 +180,19 @@ class _EnvGroup:
         self.envs = [inst.make() for inst in instances]
         self.first = [True] * len(instances)
 
-    def reset(self, local: Sequence[int] | np.ndarray) -> np.ndarray:
+    def reset(
+        self, local: Sequence[int] | np.ndarray, seeds: Sequence[int] | np.ndarray | None = None
+    ) -> np.ndarray:
         out = []
-        for j in local:
+        for n, j in enumerate(local):
             # The first reset repeats the instance seed (make() already used it); later resets
-            # pass None, so each episode continues the env's own RNG stream.
-            obs, _ = self.envs[j].reset(seed=self.instances[j].seed if self.first[j] else None)
+            # pass None, so each episode continues the env's own RNG stream. Explicit `seeds`
+            # (evaluation episodes) override both.
+            if seeds is not None:
+                seed: int | None = int(seeds[n])
+            else:
+                seed = self.instances[j].seed if self.first[j] else None
+            obs, _ = self.envs[j].reset(seed=seed)
             self.first[j] = False
             out.append(obs)
         return np.stack(out)
@@ -171,7 +217,8 @@ class _EnvGroup:
 class _Backend:
     """Steps the instances of several environments; `step_async` then `step_wait`, as gymnasium."""
 
-    def reset(self, sel: Selection) -> dict[str, np.ndarray]:
+    def reset(self, sel: Selection, seeds: Seeds | None = None) -> dict[str, np.ndarray]:
+        """Reset the selected instances, with `seeds[env]` (one per selected instance) if given."""
         raise NotImplementedError
 
     def step_async(self, sel: Selection, actions: dict[str, np.ndarray]) -> None:
@@ -189,8 +236,11 @@ class _SyncBackend(_Backend):
         self.groups = {env: _EnvGroup(insts) for env, insts in groups.items()}
         self._pending: tuple[Selection, dict[str, np.ndarray]] | None = None
 
-    def reset(self, sel: Selection) -> dict[str, np.ndarray]:
-        return {env: self.groups[env].reset(idx) for env, idx in sel.items()}
+    def reset(self, sel: Selection, seeds: Seeds | None = None) -> dict[str, np.ndarray]:
+        return {
+            env: self.groups[env].reset(idx, None if seeds is None else seeds[env])
+            for env, idx in sel.items()
+        }
 
     def step_async(self, sel: Selection, actions: dict[str, np.ndarray]) -> None:
         self._pending = (sel, actions)
@@ -212,7 +262,7 @@ def _handle(
     """Execute one reset/step/close message on the envs of one worker (or of the main process)."""
     if cmd == "reset":
         resets = cast("ResetRequest", payload)
-        return {env: live[env].reset(local) for env, local in resets.items()}
+        return {env: live[env].reset(local, seeds) for env, (local, seeds) in resets.items()}
     if cmd == "step":
         steps = cast("StepRequest", payload)
         return {env: live[env].step(local, acts) for env, (local, acts) in steps.items()}
@@ -353,13 +403,21 @@ class _SubprocBatchedBackend(_Backend):
         return out
 
     def _send(
-        self, cmd: str, sel: Selection, actions: dict[str, np.ndarray] | None
+        self,
+        cmd: str,
+        sel: Selection,
+        actions: dict[str, np.ndarray] | None,
+        seeds: Seeds | None = None,
     ) -> dict[int, dict[str, np.ndarray]]:
         split = self._split(sel)
         for w, rows_by_env in split.items():
             if actions is None:
                 payload: ResetRequest | StepRequest = {
-                    env: sel[env][rows] // self.num_workers for env, rows in rows_by_env.items()
+                    env: (
+                        sel[env][rows] // self.num_workers,
+                        None if seeds is None else np.asarray(seeds[env])[rows],
+                    )
+                    for env, rows in rows_by_env.items()
                 }
             else:
                 payload = {
@@ -369,8 +427,8 @@ class _SubprocBatchedBackend(_Backend):
             self.conns[w].send((cmd, payload))
         return split
 
-    def reset(self, sel: Selection) -> dict[str, np.ndarray]:
-        split = self._send("reset", sel, None)
+    def reset(self, sel: Selection, seeds: Seeds | None = None) -> dict[str, np.ndarray]:
+        split = self._send("reset", sel, None, seeds)
         out: dict[str, np.ndarray] = {}
         for w, rows_by_env in split.items():
             answer = cast("dict[str, np.ndarray]", self._receive(w))
@@ -443,13 +501,18 @@ class _GymAsyncBackend(_Backend):
                     "use backend 'sync' or 'subproc-batched'"
                 )
 
-    def reset(self, sel: Selection) -> dict[str, np.ndarray]:
+    def reset(self, sel: Selection, seeds: Seeds | None = None) -> dict[str, np.ndarray]:
         self._check_whole(sel, "reset")
         out: dict[str, np.ndarray] = {}
         for env in sel:
-            seeds = [inst.seed for inst in self.groups[env]] if self.first[env] else None
+            if seeds is not None:
+                env_seeds: list[int] | None = [int(s) for s in seeds[env]]
+            elif self.first[env]:
+                env_seeds = [inst.seed for inst in self.groups[env]]
+            else:
+                env_seeds = None
             self.first[env] = False
-            obs, _ = self.vec[env].reset(seed=seeds)
+            obs, _ = self.vec[env].reset(seed=env_seeds)
             out[env] = np.array(obs)
         return out
 
@@ -546,6 +609,10 @@ class Collector:
     a subset of its adapter's tasks (task ids stay the adapter's indices, i.e. one-hot positions).
     A separate Collector with another seed serves evaluation (its own env instances and seeds).
     `env_steps[env]` counts env steps per task (indexed like `self.tasks[env]`).
+
+    `replicas` > 1 builds that many instances of every task (see `evaluation_replicas`), so
+    `evaluate` runs that many episodes of each task at once; `collect_episodes` uses replica 0,
+    and replica 0's seeds are those of a one-replica Collector.
     """
 
     def __init__(
@@ -556,6 +623,7 @@ class Collector:
         backend: str = "auto",
         num_workers: int | None = None,
         start_method: str | None = None,
+        replicas: int = 1,
     ) -> None:
         if backend not in BACKENDS:
             raise UnknownNameError("collection backend", backend, BACKENDS)
@@ -581,9 +649,18 @@ class Collector:
             for env, ts in self.tasks.items()
         }
         self.env_steps = {env: np.zeros(len(ts), dtype=np.int64) for env, ts in self.tasks.items()}
+        if int(replicas) < 1:
+            raise SealError(f"Collector replicas must be >= 1, got {replicas}")
+        self.replicas = int(replicas)
+        # Instance r * len(tasks) + i is replica r of task i: replica 0's indices are the tasks'.
+        self._instance_ids = {
+            env: np.tile(ids, self.replicas) for env, ids in self.task_ids.items()
+        }
+        self._draws = 0
         groups = {
             env: [
-                _Instance(env, task, instance_seed(self.seed, env, task), self.adapters[env])
+                _Instance(env, task, instance_seed(self.seed, env, task, r), self.adapters[env])
+                for r in range(self.replicas)
                 for task in ts
             ]
             for env, ts in self.tasks.items()
@@ -634,11 +711,28 @@ class Collector:
         if self._backend is None:
             raise SealError("this Collector is closed")
         mask = self._active_mask(active)
-        returns = {env: np.zeros(len(ts)) for env, ts in self.tasks.items()}
-        successes = {env: np.zeros(len(ts), dtype=bool) for env, ts in self.tasks.items()}
-        lengths = {env: np.zeros(len(ts), dtype=np.int64) for env, ts in self.tasks.items()}
         running: Selection = {env: np.flatnonzero(m) for env, m in mask.items() if m.any()}
-        obs = self._backend.reset(running)
+        returns, successes, lengths = self._run(running, None, policy, random_actions, sink)
+        n = {env: len(ts) for env, ts in self.tasks.items()}
+        returns = {env: v[: n[env]] for env, v in returns.items()}
+        successes = {env: v[: n[env]] for env, v in successes.items()}
+        lengths = {env: v[: n[env]] for env, v in lengths.items()}
+        return EpisodeStats(dict(self.tasks), mask, returns, successes, lengths)
+
+    def _run(
+        self,
+        running: Selection,
+        seeds: Seeds | None,
+        policy: Policy | None,
+        random_actions: bool,
+        sink: TransitionSink | None,
+    ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """One episode on each selected instance: per-instance (returns, successes, lengths)."""
+        size = {env: len(ids) for env, ids in self._instance_ids.items()}
+        returns = {env: np.zeros(k) for env, k in size.items()}
+        successes = {env: np.zeros(k, dtype=bool) for env, k in size.items()}
+        lengths = {env: np.zeros(k, dtype=np.int64) for env, k in size.items()}
+        obs = self._backend.reset(running, seeds)
         actions = self._actions(policy, random_actions, running, obs)
         self._backend.step_async(running, actions)
         t = 0
@@ -665,18 +759,21 @@ class Collector:
                 returns[env][run] += rewards
                 successes[env][run] |= success > 0.5
                 lengths[env][run] += 1
-                self.env_steps[env][run] += 1
+                if self.replicas == 1:
+                    self.env_steps[env][run] += 1
+                else:  # replicas of one task may step together
+                    np.add.at(self.env_steps[env], run % len(self.tasks[env]), 1)
                 if sink is not None:
                     sink(
                         env,
-                        self.task_ids[env][run],
+                        self._instance_ids[env][run],
                         step_obs[env],
                         step_actions[env],
                         rewards,
                         next_obs,
                         terminated,
                     )
-        return EpisodeStats(dict(self.tasks), mask, returns, successes, lengths)
+        return returns, successes, lengths
 
     def _actions(
         self,
@@ -698,7 +795,7 @@ class Collector:
             else:
                 assert policy is not None
                 out[env] = np.asarray(
-                    policy(env, obs[env], self.task_ids[env][run]), dtype=space.dtype
+                    policy(env, obs[env], self._instance_ids[env][run]), dtype=space.dtype
                 )
         return out
 
@@ -707,21 +804,60 @@ class Collector:
         policy: Policy,
         episodes: int,
         active: Mapping[str, Sequence[bool] | np.ndarray] | None = None,
+        draw: int | None = None,
     ) -> dict[str, dict[str, dict[str, float]]]:
         """Mean success rate and return over `episodes` episodes per task: {env: {task: {...}}}.
 
         Pass a deterministic policy and use a Collector seeded apart from the training one.
+        Episode e of a task resets with `episode_seed(seed, env, task, draw, e)`, so the results
+        do not depend on the backend or on `replicas`; `draw` (default: this Collector's count of
+        `evaluate` calls) picks a fresh set of episodes. The `replicas` instances of each task
+        run episodes `replicas` at a time, in rounds.
         """
         if episodes < 1:
             raise SealError(f"evaluate: episodes must be >= 1, got {episodes}")
-        runs = [self.collect_episodes(policy, active) for _ in range(episodes)]
+        if policy is None:
+            raise SealError("evaluate needs a policy")
+        if self._backend is None:
+            raise SealError("this Collector is closed")
+        draw = self._draws if draw is None else int(draw)
+        self._draws += 1
+        mask = self._active_mask(active)
+        reps = self.replicas
+        # gym-async can only reset whole environments: a short last round runs spare episodes.
+        whole = isinstance(self._backend, _GymAsyncBackend)
+        succ = {env: np.zeros((episodes, len(ts)), dtype=bool) for env, ts in self.tasks.items()}
+        rets = {env: np.zeros((episodes, len(ts))) for env, ts in self.tasks.items()}
+        for first in range(0, episodes, reps):
+            count = reps if whole else min(reps, episodes - first)
+            running: Selection = {}
+            seeds: Seeds = {}
+            for env, ts in self.tasks.items():
+                if not mask[env].any():
+                    continue
+                on = np.flatnonzero(mask[env])
+                running[env] = np.concatenate([r * len(ts) + on for r in range(count)])
+                seeds[env] = np.array(
+                    [
+                        episode_seed(self.seed, env, ts[i % len(ts)], draw, first + i // len(ts))
+                        for i in running[env]
+                    ],
+                    dtype=np.uint32,
+                )
+            returns, successes, _ = self._run(running, seeds, policy, False, None)
+            for env, run in running.items():
+                keep = first + run // len(self.tasks[env]) < episodes
+                run = run[keep]
+                rows, cols = first + run // len(self.tasks[env]), run % len(self.tasks[env])
+                succ[env][rows, cols] = successes[env][run]
+                rets[env][rows, cols] = returns[env][run]
         out: dict[str, dict[str, dict[str, float]]] = {}
         for env, ts in self.tasks.items():
             for i, task in enumerate(ts):
-                if runs[0].active[env][i]:
+                if mask[env][i]:
                     out.setdefault(env, {})[task] = {
-                        "success_rate": float(np.mean([r.successes[env][i] for r in runs])),
-                        "mean_return": float(np.mean([r.returns[env][i] for r in runs])),
+                        "success_rate": float(np.mean(succ[env][:, i])),
+                        "mean_return": float(np.mean(rets[env][:, i])),
                         "episodes": float(episodes),
                     }
         return out

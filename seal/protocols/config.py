@@ -111,11 +111,14 @@ class TrainingConfig:
     nor toward the env-step counts, and they count as consumed updates only when sampled.
     """
 
-    def build_collector(self, adapters: Mapping[str, EnvAdapter], seed: int) -> Collector:
-        """The env instances of `adapters` on this config's collection backend, seeded by `seed`."""
+    def build_collector(
+        self, adapters: Mapping[str, EnvAdapter], seed: int, replicas: int = 1
+    ) -> Collector:
+        """The env instances of `adapters` on this config's collection backend, seeded by `seed`
+        (`replicas` instances per task: evaluation)."""
         from seal.learner.collection import Collector
 
-        return Collector(adapters, seed=seed, backend=self.collector)
+        return Collector(adapters, seed=seed, backend=self.collector, replicas=replicas)
 
 
 @with_config(SCHEMA)

@@ -266,6 +266,8 @@ class PhaseLoop:
         if payload is not None:
             self._restore(payload)
         self.collector: Collector = self._new_collector(self.state.anchor_epoch)
+        self.eval_collector: Collector | None = None
+        """Evaluation's own env instances, several per task (built at the first evaluation)."""
         if payload is None and cfg.training.demo_episodes:
             since = time.perf_counter()
             self.state.demos = self._demonstrations()
@@ -290,12 +292,26 @@ class PhaseLoop:
     def _new_collector(self, anchor: int) -> Collector:
         """The phase's env instances, seeded from (seed, phase, epoch of the last checkpoint).
 
-        Training and evaluation episodes run on the same instances (each episode starts from a
-        reset that continues the instance's RNG stream): building MuJoCo envs costs about a
-        second each, and evaluation episodes never feed the replay.
+        Evaluation runs on instances of its own (`_eval_collector`), built once per phase.
         """
         seed = derive_seed(self.owner.seed, "envs", self.phase.index, anchor)
         return self.cfg.training.build_collector(self.model.adapters, seed)
+
+    def _eval_collector(self) -> Collector:
+        """Evaluation's instances, seeded from (seed, phase) only: every evaluation episode resets
+        with a seed of its own (from `draw`), so they need no re-seeding at checkpoints and a
+        resumed run evaluates exactly as the original did."""
+        if self.eval_collector is None:
+            from seal.learner.collection import evaluation_replicas
+
+            episodes = self.cfg.evaluation.episodes
+            count = sum(len(ts) for ts in self.collector.tasks.values())
+            self.eval_collector = self.cfg.training.build_collector(
+                self.model.adapters,
+                derive_seed(self.owner.seed, "eval", self.phase.index),
+                replicas=evaluation_replicas(episodes, count),
+            )
+        return self.eval_collector
 
     def _restore(self, payload: EpochCheckpoint) -> None:
         """Agent, replay, scheduler, counters and RNG streams from a checkpoint's payload."""
@@ -340,6 +356,8 @@ class PhaseLoop:
                     break
         finally:
             self.collector.close()
+            if self.eval_collector is not None:
+                self.eval_collector.close()
             for callback in self.callbacks:
                 callback.on_phase_end(self)
         return self.state
@@ -539,7 +557,8 @@ class PhaseLoop:
             model.adapters,
             episodes=cfg.evaluation.episodes,
             seed=0,
-            collector=self.collector,
+            collector=self._eval_collector(),
+            draw=state.grad_steps,  # one evaluation per grad-step count: its own episode seeds
         )
         rows = self._eval_rows(results)
         owner.rundir.log_eval(rows)

@@ -21,7 +21,9 @@ counts. Env instances continue their own RNG streams from episode to episode, wh
 cannot capture, so the collector's env instances are rebuilt with seeds derived from (seed,
 phase, epoch) right after every checkpoint, in uninterrupted and in resumed runs alike: a resumed
 run then replays exactly what the uninterrupted run did.
-Training and evaluation episodes share the env instances (see `PhaseLoop._new_collector`).
+Evaluation runs on env instances of its own, several per task (`PhaseLoop._eval_collector`),
+built once per phase: each evaluation episode resets with a seed derived from (phase, grad
+steps, episode), so they need no rebuilding at checkpoints.
 """
 
 from __future__ import annotations

@@ -214,6 +214,75 @@ def test_evaluate_reports_success_rate_per_task() -> None:
     assert result["toy"]["c"]["mean_return"] == 5.0
 
 
+def noise_policy(starts: list[tuple[str, int, float]]):
+    """Acts on the seeded noise of each observation; records (env, task id, noise) at t = 0."""
+
+    def policy(env: str, obs: np.ndarray, task_ids: np.ndarray) -> np.ndarray:
+        for o, tid in zip(obs, task_ids, strict=True):
+            if o[1] == 0:
+                starts.append((env, int(tid), float(o[2])))
+        return np.clip(obs[:, 2:3], -1.0, 1.0).astype(np.float32)
+
+    return policy
+
+
+@pytest.mark.parametrize(
+    ("backend", "replicas", "workers"),
+    [("sync", 1, 1), ("sync", 2, 1), ("inline-batched", 3, 2), ("subproc-batched", 5, 2)],
+)
+def test_evaluate_with_replicas_runs_exactly_the_episodes_with_seeds_of_their_own(
+    backend: str, replicas: int, workers: int
+) -> None:
+    episodes = 5  # 2 replicas: rounds of 2, 2, 1; 3 replicas: 3, 2
+    results, starts = [], []
+    for _ in range(2):
+        seen: list[tuple[str, int, float]] = []
+        with Collector(
+            {"toy": ToyAdapter()},
+            seed=7,
+            backend=backend,
+            num_workers=workers,
+            replicas=replicas,
+        ) as col:
+            results.append(col.evaluate(noise_policy(seen), episodes=episodes, draw=3))
+            # Exactly `episodes` episodes of every task (4 steps each), none more.
+            np.testing.assert_array_equal(col.env_steps["toy"], [episodes * 4] * 3)
+        starts.append(seen)
+    assert results[0] == results[1]  # same seed: bitwise identical numbers
+    assert starts[0] == starts[1]
+    for tid in range(3):
+        firsts = {noise for _, t, noise in starts[0] if t == tid}
+        assert len(firsts) == episodes  # every episode of a task started from its own seed
+    with Collector({"toy": ToyAdapter()}, seed=7, backend="sync") as col:
+        # ... and the numbers do not depend on the backend or the replica count
+        assert col.evaluate(noise_policy([]), episodes=episodes, draw=3) == results[0]
+        assert col.evaluate(noise_policy([]), episodes=episodes, draw=4) != results[0]
+
+
+def test_evaluate_with_replicas_keeps_the_active_mask() -> None:
+    with Collector(adapters(), seed=1, backend="sync", replicas=2) as col:
+        result = col.evaluate(
+            half_policy([]), episodes=3, active={"toy": [False, True, True], "toy2": [0, 0]}
+        )
+        assert set(result) == {"toy"} and set(result["toy"]) == {"b", "c"}
+        assert result["toy"]["c"] == {"success_rate": 1.0, "mean_return": 5.0, "episodes": 3.0}
+        np.testing.assert_array_equal(col.env_steps["toy"], [0, 12, 12])
+        np.testing.assert_array_equal(col.env_steps["toy2"], [0, 0])
+        # collect_episodes still runs one episode per task (on replica 0)
+        stats = col.collect_episodes(half_policy([]))
+        assert stats.env_steps == 3 * 4 + 6 + 3
+
+
+def test_evaluation_replicas_bound_the_instances() -> None:
+    from seal.learner.collection import evaluation_replicas
+
+    assert evaluation_replicas(10, tasks=2, workers=2) == 4  # quickstart: rounds of 4, 4, 2
+    assert evaluation_replicas(10, tasks=10, workers=2) == 1  # MT10 on 2 cores: 10 are enough
+    assert evaluation_replicas(50, tasks=10, workers=16) * 10 <= 64  # MT10 on 16 cores
+    assert evaluation_replicas(2, tasks=1, workers=16) == 2  # never more than the episodes
+    assert evaluation_replicas(1, tasks=100, workers=1) == 1
+
+
 def test_user_errors_name_the_bad_value() -> None:
     with pytest.raises(UnknownNameError, match="'threads'.*sync"):
         Collector(adapters(), seed=0, backend="threads")
