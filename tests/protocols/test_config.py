@@ -180,7 +180,8 @@ def test_every_shipped_protocol_is_valid_and_paper_scale() -> None:
     for name in paper_scale:
         # The header states the run's cost: a `seal bench --protocol` measurement where one was
         # made (with its projection per seed), else an estimate in GPU-hours labelled as one.
-        header = (PROTOCOLS / f"{name}.toml").read_text().split("[protocol]")[0]
+        text = (PROTOCOLS / f"{name}.toml").read_text().split("[protocol]")[0]
+        header = " ".join(line.lstrip("#").strip() for line in text.splitlines())  # unwrapped
         measured = (
             f"seal bench --protocol protocols/{name}.toml" in header and "h per seed" in header
         )
