@@ -1,6 +1,9 @@
-"""Which torch device to run on: `"auto"` picks CUDA when present, else CPU."""
+"""Which torch device to run on (`"auto"` picks CUDA when present, else CPU), and with how many CPU threads."""
 
 from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
 
 import torch
 
@@ -33,3 +36,15 @@ def resolve_device(name: str | torch.device = "auto") -> torch.device:
             )
         return device
     raise SealError(f"unsupported device {name!r}; valid: auto, cpu, cuda, cuda:<index>")
+
+
+@contextlib.contextmanager
+def torch_threads(n: int | None) -> Iterator[None]:
+    """Run with `n` torch intra-op threads (None: unchanged), restoring the previous count."""
+    before = torch.get_num_threads()
+    if n is not None:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

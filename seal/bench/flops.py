@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING, Any, TypedDict
 
 import torch
 
-from seal.bench.timing import _timeit, torch_threads
+from seal.bench.timing import _timeit
+from seal.device import torch_threads
 from seal.errors import SealError
 
 if TYPE_CHECKING:

@@ -1,17 +1,16 @@
 """Timing and load helpers every `seal bench` figure is measured with.
 
 `_timeit` takes the best of several wall-time runs (the least-disturbed one on a shared machine),
-`torch_threads` pins torch's intra-op threads for a measurement, and `machine_load` records the
+and `machine_load` records the
 load averages, CPU count and torch threads that are stored next to every figure.
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import TypedDict
 
 import torch
@@ -25,18 +24,6 @@ def _timeit(fn: Callable[[], object], repeats: int) -> float:
         fn()
         best = min(best, time.perf_counter() - start)
     return best
-
-
-@contextlib.contextmanager
-def torch_threads(n: int | None) -> Iterator[None]:
-    """Run with `n` torch intra-op threads (None: unchanged), restoring the previous count."""
-    before = torch.get_num_threads()
-    if n is not None:
-        torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 class MachineLoad(TypedDict):

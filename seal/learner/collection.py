@@ -9,8 +9,8 @@ all, and hands the transitions to a sink such as `MultiTaskReplay.add`.
 Backends (same seed -> identical transitions on every backend; `tests/learner/test_collection.py`):
 
 - ``sync``: one process steps every env in turn.
-- ``subproc-batched``: `num_workers` processes, each stepping a round-robin share of the
-  instances of every environment per message (one pipe round trip per worker per step).
+- ``subproc-batched``: `num_workers` processes, each stepping a round-robin share of all
+  instances (of every environment) per message (one pipe round trip per worker per step).
 - ``inline-batched``: like ``subproc-batched``, but the main process steps one share itself
   (`num_workers - 1` worker processes), so on 2 cores two processes are busy instead of three.
 - ``gym-async``: the reference design, gymnasium's `AsyncVectorEnv` (one process per env
@@ -329,7 +329,9 @@ class _InlineConn:
 
 
 class _SubprocBatchedBackend(_Backend):
-    """`num_workers` shares; instance j of every environment lives in share j % num_workers.
+    """`num_workers` shares, dealt round-robin over all instances in environment order (instance
+    k of the concatenated lists lives in share k % num_workers), so two envs of one task each
+    still step in parallel and unequal environments spread evenly.
 
     Each share is a worker process, except share 0 with `inline=True`, which the main process
     steps itself between sending the workers their actions and reading their answers. One
@@ -346,24 +348,33 @@ class _SubprocBatchedBackend(_Backend):
         inline: bool = False,
     ) -> None:
         ctx = mp.get_context(start_method)
-        self.num_workers = max(1, min(num_workers, max(len(v) for v in groups.values())))
+        total = sum(len(v) for v in groups.values())
+        self.num_workers = w_count = max(1, min(num_workers, total))
         self.inline = inline
-        w_count = self.num_workers
+        # Per env: each instance's share, and its index within that share's group of the env.
+        self._owner: dict[str, np.ndarray] = {}
+        self._local: dict[str, np.ndarray] = {}
+        shares: list[dict[str, list[_Instance]]] = [{} for _ in range(w_count)]
+        k = 0
+        for env, insts in groups.items():
+            self._owner[env] = (k + np.arange(len(insts))) % w_count
+            k += len(insts)
+            local = []
+            for inst, w in zip(insts, self._owner[env], strict=True):
+                local.append(len(shares[w].setdefault(env, [])))
+                shares[w][env].append(inst)
+            self._local[env] = np.array(local, dtype=np.int64)
         self.conns: list[Connection | _InlineConn] = []
         self.procs: list[BaseProcess | None] = []
-        for w in range(w_count):
-            mine = {env: list(insts)[w::w_count] for env, insts in groups.items() if len(insts) > w}
-            if inline and w == 0:
-                self.conns.append(_InlineConn(mine))
-                self.procs.append(None)
-                continue
+        # Workers first: they build their envs while the main process builds its own share.
+        for w in range(1 if inline else 0, w_count):
             parent, child = ctx.Pipe()
             # Inline: main + workers are as many processes as shares, so a worker may spin while
             # the main process prepares the next actions without taking a core from anyone.
             spin = INLINE_SPIN_S if inline else 0.0
             proc = ctx.Process(
                 target=_worker_main,
-                args=(child, mine, spin),
+                args=(child, shares[w], spin),
                 daemon=True,
                 name=f"seal-collect-{w}",
             )
@@ -371,8 +382,15 @@ class _SubprocBatchedBackend(_Backend):
             child.close()
             self.conns.append(parent)
             self.procs.append(proc)
-        for w in range(w_count):
-            self._receive(w)
+        try:
+            if inline:
+                self.conns.insert(0, _InlineConn(shares[0]))
+                self.procs.insert(0, None)
+            for w in range(w_count):
+                self._receive(w)
+        except BaseException:
+            self.close()  # no worker outlives a failed start
+            raise
         self._pending: tuple[Selection, dict[int, dict[str, np.ndarray]]] | None = None
 
     def _receive(self, w: int) -> Answer:
@@ -397,7 +415,7 @@ class _SubprocBatchedBackend(_Backend):
         """Per worker, per env: which rows of the selection it owns (positions into sel[env])."""
         out: dict[int, dict[str, np.ndarray]] = {}
         for env, idx in sel.items():
-            owner = idx % self.num_workers
+            owner = self._owner[env][idx]
             for w in np.unique(owner):
                 out.setdefault(int(w), {})[env] = np.flatnonzero(owner == w)
         return out
@@ -414,14 +432,14 @@ class _SubprocBatchedBackend(_Backend):
             if actions is None:
                 payload: ResetRequest | StepRequest = {
                     env: (
-                        sel[env][rows] // self.num_workers,
+                        self._local[env][sel[env][rows]],
                         None if seeds is None else np.asarray(seeds[env])[rows],
                     )
                     for env, rows in rows_by_env.items()
                 }
             else:
                 payload = {
-                    env: (sel[env][rows] // self.num_workers, actions[env][rows])
+                    env: (self._local[env][sel[env][rows]], actions[env][rows])
                     for env, rows in rows_by_env.items()
                 }
             self.conns[w].send((cmd, payload))

@@ -117,9 +117,11 @@ def _clipped(grads: Sequence[torch.Tensor | None], max_norm: float) -> list[torc
     present = [g for g in grads if g is not None]
     if not present:
         return list(grads)
-    total = torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(g) for g in present]))
+    # foreach ops: one dispatch for all tensors instead of one each (eager: ~60 fewer ops/update)
+    total = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(present)))
     coefficient = torch.clamp(max_norm / (total + 1e-6), max=1.0)
-    return [None if g is None else g * coefficient for g in grads]
+    scaled = iter(torch._foreach_mul(present, coefficient))
+    return [None if g is None else next(scaled) for g in grads]
 
 
 def _step_counters(states: Sequence[dict[str, torch.Tensor]]) -> torch.Tensor:

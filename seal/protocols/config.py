@@ -52,7 +52,7 @@ class ProtocolTable:
     device: str = "auto"
     """Torch device: "auto" (CUDA if present, else CPU), "cpu", "cuda", "cuda:1", ..."""
     threads: Annotated[int, Field(ge=0)] = 0
-    """torch intra-op CPU threads; 0 keeps torch's default. 1 is far faster for small networks on a busy machine."""
+    """torch intra-op CPU threads for the gradient updates (acting always uses one: phase.ACTING_THREADS); 0 keeps torch's default. 1 is far faster for small networks on a busy machine."""
 
 
 @with_config(SCHEMA)
@@ -112,13 +112,17 @@ class TrainingConfig:
     """
 
     def build_collector(
-        self, adapters: Mapping[str, EnvAdapter], seed: int, replicas: int = 1
+        self,
+        adapters: Mapping[str, EnvAdapter],
+        seed: int,
+        replicas: int = 1,
+        backend: str | None = None,
     ) -> Collector:
-        """The env instances of `adapters` on this config's collection backend, seeded by `seed`
-        (`replicas` instances per task: evaluation)."""
+        """The env instances of `adapters` on this config's collection backend (or `backend`, e.g.
+        the one "auto" resolved to before), seeded by `seed` (`replicas` per task: evaluation)."""
         from seal.learner.collection import Collector
 
-        return Collector(adapters, seed=seed, backend=self.collector, replicas=replicas)
+        return Collector(adapters, seed=seed, backend=backend or self.collector, replicas=replicas)
 
 
 @with_config(SCHEMA)

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from seal.device import torch_threads
 from seal.envs.base import EnvAdapter
 from seal.errors import SealError, TrainingDivergedError
 from seal.evaluation import AgentPolicy, evaluate, mean_success, reaches
@@ -41,6 +42,11 @@ if TYPE_CHECKING:
 
 ALIGNED_ENV = "aligned"
 """The agent's name for the single padded pseudo-environment of pad-and-fine-tune."""
+# Acting (collection, evaluation, scheduler scoring) runs on this many torch threads, whatever
+# protocol.threads gives the updates: its policy calls are a row per env instance, which a second
+# thread only slows, and the idle thread's spinning takes CPU from the collection workers
+# (quickstart evaluation: 2.3 s with one thread, 4.6 s with two; scripts/evaluation_seconds.py).
+ACTING_THREADS = 1
 
 
 @dataclass(frozen=True)
@@ -289,13 +295,13 @@ class PhaseLoop:
         self.pending_since = self.agent.num_updates
         self.callbacks = tuple(callbacks)
 
-    def _new_collector(self, anchor: int) -> Collector:
+    def _new_collector(self, anchor: int, backend: str | None = None) -> Collector:
         """The phase's env instances, seeded from (seed, phase, epoch of the last checkpoint).
 
         Evaluation runs on instances of its own (`_eval_collector`), built once per phase.
         """
         seed = derive_seed(self.owner.seed, "envs", self.phase.index, anchor)
-        return self.cfg.training.build_collector(self.model.adapters, seed)
+        return self.cfg.training.build_collector(self.model.adapters, seed, backend=backend)
 
     def _eval_collector(self) -> Collector:
         """Evaluation's instances, seeded from (seed, phase) only: every evaluation episode resets
@@ -396,12 +402,13 @@ class PhaseLoop:
             }
             if not any(m.any() for m in active.values()):
                 continue
-            stats = self.collector.collect_episodes(
-                None if random_actions else self.train_policy,
-                active=active,
-                random_actions=random_actions,
-                sink=_ReplaySink(self.replay, model),
-            )
+            with torch_threads(ACTING_THREADS):
+                stats = self.collector.collect_episodes(
+                    None if random_actions else self.train_policy,
+                    active=active,
+                    random_actions=random_actions,
+                    sink=_ReplaySink(self.replay, model),
+                )
             for e in envs:
                 idx = np.flatnonzero(active[e])
                 if not idx.size:
@@ -552,14 +559,15 @@ class PhaseLoop:
         since = time.perf_counter()
         cfg, state, model, phase, owner = self.cfg, self.state, self.model, self.phase, self.owner
         state.evaluated_at = state.grad_steps
-        results = evaluate(
-            self.eval_policy,
-            model.adapters,
-            episodes=cfg.evaluation.episodes,
-            seed=0,
-            collector=self._eval_collector(),
-            draw=state.grad_steps,  # one evaluation per grad-step count: its own episode seeds
-        )
+        with torch_threads(ACTING_THREADS):
+            results = evaluate(
+                self.eval_policy,
+                model.adapters,
+                episodes=cfg.evaluation.episodes,
+                seed=0,
+                collector=self._eval_collector(),
+                draw=state.grad_steps,  # one evaluation per grad-step count: its own episode seeds
+            )
         rows = self._eval_rows(results)
         owner.rundir.log_eval(rows)
         self.last_rows = rows
@@ -626,12 +634,15 @@ class PhaseLoop:
         totals = {k: 0.0 for k in keys}
         policy = model.policy(agent, deterministic=False)
         log_prob = getattr(agent, "log_prob", None)
-        with Collector(
-            {e: model.adapters[e] for e in tasks},
-            seed=derive_seed(self.owner.seed, "score", model.phase.index, epoch),
-            tasks=tasks,
-            backend="sync",
-        ) as col:
+        with (
+            torch_threads(ACTING_THREADS),
+            Collector(
+                {e: model.adapters[e] for e in tasks},
+                seed=derive_seed(self.owner.seed, "score", model.phase.index, epoch),
+                tasks=tasks,
+                backend="sync",
+            ) as col,
+        ):
             for _ in range(request.episodes):
                 t_of: dict[str, np.ndarray] = {}
 
@@ -706,8 +717,11 @@ class PhaseLoop:
         state.add_time("checkpoint", since)
         if reseed:
             # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
+            # The rebuild keeps the backend "auto" resolved to (no second probe of step costs);
+            # results never depend on the backend, only speed does.
+            backend = self.collector.backend_name
             self.collector.close()
-            self.collector = self._new_collector(state.epoch)
+            self.collector = self._new_collector(state.epoch, backend)
 
 
 def _tuple_state(state: Any) -> Any:

@@ -183,6 +183,34 @@ def test_batched_backends_handle_early_termination_like_sync(backend: str) -> No
         np.testing.assert_array_equal(a, b)
 
 
+def test_batched_backends_deal_instances_round_robin_over_all_environments() -> None:
+    """Shares are dealt over all instances, so two envs of one task each (the quickstart) step in
+    two processes, not one, and unequal environments spread evenly; transitions do not change."""
+    single = {"toy": ToyAdapter(tasks=["a"]), "toy2": Toy2Adapter(tasks=["a"])}
+    with Collector(single, seed=3, backend="inline-batched", num_workers=2) as col:
+        backend = col._backend
+        assert isinstance(backend, collection._SubprocBatchedBackend)
+        assert [proc is None for proc in backend.procs] == [True, False]  # main + one worker
+        assert {e: o.tolist() for e, o in backend._owner.items()} == {"toy": [0], "toy2": [1]}
+    uneven = adapters()  # 3 + 2 instances: instance k of the 5 lives in share k % 2
+    with Collector(uneven, seed=3, backend="subproc-batched", num_workers=2) as col:
+        backend = col._backend
+        assert isinstance(backend, collection._SubprocBatchedBackend)
+        assert {e: o.tolist() for e, o in backend._owner.items()} == {
+            "toy": [0, 1, 0],
+            "toy2": [1, 0],
+        }
+        assert {e: i.tolist() for e, i in backend._local.items()} == {
+            "toy": [0, 0, 1],
+            "toy2": [0, 0],
+        }
+    for envs in (single, uneven):
+        for ref, got in zip(
+            transitions("sync", 3, envs), transitions("inline-batched", 3, envs), strict=True
+        ):
+            np.testing.assert_array_equal(ref, got)
+
+
 def test_instance_seeds_differ_by_task_and_do_not_depend_on_the_subset() -> None:
     assert instance_seed(0, "toy", "a") != instance_seed(0, "toy", "b")
     assert instance_seed(0, "toy", "a") != instance_seed(0, "toy2", "a")
