@@ -15,9 +15,9 @@ Backends (same seed -> identical transitions on every backend; `tests/learner/te
   (`num_workers - 1` worker processes), so on 2 cores two processes are busy instead of three.
 - ``gym-async``: the reference design, gymnasium's `AsyncVectorEnv` (one process per env
   instance) per environment; it can only step all instances of an environment together.
-- ``auto``: ``inline-batched`` with one share per CPU when there are >= 2 CPUs, >= 2
-  instances and a step of all instances costs >= 1 ms of CPU (probed on a throwaway env at
-  start), else ``sync``. `seal bench` (collect_mt10_speedup / collect_fk_speedup) measures every
+- ``auto``: ``inline-batched`` with one share per CPU when there are >= 2 CPUs and splitting a
+  step of all instances over the shares saves >= 1 ms of CPU (each env's step cost probed on a
+  throwaway env at start), else ``sync``. `seal bench` (collect_mt10_speedup / collect_fk_speedup) measures every
   backend against a plain loop: on this 2-core machine inline-batched was the fastest (MT10 and
   kitchens), the one-process-per-env reference the slowest of the parallel designs.
 """
@@ -328,6 +328,16 @@ class _InlineConn:
         pass
 
 
+def _deal(groups: Mapping[str, Sequence[_Instance]], shares: int) -> dict[str, np.ndarray]:
+    """Per env, the share of each of its instances: round-robin over all instances in env order."""
+    owner: dict[str, np.ndarray] = {}
+    k = 0
+    for env, insts in groups.items():
+        owner[env] = (k + np.arange(len(insts))) % shares
+        k += len(insts)
+    return owner
+
+
 class _SubprocBatchedBackend(_Backend):
     """`num_workers` shares, dealt round-robin over all instances in environment order (instance
     k of the concatenated lists lives in share k % num_workers), so two envs of one task each
@@ -352,13 +362,10 @@ class _SubprocBatchedBackend(_Backend):
         self.num_workers = w_count = max(1, min(num_workers, total))
         self.inline = inline
         # Per env: each instance's share, and its index within that share's group of the env.
-        self._owner: dict[str, np.ndarray] = {}
+        self._owner = _deal(groups, w_count)
         self._local: dict[str, np.ndarray] = {}
         shares: list[dict[str, list[_Instance]]] = [{} for _ in range(w_count)]
-        k = 0
         for env, insts in groups.items():
-            self._owner[env] = (k + np.arange(len(insts))) % w_count
-            k += len(insts)
             local = []
             for inst, w in zip(insts, self._owner[env], strict=True):
                 local.append(len(shares[w].setdefault(env, [])))
@@ -560,10 +567,13 @@ class _GymAsyncBackend(_Backend):
         self.vec = {}
 
 
-# auto uses worker processes only when one step of all instances costs at least this much CPU:
-# a pipe round trip costs ~0.2 ms, so cheaper envs (e.g. `point`, ~10 us a step) run faster in
-# one process, while MT10 (~3 ms a step of all 10) and the kitchens (~30 ms) gain from workers.
-AUTO_PARALLEL_MIN_STEP_S = 1e-3
+# auto uses worker processes only when splitting one step of all instances over the shares saves
+# at least this much CPU time (the whole step's cost minus the costliest share's): a pipe round
+# trip and its wake-ups cost ~0.2-1 ms, so a split that saves less is no faster. MT10 on 2 shares
+# saves ~2 ms a step and the kitchens ~15 ms; `point` (~10 us a step) and the quickstart's training
+# pair (one Meta-World and one kitchen env: the split saves only the ~0.5 ms Meta-World step, and
+# measured no faster than one process) run in one process.
+AUTO_PARALLEL_MIN_SAVING_S = 1e-3
 
 
 def _probe_step_seconds(instance: _Instance, steps: int = 10) -> float:
@@ -589,16 +599,21 @@ def _probe_step_seconds(instance: _Instance, steps: int = 10) -> float:
 def _auto_backend(
     groups: Mapping[str, Sequence[_Instance]], workers: int
 ) -> tuple[str, float | None]:
-    """("inline-batched" or "sync", probed step cost or None): see AUTO_PARALLEL_MIN_STEP_S."""
-    if workers < 2 or sum(len(g) for g in groups.values()) < 2:
+    """("inline-batched" or "sync", probed cost of one step of all instances or None): see
+    AUTO_PARALLEL_MIN_SAVING_S. Each env's instances are costed by one probe of its first."""
+    total = sum(len(g) for g in groups.values())
+    if workers < 2 or total < 2:
         return "sync", None
-    cost = sum(_probe_step_seconds(g[0]) * len(g) for g in groups.values() if g)
-    return choose_backend(cost), cost
+    cost = {env: _probe_step_seconds(g[0]) for env, g in groups.items() if g}
+    shares = np.zeros(min(workers, total))
+    for env, owner in _deal(groups, len(shares)).items():
+        np.add.at(shares, owner, cost.get(env, 0.0))
+    return choose_backend(float(shares.sum() - shares.max())), float(shares.sum())
 
 
-def choose_backend(step_cost_s: float) -> str:
-    """What "auto" picks for a measured cost of one step of all instances (>= 2 workers)."""
-    return "inline-batched" if step_cost_s >= AUTO_PARALLEL_MIN_STEP_S else "sync"
+def choose_backend(saving_s: float) -> str:
+    """What "auto" picks when splitting a step over the shares saves `saving_s` (>= 2 workers)."""
+    return "inline-batched" if saving_s >= AUTO_PARALLEL_MIN_SAVING_S else "sync"
 
 
 def auto_backend(

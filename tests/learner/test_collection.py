@@ -356,20 +356,30 @@ def test_gym_async_refuses_partial_masks() -> None:
         col.collect_episodes(None, random_actions=True, active={"toy": [True, False, True]})
 
 
-def test_auto_chooses_from_the_measured_step_cost(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_auto_chooses_from_what_splitting_a_step_saves(monkeypatch: pytest.MonkeyPatch) -> None:
     # The measurement is injected, so the choice does not depend on this machine's speed. The
-    # toy envs have 3 + 2 tasks; the probe's cost of one instance is multiplied by the number
-    # of instances of its env: 3 x 100 us + 2 x 100 us = 0.5 ms < 1 ms -> one process.
-    assert collection.AUTO_PARALLEL_MIN_STEP_S == 1e-3
+    # toy envs have 3 + 2 tasks, dealt over 2 shares as toy [0, 1, 0], toy2 [1, 0]; each env's
+    # probe prices all its instances. 100 us each: shares 300 + 200 us, the split saves 200 us.
+    assert collection.AUTO_PARALLEL_MIN_SAVING_S == 1e-3
     monkeypatch.setattr(collection, "_probe_step_seconds", lambda instance, steps=10: 1e-4)
     with Collector(adapters(), seed=0, backend="auto", num_workers=2) as col:
         assert col.backend_name == "sync"
         assert col.step_cost_s == pytest.approx(5 * 1e-4)
-    # 5 x 300 us = 1.5 ms >= 1 ms -> the main process steps one share, a worker the other.
-    monkeypatch.setattr(collection, "_probe_step_seconds", lambda instance, steps=10: 3e-4)
+    # 1 ms each: shares 3 + 2 ms, the split saves 2 ms -> the main process steps one share.
+    monkeypatch.setattr(collection, "_probe_step_seconds", lambda instance, steps=10: 1e-3)
     with Collector(adapters(), seed=0, backend="auto", num_workers=2) as col:
         assert col.backend_name == "inline-batched"
-        assert col.step_cost_s == pytest.approx(5 * 3e-4)
+        assert col.step_cost_s == pytest.approx(5 * 1e-3)
+    # The quickstart's shape: one costly env (4 ms) and one cheap (0.5 ms), one task each. The
+    # whole step costs 4.5 ms, but the split saves only the cheap 0.5 ms: one process.
+    pair = {"toy": ToyAdapter(tasks=["a"]), "toy2": Toy2Adapter(tasks=["a"])}
+    costs = {"toy": 4e-3, "toy2": 5e-4}
+    monkeypatch.setattr(
+        collection, "_probe_step_seconds", lambda instance, steps=10: costs[instance.env]
+    )
+    with Collector(pair, seed=0, backend="auto", num_workers=2) as col:
+        assert col.backend_name == "sync"
+        assert col.step_cost_s == pytest.approx(4.5e-3)
     # One worker: never parallel, and nothing is probed.
     with Collector(adapters(), seed=0, backend="auto", num_workers=1) as col:
         assert col.backend_name == "sync" and col.step_cost_s is None
