@@ -569,10 +569,11 @@ class _GymAsyncBackend(_Backend):
 
 # auto uses worker processes only when splitting one step of all instances over the shares saves
 # at least this much CPU time (the whole step's cost minus the costliest share's): a pipe round
-# trip and its wake-ups cost ~0.2-1 ms, so a split that saves less is no faster. MT10 on 2 shares
+# trip and its wake-ups cost ~0.2-1 ms, so a split that saves less gains little. MT10 on 2 shares
 # saves ~2 ms a step and the kitchens ~15 ms; `point` (~10 us a step) and the quickstart's training
-# pair (one Meta-World and one kitchen env: the split saves only the ~0.5 ms Meta-World step, and
-# measured no faster than one process) run in one process.
+# pair run in one process. That pair (one kitchen and one Meta-World env) saves only the ~0.5 ms
+# Meta-World step: 0.39-0.40 s per episode in two processes against 0.40-0.41 s in one
+# (`python scripts/collection_split_seconds.py`, 2026-11-24, two runs).
 AUTO_PARALLEL_MIN_SAVING_S = 1e-3
 
 
