@@ -102,10 +102,47 @@ def test_table_lists_each_key_with_its_goal() -> None:
     assert "collect_fk_speedup" in table and "skipped: no kitchen" in table
 
 
+def test_update_rate_bench_times_eager_and_compiled_on_the_protocols_shapes(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The paper_update_rate plumbing on the quickstart's agent (two envs of one task each, 128
+    per task): a stand-in torch.compile that returns the stage itself makes the "compiled" path
+    run the eager stages, so its losses must equal eager's exactly and its rate be the headline."""
+    import torch
+
+    from seal.bench.flops import QUICKSTART, bench_update_rate
+
+    monkeypatch.setattr(torch, "compile", lambda fn, **_: fn)
+    d = bench_update_rate(QUICKSTART, updates=2, repeats=1, device="cpu")
+    assert d["batch"] == 2 * 128 and d["device"] == "cpu"
+    assert {n: (e["obs_dim"], e["act_dim"]) for n, e in d["envs"].items()} == {
+        "mw": (39, 4),
+        "fk": (62, 9),
+    }
+    compiled = d["paths"]["compiled"]
+    assert compiled["compiled"] and compiled["loss_max_rel_diff"] == {
+        "update_1": 0.0,
+        "update_5": 0.0,
+    }
+    assert d["headline_path"] == "compiled"
+    assert d["paper_update_rate"] == compiled["updates_per_s"] == 1 / compiled["update_s"]
+    assert d["paths"]["eager"]["updates_per_s"] > 0
+    table = format_table(
+        {
+            "paper_update_rate": d["paper_update_rate"],
+            "details": {"paper_update_rate": d},
+            "load_before": {"loadavg_1m": 1.0, "cpus": 2, "torch_threads": 2},
+            "load_after": {"loadavg_1m": 1.5},
+        }
+    )
+    assert "paper_update_rate" in table and ">=1000" in table and "batch 256" in table
+
+
 def test_unknown_benchmark_key_is_a_one_line_user_error(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "--only", "nope"]) == 2
     err = capsys.readouterr().err
     assert "unknown benchmark 'nope'" in err and "sac_vs_sb3" in err
+    assert "paper_update_rate" in err  # opt-in keys are valid too
 
 
 def test_ratio_lever_bench_reports_every_mode_with_gradient_norm_ratios() -> None:

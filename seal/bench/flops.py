@@ -293,9 +293,12 @@ def as_implemented(shape: UpdateShape) -> UpdateShape:
     )
 
 
-def quickstart_setup(protocol: str | Path = QUICKSTART) -> tuple[list[EnvSpec], AgentConfig, int]:
-    """The quickstart's EnvSpecs (its envs' real obs/action sizes and task counts), its resolved
-    AgentConfig on CPU and its batch_per_task; SealError when an env's adapter is not installed."""
+def quickstart_setup(
+    protocol: str | Path = QUICKSTART, device: str = "cpu"
+) -> tuple[list[EnvSpec], AgentConfig, int]:
+    """A protocol's EnvSpecs (its envs' real obs/action sizes and task counts), its resolved
+    AgentConfig on `device` and its batch_per_task (default: the quickstart's, on CPU); SealError
+    when an env's adapter is not installed."""
     from seal.learner import EnvSpec
     from seal.protocols import load_protocol
     from seal.protocols.runner import build_adapters
@@ -306,13 +309,22 @@ def quickstart_setup(protocol: str | Path = QUICKSTART) -> tuple[list[EnvSpec], 
     except ImportError as exc:  # an env's simulator is missing
         raise SealError(f"{protocol}: cannot build its envs ({exc})") from None
     specs = [EnvSpec(n, a.obs_dim, a.act_dim, len(a.tasks)) for n, a in adapters.items()]
-    agent_cfg = dataclasses.replace(config.agent, device="cpu")
+    agent_cfg = dataclasses.replace(config.agent, device=device)
     return specs, agent_cfg, int(config.training.batch_per_task)
 
 
-def _agent_batches(specs: Sequence[EnvSpec], per_task: int, seed: int) -> dict[str, Batch]:
+def _agent_batches(
+    specs: Sequence[EnvSpec], per_task: int, seed: int, device: torch.device | str = "cpu"
+) -> dict[str, Batch]:
+    from seal.learner import Batch
+
     return {
-        s.name: _random_batch(s.num_tasks, per_task, seed + i, s.obs_dim, s.act_dim)
+        s.name: Batch(
+            *(
+                t.to(device)
+                for t in _random_batch(s.num_tasks, per_task, seed + i, s.obs_dim, s.act_dim)
+            )
+        )
         for i, s in enumerate(specs)
     }
 
@@ -346,51 +358,43 @@ def agent_flop_formula_check(
     }
 
 
-def bench_small_update_flops(
-    updates: int = 30, repeats: int = 3, seed: int = 0, compile: bool = True
+def _time_eager_and_compiled(
+    specs: Sequence[EnvSpec],
+    config: AgentConfig,
+    per_task: int,
+    updates: int,
+    repeats: int,
+    seed: int,
+    compile: bool,
 ) -> dict[str, Any]:
-    """FLOP/s of the quickstart-shape SEAL update / torch.mm FLOP/s at its ideal GEMM shapes, one thread.
-
-    The agent is the quickstart protocol's (`quickstart_setup`): two envs, batch_per_task samples
-    per task, its widths. Ideal FLOPs as `mt10_update_flops_fraction` counts them, per env
-    (`agent_update_shapes`). Measured for the eager update and, with `compile`, for the same agent
-    with agent.compile on (its repeats interleaved with eager's, same batches and seed); the
-    headline `small_update_flops_fraction` is the compiled one when it compiled, else eager's.
-    `loss_max_rel_diff` compares the two agents' losses at updates 1 and 5.
-    """
+    """Seconds per update of `config`'s agent eager and, with `compile`, compiled (same batches,
+    seed and device; repeats interleaved, the best counts), timed as a training loop runs them
+    (`update_on_device`, one sync per timed run). Five untimed updates first (the first also
+    measures the ratio lever); `loss_max_rel_diff` compares the two agents' losses at updates 1
+    and 5. The headline path is the compiled one when it compiled, else eager."""
     from seal.learner import Agent
 
-    specs, config, per_task = quickstart_setup()
-    shapes = agent_update_shapes(specs, config, per_task)
-    gemms = agent_update_gemms(shapes)
-    flops = gemm_flops(gemms)
-    with torch_threads(1):
-        agents = {"eager": Agent(specs, config, seed)}
-        if compile:
-            agents["compiled"] = Agent(specs, dataclasses.replace(config, compile=True), seed)
-        batches = _agent_batches(specs, per_task, seed)
-        losses: dict[str, list[dict[str, float]]] = {k: [] for k in agents}
-        for _ in range(5):  # the first also measures the ratio lever (every 1000 updates)
-            for name, agent in agents.items():
-                metrics = agent.update(batches)
-                losses[name].append({k: v for k, v in metrics.items() if k.startswith("losses")})
-        best = dict.fromkeys(agents, math.inf)
-        for _ in range(repeats):
-            for name, agent in agents.items():
+    agents = {"eager": Agent(specs, config, seed)}
+    if compile:
+        agents["compiled"] = Agent(specs, dataclasses.replace(config, compile=True), seed)
+    device = agents["eager"].device
+    batches = _agent_batches(specs, per_task, seed, device)
+    losses: dict[str, list[dict[str, float]]] = {k: [] for k in agents}
+    for _ in range(5):
+        for name, agent in agents.items():
+            metrics = agent.update(batches)
+            losses[name].append({k: v for k, v in metrics.items() if k.startswith("losses")})
+    best = dict.fromkeys(agents, math.inf)
+    for _ in range(repeats):
+        for name, agent in agents.items():
 
-                def run(agent: Agent = agent) -> None:
-                    for _ in range(updates):
-                        agent.update(batches)
+            def run(agent: Agent = agent) -> None:
+                for _ in range(updates):
+                    _, values = agent.update_on_device(batches)
+                values.cpu()  # waits for the device's queued work
 
-                best[name] = min(best[name], _timeit(run, 1) / updates)
-        t_mm = _time_gemms(gemms, repeats)
-    paths: dict[str, Any] = {}
-    for name in agents:
-        paths[name] = {
-            "update_s": best[name],
-            "update_gflops": flops / best[name] / 1e9,
-            "small_update_flops_fraction": t_mm / best[name],
-        }
+            best[name] = min(best[name], _timeit(run, 1) / updates)
+    paths: dict[str, Any] = {name: {"update_s": best[name]} for name in agents}
     if "compiled" in agents:
         compiled = agents["compiled"]
         paths["compiled"]["compiled"] = compiled.compiled
@@ -403,16 +407,76 @@ def bench_small_update_flops(
             for i in (0, 4)
         }
     headline = "compiled" if compile and agents["compiled"].compiled else "eager"
+    return {"device": str(device), "paths": paths, "headline_path": headline}
+
+
+def bench_small_update_flops(
+    updates: int = 30, repeats: int = 3, seed: int = 0, compile: bool = True
+) -> dict[str, Any]:
+    """FLOP/s of the quickstart-shape SEAL update / torch.mm FLOP/s at its ideal GEMM shapes, one thread.
+
+    The agent is the quickstart protocol's (`quickstart_setup`): two envs, batch_per_task samples
+    per task, its widths. Ideal FLOPs as `mt10_update_flops_fraction` counts them, per env
+    (`agent_update_shapes`). Measured for the eager update and, with `compile`, for the same agent
+    with agent.compile on (`_time_eager_and_compiled`); the headline `small_update_flops_fraction`
+    is the compiled one when it compiled, else eager's.
+    """
+    specs, config, per_task = quickstart_setup()
+    shapes = agent_update_shapes(specs, config, per_task)
+    gemms = agent_update_gemms(shapes)
+    flops = gemm_flops(gemms)
+    with torch_threads(1):
+        timed = _time_eager_and_compiled(specs, config, per_task, updates, repeats, seed, compile)
+        t_mm = _time_gemms(gemms, repeats)
+    for path in timed["paths"].values():
+        path["update_gflops"] = flops / path["update_s"] / 1e9
+        path["small_update_flops_fraction"] = t_mm / path["update_s"]
+    headline = timed["paths"][timed["headline_path"]]
     return {
         "envs": {s.name: dataclasses.asdict(s) for s in specs},
         "batch_per_task": per_task,
         "ideal_flops_per_update": flops,
         "matmul_gflops_same_shapes": flops / t_mm / 1e9,
-        "paths": paths,
-        "headline_path": headline,
-        "update_s": best[headline],
-        "update_gflops": paths[headline]["update_gflops"],
-        "small_update_flops_fraction": paths[headline]["small_update_flops_fraction"],
+        **timed,
+        "update_s": headline["update_s"],
+        "update_gflops": headline["update_gflops"],
+        "small_update_flops_fraction": headline["small_update_flops_fraction"],
         "updates_timed": updates,
         "threads": 1,
+    }
+
+
+PAPER_PROTOCOL = QUICKSTART.parent / "high_fk.toml"
+
+
+def bench_update_rate(
+    protocol: str | Path = PAPER_PROTOCOL,
+    updates: int = 50,
+    repeats: int = 3,
+    seed: int = 0,
+    device: str = "auto",
+    compile: bool = True,
+) -> dict[str, Any]:
+    """Updates/s of a protocol's agent at its real update shape on `device`, eager and compiled.
+
+    Default: the paper-scale SEAL update (protocols/high_fk.toml: MT10 and the 10 kitchens, 128
+    per task, batch 2,560, 400-wide). On CUDA the compiled path replays each update stage as a CUDA
+    graph (`seal.learner.sac.compile_mode`). Every env gets batch_per_task samples per task (the
+    50/50 point of a ratio schedule: the total batch, hence the work, is the same at any ratio).
+    ``paper_update_rate`` is the headline path's updates/s (compiled when it compiled).
+    """
+    specs, config, per_task = quickstart_setup(protocol, device=device)
+    timed = _time_eager_and_compiled(specs, config, per_task, updates, repeats, seed, compile)
+    for path in timed["paths"].values():
+        path["updates_per_s"] = 1.0 / path["update_s"]
+    if timed["device"].startswith("cuda"):
+        timed["device_name"] = torch.cuda.get_device_name(torch.device(timed["device"]))
+    return {
+        "protocol": str(protocol),
+        "envs": {s.name: dataclasses.asdict(s) for s in specs},
+        "batch": per_task * sum(s.num_tasks for s in specs),
+        **timed,
+        "paper_update_rate": timed["paths"][timed["headline_path"]]["updates_per_s"],
+        "updates_timed": updates,
+        "threads": torch.get_num_threads(),
     }

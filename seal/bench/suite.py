@@ -17,6 +17,9 @@ machine load affects both sides (the load is recorded with the results):
   every mode with the ratio of the two environments' trunk gradient norms, the weighted mode's
   share of the raw (pre-Adam, unclipped) gradient, and the share that a noise-dominated gradient
   allows any sample-count weighting. Not a timing.
+- ``paper_update_rate`` (only with ``--only``: slow on a CPU): updates/s of the paper-scale SEAL
+  update (protocols/high_fk.toml's agent: MT10 and the 10 kitchens, batch 2,560, 400-wide) on the
+  default device, eager and compiled (CUDA graphs on CUDA); its goal is for one H100.
 - ``collect_mt10_speedup`` / ``collect_fk_speedup``: env steps/s of `Collector` over the 10 tasks /
   a plain single-process loop over envs built by the same adapter (same wrappers), with the same
   actions; both must end on identical observations.
@@ -37,6 +40,7 @@ from seal.bench.flops import (
     agent_flop_formula_check,
     bench_mt10_flops,
     bench_small_update_flops,
+    bench_update_rate,
     flop_formula_check,
     quickstart_setup,
 )
@@ -90,12 +94,13 @@ def run_bench(
         "collect_fk_speedup",
         "ratio_lever",
     )
+    opt_in = ("paper_update_rate",)  # minutes per repeat on a CPU: only when asked for
     chosen = list(only or keys)
-    unknown = [k for k in chosen if k not in keys]
+    unknown = [k for k in chosen if k not in keys + opt_in]
     if unknown:
         from seal.errors import UnknownNameError
 
-        raise UnknownNameError("benchmark", unknown[0], keys)
+        raise UnknownNameError("benchmark", unknown[0], keys + opt_in)
     out: dict[str, Any] = {
         "load_before": machine_load(),
         "settings": settings.__dict__,
@@ -127,6 +132,16 @@ def run_bench(
             d = bench_small_update_flops(settings.flops_updates, settings.repeats)
             out["details"]["small_update_flops"] = d
             out["small_update_flops_fraction"] = d["small_update_flops_fraction"]
+    if "paper_update_rate" in chosen:
+        log("paper_update_rate")
+        try:
+            d = bench_update_rate(updates=settings.flops_updates, repeats=settings.repeats)
+        except SealError as exc:
+            out["details"]["paper_update_rate"] = {"skipped": str(exc)}
+            out["paper_update_rate"] = None
+        else:
+            out["details"]["paper_update_rate"] = d
+            out["paper_update_rate"] = d["paper_update_rate"]
     for key, adapter, length in (
         ("collect_mt10_speedup", "metaworld", settings.mt10_episode_length),
         ("collect_fk_speedup", "franka_kitchen_dense", settings.fk_episode_length),
@@ -161,6 +176,7 @@ GOALS = {
     "collect_mt10_speedup": 1.7,
     "collect_fk_speedup": 1.7,
     "ratio_lever": 0.8,
+    "paper_update_rate": 1000,  # on one H100 (issue 13)
 }
 
 
@@ -215,6 +231,22 @@ def format_table(result: Mapping[str, Any]) -> str:
                 else ""
             )
             + f", pure-noise ceiling {d['ratio_lever']['noise_ceiling']:.2f}"
+        )
+    rate = d.get("paper_update_rate", {})
+    if "skipped" in rate:
+        detail["paper_update_rate"] = lambda: f"skipped: {rate['skipped']}"
+    elif rate:
+        detail["paper_update_rate"] = lambda: (
+            ", ".join(
+                f"{name} {p['updates_per_s']:.1f}/s"
+                + (
+                    f" (compiled {p['compile_seconds']:.0f} s, losses vs eager {max(p['loss_max_rel_diff'].values()):.0e} rel{'' if p['compiled'] else '; FELL BACK TO EAGER'})"
+                    if name == "compiled"
+                    else ""
+                )
+                for name, p in rate["paths"].items()
+            )
+            + f"; {rate['device_name'] if 'device_name' in rate else rate['device']}, batch {rate['batch']}, {rate['threads']} threads (goal: one H100)"
         )
     for key in ("collect_mt10_speedup", "collect_fk_speedup"):
         if key in d and "backends" in d[key]:

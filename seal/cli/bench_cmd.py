@@ -15,6 +15,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Measures sac_vs_sb3, mt10_update_flops_fraction, collect_mt10_speedup and collect_fk_speedup "
             "side by side in one run and prints a table (or one JSON object with --json). "
+            "--only paper_update_rate (not in the default run: slow on a CPU) times the paper-scale "
+            "SEAL update (MT10 + 10 kitchens, batch 2,560) eager and compiled, CUDA graphs on a GPU. "
             "--learn adds the slow learning checks (point with/without one-hot, reach-v3); "
             "--learn transfer runs only the cross-environment transfer testbed (protocols/testbed, "
             "docs/transfer_testbed.md) and prints its table and transfer_updates_saved; "

@@ -127,7 +127,7 @@ class AgentConfig:
     # Off by default: compiling costs ~35 s at the quickstart's widths (more at MT10's); the
     # quickstart-shape update ran ~1.4x faster compiled (`seal bench --only small_update_flops_fraction`).
     compile: bool = False
-    """torch.compile each update stage (the critic's, then the actor's losses with their gradients, forward and backward in one graph); optimiser steps stay eager. Eager fallback, with one warning, if compilation fails; `Agent.compile_seconds` says what it cost."""
+    """torch.compile each update stage (the critic's, then the actor's losses with their gradients, forward and backward in one graph; on CUDA replayed as a CUDA graph); optimiser steps stay eager. Eager fallback, with one warning, if compilation fails; `Agent.compile_seconds` says what it cost."""
 
     def __post_init__(self) -> None:
         for key in ("hidden", "translator_hidden", "trunk_hidden", "critic_hidden"):

@@ -35,6 +35,8 @@ Each stage of an update (`_critic_stage`, then `_actor_stage`) computes its loss
 gradients as one function of pre-drawn policy noise; with `AgentConfig.compile` that function is
 torch.compiled, forward and backward (and the gradient clipping, `_clipped`) in one graph (eager
 fallback on any compiler failure), and the optimiser steps (`_adam_step`) stay eager either way.
+On CUDA each compiled stage is replayed as a CUDA graph (`compile_mode`); between the two graphs
+run the noise draws, the fused Adam kernels and the Polyak lerp.
 """
 
 from __future__ import annotations
@@ -122,6 +124,13 @@ def _clipped(grads: Sequence[torch.Tensor | None], max_norm: float) -> list[torc
     coefficient = torch.clamp(max_norm / (total + 1e-6), max=1.0)
     scaled = iter(torch._foreach_mul(present, coefficient))
     return [None if g is None else next(scaled) for g in grads]
+
+
+def compile_mode(device: torch.device) -> str | None:
+    """torch.compile's mode for the update stages: on CUDA "reduce-overhead", which replays each
+    compiled stage as a CUDA graph (one launch for its forward and backward kernels); elsewhere
+    the default, since CPU has no graphs. Never run on a GPU here: no GPU was lent."""
+    return "reduce-overhead" if device.type == "cuda" else None
 
 
 def _step_counters(states: Sequence[dict[str, torch.Tensor]]) -> torch.Tensor:
@@ -477,8 +486,13 @@ class Agent:
     def _try_compile(self) -> None:
         """torch.compile each update stage's losses and their gradients, forward and backward in
         one graph (compilation itself happens at the first call of each stage)."""
-        self._compiled["critic"] = torch.compile(self._critic_stage, fullgraph=True, dynamic=False)
-        self._compiled["actor"] = torch.compile(self._actor_stage, fullgraph=True, dynamic=False)
+        mode = compile_mode(self.device)
+        self._compiled["critic"] = torch.compile(
+            self._critic_stage, fullgraph=True, dynamic=False, mode=mode
+        )
+        self._compiled["actor"] = torch.compile(
+            self._actor_stage, fullgraph=True, dynamic=False, mode=mode
+        )
 
     @property
     def compiled(self) -> bool:
@@ -794,6 +808,10 @@ class Agent:
     ) -> tuple[list[str], list[torch.Tensor]]:
         """The update itself; with `drop`, that env's losses are computed (same noise draws) but
         left out of every step, its weight n_X / N still counted in N (the ratio lever's Δ₋X)."""
+        if self._compiled and self.device.type == "cuda":
+            # CUDA graphs: a stage's outputs live until the next update replays it (cudagraph
+            # trees); every one is consumed within this update (steps, stacked scalars).
+            torch.compiler.cudagraph_mark_step_begin()
         inputs = self._inputs(batches)
         total = sum(batch.obs.shape[0] for batch, *_ in inputs.values())
         weights = {name: batch.obs.shape[0] / total for name, (batch, *_) in inputs.items()}

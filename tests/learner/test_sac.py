@@ -403,6 +403,23 @@ def test_compile_failure_falls_back_to_eager_with_a_warning(
     )  # stays eager, no new warning
 
 
+def test_compiled_stages_are_cuda_graphs_on_cuda_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    from seal.learner.sac import compile_mode
+
+    assert compile_mode(torch.device("cuda")) == compile_mode(torch.device("cuda:1"))
+    assert compile_mode(torch.device("cuda")) == "reduce-overhead"
+    assert compile_mode(torch.device("cpu")) is None
+    modes: list[object] = []
+
+    def recording_compile(fn: object, **kwargs: object) -> object:
+        modes.append(kwargs["mode"])
+        return fn
+
+    monkeypatch.setattr(torch, "compile", recording_compile)
+    Agent([EnvSpec("e", 3, 2, 2)], AgentConfig(compile=True, device="cpu", **SMALL), seed=0)
+    assert modes == [None, None]  # the critic's and the actor's stage, CPU's default mode
+
+
 def test_compiled_update_agrees_with_eager_and_is_deterministic() -> None:
     # A SEAL agent with both kinds of env (3 and 1 tasks: gathered and single Q heads), weighted.
     specs = [EnvSpec("mw", 6, 2, 3), EnvSpec("fk", 8, 3, 1)]
