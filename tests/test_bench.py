@@ -138,6 +138,36 @@ def test_update_rate_bench_times_eager_and_compiled_on_the_protocols_shapes(
     assert "paper_update_rate" in table and ">=1000" in table and "batch 256" in table
 
 
+def test_mt10_flops_bench_reports_eager_and_compiled_paths(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """As above for mt10_update_flops_fraction: identity "compilation", so equal losses; the
+    headline is the compiled path's, and each path's fraction is matmul time / its update time."""
+    import torch
+
+    from seal.bench.flops import bench_mt10_flops
+
+    monkeypatch.setattr(torch, "compile", lambda fn, **_: fn)
+    d = bench_mt10_flops(updates=1, repeats=1)
+    eager, compiled = d["paths"]["eager"], d["paths"]["compiled"]
+    assert compiled["loss_max_rel_diff"] == {"update_1": 0.0, "update_5": 0.0}
+    assert d["mt10_update_flops_fraction"] == compiled["mt10_update_flops_fraction"]
+    t_mm = eager["mt10_update_flops_fraction"] * eager["update_s"]
+    assert compiled["mt10_update_flops_fraction"] == pytest.approx(t_mm / compiled["update_s"])
+    # every GEMM of the ideal update, by hand in test_ideal_flop_formula_by_hand's terms
+    assert d["ideal_flops_per_update"] == gemm_flops(ideal_update_gemms(UpdateShape()))
+    assert d["flop_counter_per_update"] > d["ideal_flops_per_update"]  # all 10 heads computed
+    table = format_table(
+        {
+            "mt10_update_flops_fraction": d["mt10_update_flops_fraction"],
+            "details": {"mt10_update_flops": d, "flop_formula_check": {"equal": True}},
+            "load_before": {"loadavg_1m": 1.0, "cpus": 2, "torch_threads": 2},
+            "load_after": {"loadavg_1m": 1.5},
+        }
+    )
+    assert "compiled shown; eager" in table and "formula==FlopCounter: True" in table
+
+
 def test_unknown_benchmark_key_is_a_one_line_user_error(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "--only", "nope"]) == 2
     err = capsys.readouterr().err

@@ -5,7 +5,8 @@ each sample's task head), per second of our update, / the FLOP/s torch.mm reache
 GEMM shapes; equivalently the time of the update's GEMMs alone / the time of the whole update.
 MT10: the MTMHSAC update (3 x 400, 128 per task x 10). Small: the quickstart's SEAL update
 (protocols/quickstart.toml: its two envs' real sizes, its batch and widths), always on one torch
-thread, eager and with agent.compile. `flop_formula_check` / `agent_flop_formula_check` check the
+thread. Both are timed eager and with agent.compile (the compiled figure is the headline when it
+compiles). `flop_formula_check` / `agent_flop_formula_check` check the
 formula, set to what our update really computes, against FlopCounterMode's count.
 """
 
@@ -198,47 +199,44 @@ def _time_gemms(gemms: Sequence[Gemm], repeats: int) -> float:
     return total
 
 
-class Mt10Flops(TypedDict):
-    """`bench_mt10_flops`' figures."""
+def bench_mt10_flops(
+    updates: int = 50, repeats: int = 3, seed: int = 0, compile: bool = True
+) -> dict[str, Any]:
+    """FLOP/s of the MT10 MTMHSAC update (defaults: 3 x 400, 128 per task x 10) / torch.mm FLOP/s at its shapes.
 
-    ideal_flops_per_update: int
-    flop_counter_per_update: int
-    update_s: float
-    update_gflops: float
-    matmul_gflops_same_shapes: float
-    mt10_update_flops_fraction: float
-    updates_timed: int
+    Measured like `bench_small_update_flops` (`_time_eager_and_compiled`): eager and, with
+    `compile`, with agent.compile on; the headline is the compiled figure when it compiled.
+    """
+    from torch.utils.flop_counter import FlopCounterMode
 
+    from seal.learner import AgentConfig, EnvSpec
 
-def bench_mt10_flops(updates: int = 50, repeats: int = 3, seed: int = 0) -> Mt10Flops:
-    """FLOP/s of the MT10 MTMHSAC update (defaults: 3 x 400, 128 per task x 10) / torch.mm FLOP/s at its shapes."""
     shape = UpdateShape()
     gemms = ideal_update_gemms(shape)
     flops = gemm_flops(gemms)
     agent = _mt10_agent(seed)
     batch = {"metaworld": _random_batch(10, 128, seed)}
-    for _ in range(5):
-        agent.update(batch)
-
-    def run() -> None:
-        for _ in range(updates):
-            agent.update(batch)
-
-    from torch.utils.flop_counter import FlopCounterMode
-
+    agent.update(batch)  # the first update's Adam states: the counted one is a steady-state step
     with FlopCounterMode(display=False) as counter:
         agent.update(batch)
-    t_update = _timeit(run, repeats) / updates
+    specs = [EnvSpec("metaworld", shape.obs_dim, shape.act_dim, shape.num_tasks)]
+    config = AgentConfig(hidden=shape.hidden, device="cpu")
+    timed = _time_eager_and_compiled(specs, config, 128, updates, repeats, seed, compile)
     t_mm = _time_gemms(gemms, repeats)
+    for path in timed["paths"].values():
+        path["update_gflops"] = flops / path["update_s"] / 1e9
+        path["mt10_update_flops_fraction"] = t_mm / path["update_s"]
+    headline = timed["paths"][timed["headline_path"]]
     return {
         "ideal_flops_per_update": flops,
         # What our update really multiplies (all 10 policy and Q heads, the critic's full input
         # gradient): the excess over ideal is work an ideal implementation would not do.
         "flop_counter_per_update": int(counter.get_total_flops()),
-        "update_s": t_update,
-        "update_gflops": flops / t_update / 1e9,
         "matmul_gflops_same_shapes": flops / t_mm / 1e9,
-        "mt10_update_flops_fraction": t_mm / t_update,
+        **timed,
+        "update_s": headline["update_s"],
+        "update_gflops": headline["update_gflops"],
+        "mt10_update_flops_fraction": headline["mt10_update_flops_fraction"],
         "updates_timed": updates,
     }
 

@@ -8,7 +8,8 @@ machine load affects both sides (the load is recorded with the results):
   compute the same update is a test (tests/learner/test_sb3_parity.py).
 - ``mt10_update_flops_fraction``: matmul FLOPs an ideal MT10 MTMHSAC update needs
   (`ideal_update_gemms`), per second of our update, / the FLOP/s torch.mm reaches on exactly those
-  GEMM shapes. Equivalently: time of the update's GEMMs alone / time of the whole update.
+  GEMM shapes. Equivalently: time of the update's GEMMs alone / time of the whole update. Eager
+  and with agent.compile side by side (the compiled figure is the headline when it compiles).
 - ``small_update_flops_fraction``: the same for the quickstart's SEAL update (protocols/quickstart.toml:
   its two envs' real sizes, 128 samples per task, 128-wide networks), always on one torch thread;
   eager and with agent.compile side by side (the compiled figure is the headline when it compiles).
@@ -180,10 +181,13 @@ GOALS = {
 }
 
 
-def _small_detail(small: Mapping[str, Any], check: Mapping[str, Any]) -> str:
+def _paths_detail(timed: Mapping[str, Any], key: str, check: Mapping[str, Any], note: str) -> str:
+    """The eager and compiled figures of an update FLOPs key (`_time_eager_and_compiled`'s paths)."""
     parts = []
-    for name, p in small["paths"].items():
-        text = f"{name} {p['small_update_flops_fraction']:.2f} ({p['update_s'] * 1e3:.1f} ms, {p['update_gflops']:.1f} GFLOP/s"
+    for name, p in timed["paths"].items():
+        text = (
+            f"{name} {p[key]:.2f} ({p['update_s'] * 1e3:.1f} ms, {p['update_gflops']:.1f} GFLOP/s"
+        )
         if name == "compiled":
             diff = max(p["loss_max_rel_diff"].values())
             text += f"; compiled {p['compile_seconds']:.0f} s; losses vs eager {diff:.0e} rel"
@@ -191,8 +195,8 @@ def _small_detail(small: Mapping[str, Any], check: Mapping[str, Any]) -> str:
                 text += "; FELL BACK TO EAGER"
         parts.append(text + ")")
     return (
-        f"{small['headline_path']} shown; {', '.join(parts)}; mm {small['matmul_gflops_same_shapes']:.1f} GFLOP/s, "
-        f"{small['ideal_flops_per_update'] / 1e6:.0f} MFLOP, 1 thread; formula==FlopCounter: {check['equal']}"
+        f"{timed['headline_path']} shown; {', '.join(parts)}; mm {timed['matmul_gflops_same_shapes']:.1f} GFLOP/s, "
+        f"{timed['ideal_flops_per_update'] / 1e6:.0f} MFLOP{note}; formula==FlopCounter: {check['equal']}"
     )
 
 
@@ -206,17 +210,16 @@ def format_table(result: Mapping[str, Any]) -> str:
             f"sb3 {d['sac_vs_sb3']['sb3_updates_per_s']:.1f}/s ({d['sac_vs_sb3'].get('sb3_gflops', 0):.1f} GFLOP/s); "
             f"sb3/ours FLOPs {d['sac_vs_sb3'].get('flops_ratio_sb3_over_ours', float('nan')):.2f}"
         ),
-        "mt10_update_flops_fraction": lambda: (
-            f"update {d['mt10_update_flops']['update_gflops']:.1f} GFLOP/s, mm {d['mt10_update_flops']['matmul_gflops_same_shapes']:.1f} GFLOP/s "
-            f"({d['mt10_update_flops']['update_s'] * 1e3:.1f} ms/update); formula==FlopCounter: {d['flop_formula_check']['equal']}"
+        "mt10_update_flops_fraction": lambda: _paths_detail(
+            d["mt10_update_flops"], "mt10_update_flops_fraction", d["flop_formula_check"], ""
         ),
     }
     small = d.get("small_update_flops", {})
     if "skipped" in small:
         detail["small_update_flops_fraction"] = lambda: f"skipped: {small['skipped']}"
     elif small:
-        detail["small_update_flops_fraction"] = lambda: _small_detail(
-            small, d["small_flop_formula_check"]
+        detail["small_update_flops_fraction"] = lambda: _paths_detail(
+            small, "small_update_flops_fraction", d["small_flop_formula_check"], ", 1 thread"
         )
     if "ratio_lever" in d:
         detail["ratio_lever"] = lambda: (
