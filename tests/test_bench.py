@@ -11,6 +11,18 @@ from seal.cli.main import main
 from seal.learner import collection
 
 
+def _table_of(key: str, details: dict, **extra_details: object) -> str:
+    """format_table of a result holding one key (its value from `details`) and its details."""
+    return format_table(
+        {
+            key: details[key],
+            "details": extra_details,
+            "load_before": {"loadavg_1m": 1.0, "cpus": 2, "torch_threads": 2},
+            "load_after": {"loadavg_1m": 1.5},
+        }
+    )
+
+
 def test_ideal_flop_formula_by_hand() -> None:
     # obs 2, act 1, one task without one-hot, hidden (3,), batch 1:
     # actor dims [2, 3, 2] -> one forward = 2 * (2*3 + 3*2) = 24; critic dims [3, 3, 1] -> 2 * (9 + 3) = 24.
@@ -127,14 +139,7 @@ def test_update_rate_bench_times_eager_and_compiled_on_the_protocols_shapes(
     assert d["headline_path"] == "compiled"
     assert d["paper_update_rate"] == compiled["updates_per_s"] == 1 / compiled["update_s"]
     assert d["paths"]["eager"]["updates_per_s"] > 0
-    table = format_table(
-        {
-            "paper_update_rate": d["paper_update_rate"],
-            "details": {"paper_update_rate": d},
-            "load_before": {"loadavg_1m": 1.0, "cpus": 2, "torch_threads": 2},
-            "load_after": {"loadavg_1m": 1.5},
-        }
-    )
+    table = _table_of("paper_update_rate", d, paper_update_rate=d)
     assert "paper_update_rate" in table and ">=1000" in table and "batch 256" in table
 
 
@@ -157,13 +162,8 @@ def test_mt10_flops_bench_reports_eager_and_compiled_paths(
     # every GEMM of the ideal update, by hand in test_ideal_flop_formula_by_hand's terms
     assert d["ideal_flops_per_update"] == gemm_flops(ideal_update_gemms(UpdateShape()))
     assert d["flop_counter_per_update"] > d["ideal_flops_per_update"]  # all 10 heads computed
-    table = format_table(
-        {
-            "mt10_update_flops_fraction": d["mt10_update_flops_fraction"],
-            "details": {"mt10_update_flops": d, "flop_formula_check": {"equal": True}},
-            "load_before": {"loadavg_1m": 1.0, "cpus": 2, "torch_threads": 2},
-            "load_after": {"loadavg_1m": 1.5},
-        }
+    table = _table_of(
+        "mt10_update_flops_fraction", d, mt10_update_flops=d, flop_formula_check={"equal": True}
     )
     assert "compiled shown; eager" in table and "formula==FlopCounter: True" in table
 
@@ -201,13 +201,6 @@ def test_ratio_lever_bench_reports_every_mode_with_gradient_norm_ratios() -> Non
     assert result["gradient_lever"] == pytest.approx(28 * g["a"] / (28 * g["a"] + 4 * g["b"]))
     # pure-noise ceiling: sqrt(28) / (sqrt(28) + sqrt(4)) = 5.2915 / 7.2915 = 0.72571
     assert result["noise_ceiling"] == pytest.approx(0.72571, abs=1e-5)
-    table = format_table(
-        {
-            "ratio_lever": result["ratio_lever"],
-            "details": {"ratio_lever": result},
-            "load_before": {"loadavg_1m": 1.0, "cpus": 2, "torch_threads": 1},
-            "load_after": {"loadavg_1m": 1.0},
-        }
-    )
+    table = _table_of("ratio_lever", result, ratio_lever=result)
     assert "ratio_lever" in table and ">=0.8" in table and "per_env" in table
     assert "pure-noise ceiling 0.73" in table
