@@ -8,7 +8,7 @@ mirror what the phase loop writes to them, at the same steps (the phase's gradie
     losses/<env>/<key>, charts/<env>/<key>                 every train.csv row (keys ending in "loss"
                                                            go under losses/)
 
-`[logging] tensorboard` turns on `TensorBoardLogger` (events under tb/), `[logging] wandb`
+`[logging] tensorboard` turns on `TensorBoardLogger` (events under tb/<phase>/), `[logging] wandb`
 ("offline" or "online") turns on `WandbLogger` (files under wandb/; needs the `wandb` extra).
 """
 
@@ -20,7 +20,7 @@ import secrets
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -82,28 +82,42 @@ class ScalarLogger(LoopCallback):
 
 
 class TensorBoardLogger(ScalarLogger):
-    """TensorBoard events under <run_dir>/tb; `purge_step` hides events past a resumed checkpoint."""
+    """TensorBoard events, one TensorBoard run per phase under <run_dir>/tb/<phase>.
 
-    def __init__(self, run_dir: Path, purge_step: int | None = None) -> None:
+    Each phase's gradient steps start again at 0, so its own run keeps phases from drawing over
+    one another. `purge` maps a phase to the step from which its events, written before a resumed
+    checkpoint, are hidden (TensorBoard's purge_step); phases not in it are untouched.
+    """
+
+    def __init__(self, run_dir: Path, purge: Mapping[str, int] | None = None) -> None:
         from torch.utils.tensorboard import SummaryWriter
 
-        self.writer: SummaryWriter | None = SummaryWriter(
-            str(Path(run_dir) / "tb"), purge_step=purge_step
-        )
+        self._summary_writer = SummaryWriter
+        self.root = Path(run_dir) / "tb"
+        self.purge = dict(purge or {})
+        self.writers: dict[str, SummaryWriter] = {}
+
+    def _writer(self, phase: str) -> Any:
+        """The phase's writer, opened at its first event (with the purge when it is the phase's)."""
+        if phase not in self.writers:
+            self.writers[phase] = self._summary_writer(
+                str(self.root / phase), purge_step=self.purge.get(phase)
+            )
+        return self.writers[phase]
 
     def write(self, scalars: Mapping[str, float], step: int, loop: PhaseLoop) -> None:
-        if self.writer is not None:
-            for tag, value in scalars.items():
-                self.writer.add_scalar(tag, value, step)
+        writer = self._writer(loop.phase.name)
+        for tag, value in scalars.items():
+            writer.add_scalar(tag, value, step)
 
     def flush(self) -> None:
-        if self.writer is not None:
-            self.writer.flush()
+        for writer in self.writers.values():
+            writer.flush()
 
     def close(self) -> None:
-        if self.writer is not None:
-            self.writer.close()
-            self.writer = None
+        for writer in self.writers.values():
+            writer.close()
+        self.writers = {}
 
 
 class WandbLogger(ScalarLogger):
@@ -169,13 +183,14 @@ def wandb_run_id(folder: Path) -> str:
 
 
 def open_loggers(
-    config: ProtocolConfig, run_dir: Path, purge_step: int | None = None
+    config: ProtocolConfig, run_dir: Path, purge: Mapping[str, int] | None = None
 ) -> list[ScalarLogger]:
-    """The loggers `[logging]` turns on for one run (TensorBoard is skipped if not installed)."""
+    """The loggers `[logging]` turns on for one run (TensorBoard is skipped if not installed);
+    `purge`: per phase, the step from which a resumed run hides events (`TensorBoardLogger`)."""
     loggers: list[ScalarLogger] = []
     if config.logging.tensorboard:
         with contextlib.suppress(ImportError):  # tensorboard missing: the CSVs remain the record
-            loggers.append(TensorBoardLogger(run_dir, purge_step))
+            loggers.append(TensorBoardLogger(run_dir, purge))
     if config.logging.wandb != "off":
         loggers.append(WandbLogger(run_dir, config.logging.wandb, config))
     return loggers

@@ -218,13 +218,16 @@ class Run:
         resume_payload = self._resume_point()
         start_phase = 0 if resume_payload is None else int(resume_payload["runner"]["phase_index"])
         purge = None
-        if resume_payload is not None and start_phase == 0:
-            # Hide TensorBoard events written after the checkpoint (they are written again). Steps
-            # restart in every phase, so purging in a later phase would hide earlier phases' events.
-            # Events at the checkpoint's own step (its epoch's evaluation and train rows) came
-            # before it and are not written again, so the purge starts one step later.
-            purge = int(resume_payload["runner"]["state"]["grad_steps"]) + 1
-        self.loggers = open_loggers(self.config, self.rundir.path, purge_step=purge)
+        if resume_payload is not None:
+            # Hide TensorBoard events written after the checkpoint (they are written again): the
+            # resumed phase's past its step, and all of any later phase's. Events at the
+            # checkpoint's own step (its epoch's evaluation and train rows) came before it and are
+            # not written again, so the resumed phase's purge starts one step later.
+            step = int(resume_payload["runner"]["state"]["grad_steps"]) + 1
+            purge = {
+                p.name: step if p.index == start_phase else 0 for p in self.phases[start_phase:]
+            }
+        self.loggers = open_loggers(self.config, self.rundir.path, purge)
         try:
             for phase in self.phases[start_phase:]:
                 payload = resume_payload if phase.index == start_phase else None

@@ -23,10 +23,10 @@ def _config(tmp_path: Path, logging: str) -> Any:
     return load_protocol(path)
 
 
-def _events(run: Path) -> dict[str, list[tuple[int, float]]]:
+def _events(run: Path, phase: str = "train") -> dict[str, list[tuple[int, float]]]:
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    acc = EventAccumulator(str(run / "tb"))
+    acc = EventAccumulator(str(run / "tb" / phase))
     acc.Reload()
     return {t: [(e.step, e.value) for e in acc.Scalars(t)] for t in acc.Tags()["scalars"]}
 
@@ -152,3 +152,37 @@ def test_resume_purges_tensorboard_events_past_the_checkpoint(tmp_path: Path) ->
     metrics = pd.read_csv(run / "metrics.csv")
     east = metrics[metrics["task"] == "east"]
     _same(events["eval/pt/east/success"], east["grad_steps"], east["success"])
+
+
+@pytest.mark.parametrize("resume_in", ["finetune", "pretrain"])
+def test_each_phase_is_its_own_tensorboard_run_and_a_resume_purges_only_what_is_rewritten(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, resume_in: str
+) -> None:
+    """Pretrain (3 epochs of 2 point tasks) then finetune (2 epochs of 1 task, 8 steps each):
+    resumed from finetune epoch 1, or from pretrain's last checkpoint (all of finetune again),
+    every phase's events are the CSV's once, and pretrain's are untouched."""
+    from tests.protocols.test_runner import FINETUNE_ENVS, HERE
+
+    monkeypatch.syspath_prepend(str(HERE))  # the second adapter lives beside test_runner
+    path = protocol(tmp_path, FINETUNE_ENVS, kind="finetune", batch=4)
+    text = path.read_text().replace("interval = 2\nkeep_last = 2", "interval = 1\nkeep_last = 9")
+    path.write_text(text)  # a checkpoint every epoch, all kept
+    config = load_protocol(path)
+    run = run_seed(config, 0, tmp_path / "g").run_dir
+    assert sorted(p.name for p in (run / "tb").iterdir()) == ["finetune", "pretrain"]
+    pretrain = _events(run, "pretrain")
+    assert [s for s, _ in pretrain["charts/a/mean_success"]] == [10, 20, 30]
+    assert [s for s, _ in _events(run, "finetune")["charts/b/mean_success"]] == [8, 16]
+    doomed = ["ckpt-finetune-0000002.pt"]
+    if resume_in == "pretrain":
+        doomed += [p.name for p in (run / "checkpoints").glob("ckpt-finetune-*.pt")]
+    for name in set(doomed):
+        (run / "checkpoints" / name).unlink()
+    time.sleep(1.0 - time.time() % 1.0)  # event files sort by second (see the test above)
+    run_seed(config, 0, tmp_path / "g", resume=True)
+    assert _events(run, "pretrain") == pretrain
+    finetune = _events(run, "finetune")
+    metrics = pd.read_csv(run / "metrics.csv")
+    west = metrics[metrics["phase"] == "finetune"]
+    _same(finetune["eval/b/west/success"], west["grad_steps"], west["success"])
+    assert [s for s, _ in finetune["charts/b/mean_success"]] == [8, 16]
