@@ -206,7 +206,7 @@ class LoggingConfig:
     train_interval: Annotated[int, Field(ge=1)] = 10
     """Log losses, mean Q and temperatures every this many epochs."""
     tensorboard: bool = True
-    """Also write TensorBoard events under tb/."""
+    """Also write TensorBoard events under tb/<phase>/ (one TensorBoard run per phase)."""
     wandb: Literal["off", "offline", "online"] = "off"
     """Also log the same scalars to Weights & Biases under wandb/: "offline" never touches the network (`wandb sync` uploads later), "online" uploads as it runs; needs the extra: pip install -e ".[wandb]"."""
 

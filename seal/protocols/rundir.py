@@ -7,7 +7,7 @@
         metrics.csv        one row per evaluation and task (METRICS_COLUMNS)
         train.csv          long format: seed,phase,epoch,grad_steps,env,key,value (TRAIN_COLUMNS)
         scheduler.csv      the scheduler's timeline, when it has one
-        tb/                TensorBoard events ([logging] tensorboard; seal.protocols.loggers)
+        tb/<phase>/        TensorBoard events, one run per phase ([logging] tensorboard; seal.protocols.loggers)
         wandb/             Weights & Biases files and run_id ([logging] wandb)
         checkpoints/       ckpt-<epoch>.pt (last K, phase-prefixed for finetune) and best.pt
 
