@@ -129,7 +129,7 @@ def _clipped(grads: Sequence[torch.Tensor | None], max_norm: float) -> list[torc
 def compile_mode(device: torch.device) -> str | None:
     """torch.compile's mode for the update stages: on CUDA "reduce-overhead", which replays each
     compiled stage as a CUDA graph (one launch for its forward and backward kernels); elsewhere
-    the default, since CPU has no graphs. Never run on a GPU here: no GPU was lent."""
+    the default, since CPU has no graphs. Not yet run on a GPU (README, Speed)."""
     return "reduce-overhead" if device.type == "cuda" else None
 
 
