@@ -113,12 +113,19 @@ def gemm_flops(gemms: Sequence[Gemm]) -> int:
     return sum(2 * m * k * n for m, k, n in gemms)
 
 
-def _mt10_agent(seed: int, num_tasks: int = 10, hidden: tuple[int, ...] = (400, 400, 400)) -> Agent:
-    from seal.learner import Agent, AgentConfig, EnvSpec
+def _mt10_setup(
+    num_tasks: int = 10, hidden: tuple[int, ...] = (400, 400, 400)
+) -> tuple[list[EnvSpec], AgentConfig]:
+    """The MTMHSAC agent's spec and config that the MT10 figures time, on CPU."""
+    from seal.learner import AgentConfig, EnvSpec
 
-    return Agent(
-        [EnvSpec("metaworld", 39, 4, num_tasks)], AgentConfig(hidden=hidden, device="cpu"), seed
-    )
+    return [EnvSpec("metaworld", 39, 4, num_tasks)], AgentConfig(hidden=hidden, device="cpu")
+
+
+def _mt10_agent(seed: int, num_tasks: int = 10, hidden: tuple[int, ...] = (400, 400, 400)) -> Agent:
+    from seal.learner import Agent
+
+    return Agent(*_mt10_setup(num_tasks, hidden), seed)
 
 
 def _random_batch(
@@ -209,8 +216,6 @@ def bench_mt10_flops(
     """
     from torch.utils.flop_counter import FlopCounterMode
 
-    from seal.learner import AgentConfig, EnvSpec
-
     shape = UpdateShape()
     gemms = ideal_update_gemms(shape)
     flops = gemm_flops(gemms)
@@ -219,8 +224,7 @@ def bench_mt10_flops(
     agent.update(batch)  # the first update's Adam states: the counted one is a steady-state step
     with FlopCounterMode(display=False) as counter:
         agent.update(batch)
-    specs = [EnvSpec("metaworld", shape.obs_dim, shape.act_dim, shape.num_tasks)]
-    config = AgentConfig(hidden=shape.hidden, device="cpu")
+    specs, config = _mt10_setup(shape.num_tasks, shape.hidden)
     timed = _time_eager_and_compiled(specs, config, 128, updates, repeats, seed, compile)
     t_mm = _time_gemms(gemms, repeats)
     for path in timed["paths"].values():
