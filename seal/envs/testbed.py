@@ -19,6 +19,7 @@ A permutation with signs, not a random linear action map, keeps the per-axis cli
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -26,7 +27,7 @@ import numpy as np
 
 from seal.envs.base import EnvAdapter, ObsLayout
 from seal.envs.point import GOAL_RADIUS, GOALS, MAX_STEP, PointAdapter, PointEnv
-from seal.errors import UnknownNameError
+from seal.errors import SealError, UnknownNameError
 
 # A fixed random map, written out rather than drawn so that every numpy and LAPACK gives the same
 # env: QR of a 6 x 4 standard normal matrix (numpy default_rng(20261123)), rounded to 3 decimals.
@@ -41,6 +42,12 @@ VIEW_MATRIX = np.array(
     ]
 )
 """`point_view` observation = VIEW_MATRIX @ [x, y, vx, vy] (6 floats)."""
+
+REWARDS: dict[str, str] = {
+    "dense": "minus the distance to the goal, as point's (default)",
+    "success": "1.0 within the goal radius, else 0.0 (the positive control's hard target)",
+}
+"""`point_view`'s `reward` option: its values and what each pays per step."""
 
 VIEW_ACT_DIM = 5
 ACTION_MAP: tuple[tuple[int, float], tuple[int, float]] = ((3, 1.0), (1, -1.0))
@@ -104,8 +111,11 @@ def _view_action_space() -> gym.spaces.Box:
 class PointViewEnv(gym.Env):
     """A `PointEnv` (`inner`) seen through `VIEW_MATRIX` and driven through `ACTION_MAP`."""
 
-    def __init__(self, goal: tuple[float, float], episode_length: int, seed: int) -> None:
+    def __init__(
+        self, goal: tuple[float, float], episode_length: int, seed: int, reward: str = "dense"
+    ) -> None:
         self.inner = PointEnv(goal, episode_length, seed)
+        self.reward = reward
         self.observation_space = _view_observation_space()
         self.action_space = _view_action_space()
         self.action_space.seed(seed)
@@ -121,8 +131,10 @@ class PointViewEnv(gym.Env):
         return VIEW_MATRIX @ obs, info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        """Step the inner env with the two moving entries; reward and success are the inner env's."""
+        """Step the inner env with the two moving entries; success is the inner env's, the reward per `reward`."""
         obs, reward, terminated, truncated, info = self.inner.step(point_action(action))
+        if self.reward == "success":
+            reward = info["success"]
         return VIEW_MATRIX @ obs, reward, terminated, truncated, info
 
 
@@ -132,6 +144,23 @@ class PointViewAdapter(EnvAdapter):
     name: ClassVar[str] = "point_view"
     all_tasks: ClassVar[tuple[str, ...]] = ("t0", "t1", "t2", "t3")
     default_episode_length: ClassVar[int] = PointAdapter.default_episode_length
+
+    def __init__(
+        self,
+        tasks: Sequence[str] | str | None = None,
+        episode_length: int | None = None,
+        **options: Any,
+    ) -> None:
+        """`options`: `reward` ("dense" or "success", see `REWARDS`)."""
+        unknown = sorted(set(options) - {"reward"})
+        reward = options.get("reward", "dense")
+        if unknown or reward not in REWARDS:
+            raise SealError(
+                f"adapter {self.name!r}: option(s) {options} not valid; valid: reward = "
+                + " or ".join(f'"{k}" ({v})' for k, v in REWARDS.items())
+            )
+        super().__init__(tasks=tasks, episode_length=episode_length)
+        self.reward = reward
 
     @property
     def observation_space(self) -> gym.spaces.Box:
@@ -148,7 +177,7 @@ class PointViewAdapter(EnvAdapter):
 
     def make(self, task: str, seed: int) -> gym.Env:
         """A PointViewEnv whose goal is the paired `point` task's, its start positions drawn from `seed`."""
-        return PointViewEnv(view_goal(task), self.episode_length, seed)
+        return PointViewEnv(view_goal(task), self.episode_length, seed, self.reward)
 
     def semantic_check(self, task: str, seed: int = 0) -> dict[str, Any]:
         """Not solved at reset; solved by steering the inner point at the goal through `view_action`."""
