@@ -23,7 +23,7 @@ import sys
 import time
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,11 +39,13 @@ TARGET_ENV = "target"
 """The [envs.<name>] of the target in every testbed protocol."""
 GOAL = 0.25
 """transfer_updates_saved the default shared_update must reach (issue 10)."""
+POSITIVE_GOAL = 0.30
+"""steps_saved at least one positive control must reach, with a 95% CI above 0 (issue 22)."""
 
 
 @dataclass(frozen=True)
 class Arm:
-    """One column of the testbed table: a protocol file and the target-alone arm it is set against."""
+    """One run of the testbed: a protocol file, the target-alone arm it is set against, and what it starts from."""
 
     name: str
     label: str
@@ -54,6 +56,10 @@ class Arm:
     """Only with --full."""
     directory: Path = TESTBED
     """Where the arm's protocol file lies."""
+    pretrain: str | None = None
+    """The arm whose last checkpoint starts this one (`--set transfer.checkpoint=...`), seed for seed."""
+    has_target: bool = True
+    """False for a source-only run (the pre-training): it is no column of the table."""
 
     @property
     def protocol(self) -> Path:
@@ -64,25 +70,31 @@ class Arm:
 ARMS: tuple[Arm, ...] = (
     Arm("alone", "Single Env", None),
     Arm("high_source", "High Src", "alone"),
-    Arm("high_source_per_env", "High Src per_env", "alone"),
     Arm("no_correspondence", "No corr.", "alone"),
+    Arm("pretrain_source", "Source pre-training", None, has_target=False),
+    Arm("positive_pretrained", "Pos: pre-trained src", "alone", pretrain="pretrain_source"),
+    Arm("alone_sparse", "Single Env (sparse tgt)", None),
+    Arm("positive_sparse_target", "Pos: sparse tgt", "alone_sparse", pretrain="pretrain_source"),
+    Arm("high_source_per_env", "High Src per_env", "alone", full=True),
     Arm("alone_50_50", "Single Env (50/50 batch)", None, full=True),
     Arm("joint_50_50", "50/50", "alone_50_50", full=True),
     Arm("alone_high_target", "Single Env (High Tgt batch)", None, full=True),
     Arm("high_target", "High Tgt", "alone_high_target", full=True),
 )
-"""The minimum set, then the --full arms; the default-mode high-source arm gives the headline figure."""
+"""The minimum set (docs/transfer_testbed.md, round 4), then the --full arms; the default-mode
+high-source arm gives the round-3 headline, the `positive_` arms are the positive controls."""
 
 
 def arms(full: bool = False, only: Sequence[str] | None = None) -> list[Arm]:
-    """The arms run by `seal bench --learn transfer` (with `--full`: all of them; `only`: these and their alone arms)."""
+    """The arms run by `seal bench --learn transfer` (with `--full`: all of them; `only`: these and the arms they need)."""
     if not only:
         return [a for a in ARMS if full or not a.full]
     by_name = {a.name: a for a in ARMS}
     for name in only:
         if name not in by_name:
             raise UnknownNameError("testbed arm", name, list(by_name))
-    wanted = set(only) | {by_name[n].alone for n in only if by_name[n].alone is not None}
+    needed = {by_name[n].alone for n in only} | {by_name[n].pretrain for n in only}
+    wanted = set(only) | (needed - {None})
     return [a for a in ARMS if a.name in wanted]
 
 
@@ -104,46 +116,78 @@ class TargetCost:
     """Transitions per task (the summands of `consumed`)."""
     reached: tuple[str, ...]
     """The tasks that reached the threshold."""
+    per_task_steps: dict[str, int] = field(default_factory=dict)
+    """Gradient steps per task until it first reached the threshold (censored: the run's total)."""
+
+    @property
+    def task_steps(self) -> int:
+        """Gradient steps summed over the tasks: `consumed` = task_steps x `per_step`, exactly."""
+        return int(sum(self.per_task_steps.values()))
+
+    @property
+    def per_step(self) -> float:
+        """The target's mean per-step batch per task over the spans to 90% (transitions / task-steps)."""
+        return self.consumed / self.task_steps if self.task_steps else math.nan
 
 
 def target_cost(
-    metrics: pd.DataFrame, env: str = TARGET_ENV, threshold: float = DEFAULT_THRESHOLD
+    metrics: pd.DataFrame,
+    env: str = TARGET_ENV,
+    threshold: float = DEFAULT_THRESHOLD,
+    consecutive: int = 1,
 ) -> TargetCost:
-    """The target's `TargetCost` from one run's metrics table (metrics.csv, one seed, one phase)."""
+    """The target's `TargetCost` from one run's metrics table (metrics.csv, one seed, one phase).
+
+    Steps and transitions count from the run's first update: the target's first update in
+    every testbed arm (a pre-training is a run of its own). `consecutive` > 1 is the robust
+    criterion of `seal.metrics.first_reach`.
+    """
     rows = metrics[metrics["env"] == env]
     if rows.empty:
         raise SealError(
             f"metrics table has no rows of env {env!r}; envs: {sorted(set(metrics['env']))}"
         )
-    first = first_reach(rows, threshold)
+    first = (
+        first_reach(rows, threshold)
+        if consecutive == 1
+        else first_reach(rows, threshold, consecutive=consecutive)
+    )
     # A task never reached counts as all it consumed, at the run's last evaluation.
     last = rows.sort_values(["epoch", "grad_steps"], kind="stable").groupby("task").tail(1)
     total_updates = dict(zip(last["task"], last["updates"], strict=True))
     total_steps = int(rows["grad_steps"].max())
     per_task: dict[str, float] = {}
-    steps = 0
+    per_task_steps: dict[str, int] = {}
     for row in first.itertuples(index=False):
         millions = float(row.updates) if row.reached else float(total_updates[row.task])
         per_task[str(row.task)] = millions * 1e6
-        steps = max(steps, int(row.grad_steps) if row.reached else total_steps)
+        per_task_steps[str(row.task)] = int(row.grad_steps) if row.reached else total_steps
     return TargetCost(
         consumed=float(sum(per_task.values())),
-        grad_steps=steps,
+        grad_steps=max(per_task_steps.values()),
         censored=int((~first["reached"]).sum()),
         tasks=len(first),
         per_task=per_task,
         reached=tuple(str(t) for t in first.loc[first["reached"], "task"]),
+        per_task_steps=per_task_steps,
     )
+
+
+def saved(arm: Sequence[float], alone: Sequence[float]) -> list[float]:
+    """Per seed: 1 - arm / alone (seed i against seed i); nan where the alone figure is 0."""
+    if len(arm) != len(alone):
+        raise SealError(f"{len(arm)} seeds of the arm but {len(alone)} of its target-alone arm")
+    return [1.0 - a / b if b > 0 else math.nan for a, b in zip(arm, alone, strict=True)]
 
 
 def updates_saved(arm: Sequence[TargetCost], alone: Sequence[TargetCost]) -> list[float]:
     """Per seed: 1 - arm's consumed / alone's consumed (seed i against seed i)."""
-    if len(arm) != len(alone):
-        raise SealError(f"{len(arm)} seeds of the arm but {len(alone)} of its target-alone arm")
-    return [
-        1.0 - a.consumed / b.consumed if b.consumed > 0 else math.nan
-        for a, b in zip(arm, alone, strict=True)
-    ]
+    return saved([a.consumed for a in arm], [b.consumed for b in alone])
+
+
+def steps_saved(arm: Sequence[TargetCost], alone: Sequence[TargetCost]) -> list[float]:
+    """Per seed: 1 - arm's gradient steps to 90% / alone's (seed i against seed i)."""
+    return saved([a.grad_steps for a in arm], [b.grad_steps for b in alone])
 
 
 # ---------------------------------------------------------------- launching
@@ -158,27 +202,54 @@ def seal_run_command(arm: Arm, seed: int, out: Path, overrides: Sequence[str] = 
     return cmd
 
 
+def last_checkpoint(run_dir: Path) -> Path:
+    """The newest epoch checkpoint (ckpt-<epoch>.pt) of a finished run: what a pre-training hands on."""
+    found = sorted(
+        (run_dir / "checkpoints").glob("ckpt-*.pt"), key=lambda p: int(p.stem.rsplit("-", 1)[1])
+    )
+    if not found:
+        raise SealError(f"{run_dir}: no checkpoints/ckpt-<epoch>.pt to start the next arm from")
+    return found[-1]
+
+
 def run_all(
     jobs: list[tuple[Arm, int]],
     out: Path,
     overrides: Sequence[str] = (),
     parallel: int = 2,
     log: Callable[[str], None] = lambda _: None,
+    done: Mapping[tuple[str, int], Path] | None = None,
 ) -> dict[tuple[str, int], Path]:
-    """Run every (arm, seed) as its own `seal run` process, `parallel` at a time; their run directories."""
+    """Run every (arm, seed) as its own `seal run` process, `parallel` at a time; their run directories.
+
+    A job whose arm has a `pretrain` starts once that arm's run of the same seed is in `done`
+    (given, e.g. reused, or finished here), from its last checkpoint.
+    """
     pending = list(jobs)
     running: list[tuple[Arm, int, subprocess.Popen[str], float]] = []
-    done: dict[tuple[str, int], Path] = {}
+    finished: dict[tuple[str, int], Path] = dict(done or {})
+
+    def ready(job: tuple[Arm, int]) -> bool:
+        arm, seed = job
+        return arm.pretrain is None or (arm.pretrain, seed) in finished
+
     try:
         while pending or running:
-            while pending and len(running) < parallel:
-                arm, seed = pending.pop(0)
-                cmd = seal_run_command(arm, seed, out, overrides)
+            while len(running) < parallel and any(ready(j) for j in pending):
+                arm, seed = pending.pop(next(i for i, j in enumerate(pending) if ready(j)))
+                extra = list(overrides)
+                if arm.pretrain is not None:
+                    start = last_checkpoint(finished[(arm.pretrain, seed)])
+                    extra.append(f"transfer.checkpoint={start}")
+                cmd = seal_run_command(arm, seed, out, extra)
                 log(f"start {arm.name} seed {seed}: {' '.join(cmd[1:])}")
                 proc = subprocess.Popen(
                     cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
                 )
                 running.append((arm, seed, proc, time.monotonic()))
+            if not running:  # pending jobs wait on arms that are neither given nor run
+                missing = sorted({f"{a.pretrain} seed {s}" for a, s in pending})
+                raise SealError(f"testbed jobs wait on runs that are not scheduled: {missing}")
             time.sleep(0.2)
             for item in list(running):
                 arm, seed, proc, started = item
@@ -192,12 +263,12 @@ def run_all(
                         f"seal run {arm.protocol} --seeds {seed} failed (exit {proc.returncode}): {tail[0]}"
                     )
                 run_dir = Path(json.loads(stdout.strip().splitlines()[-1])["run_dir"])
-                done[(arm.name, seed)] = run_dir
+                finished[(arm.name, seed)] = run_dir
                 log(f"done {arm.name} seed {seed} in {time.monotonic() - started:.0f} s: {run_dir}")
     finally:
         for _, _, proc, _ in running:
             proc.kill()
-    return done
+    return {job: finished[job] for job in finished if done is None or job not in done}
 
 
 def run_or_reuse(
@@ -218,7 +289,7 @@ def run_or_reuse(
                 reused[(arm.name, seed)] = found
                 log(f"reuse {arm.name} seed {seed}: {found}")
         jobs = [(a, s) for a, s in jobs if (a.name, s) not in reused]
-    return {**reused, **run_all(jobs, out, overrides, parallel, log)}, reused
+    return {**reused, **run_all(jobs, out, overrides, parallel, log, done=reused)}, reused
 
 
 # ---------------------------------------------------------------- reuse and consistency
@@ -306,10 +377,45 @@ def code_versions(shas: Mapping[tuple[str, int], str | None]) -> dict[str, list[
 # ---------------------------------------------------------------- the table
 
 
-def summarise(costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm]) -> dict[str, Any]:
-    """Per arm: consumed transitions, censored tasks, gradient steps and transfer_updates_saved per seed and mean."""
+ROBUST_CONSECUTIVE = 2
+"""The robust criterion reported beside the paper's: 2 successive evaluations >= 90%."""
+
+
+def _saving(
+    runs: Sequence[TargetCost], alone: Sequence[TargetCost], prefix: str = ""
+) -> dict[str, Any]:
+    """steps_saved and transfer_updates_saved per seed, their means, and their 95% bootstrap CIs."""
+    from seal.stats import bootstrap_ci, probability_of_improvement
+
+    steps, updates = steps_saved(runs, alone), updates_saved(runs, alone)
+    return {
+        f"{prefix}steps_saved_per_seed": steps,
+        f"{prefix}steps_saved": float(np.nanmean(steps)),
+        f"{prefix}ci95": list(bootstrap_ci(steps)),
+        f"{prefix}transfer_updates_saved_per_seed": updates,
+        f"{prefix}transfer_updates_saved": float(np.nanmean(updates)),
+        f"{prefix}transfer_updates_saved_ci95": list(bootstrap_ci(updates)),
+        # P(a run of the arm needs fewer target steps than a run of its alone arm), ties 1/2.
+        f"{prefix}probability_of_improvement": probability_of_improvement(
+            [c.grad_steps for c in runs], [c.grad_steps for c in alone]
+        ),
+    }
+
+
+def summarise(
+    costs: Mapping[str, Sequence[TargetCost]],
+    chosen: Sequence[Arm],
+    robust: Mapping[str, Sequence[TargetCost]] | None = None,
+    cka: Mapping[str, Sequence[Mapping[str, float]]] | None = None,
+    pretrain: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Per target arm: the target's transitions, gradient steps and per-step batch to 90%, censored tasks,
+    and against its alone arm steps_saved and transfer_updates_saved with 95% CIs, under the paper's
+    criterion and (`robust`, `robust_` keys) under ROBUST_CONSECUTIVE; `alignment_cka` from `cka`."""
     out: dict[str, Any] = {}
     for arm in chosen:
+        if not arm.has_target:
+            continue
         runs = costs[arm.name]
         entry: dict[str, Any] = {
             "label": arm.label,
@@ -318,26 +424,53 @@ def summarise(costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm]) 
             "consumed_mean": float(np.mean([c.consumed for c in runs])),
             "grad_steps_to_90_per_seed": [c.grad_steps for c in runs],
             "grad_steps_to_90_mean": float(np.mean([c.grad_steps for c in runs])),
+            "task_steps_per_seed": [c.task_steps for c in runs],
+            "per_step_batch_per_seed": [c.per_step for c in runs],
+            "per_step_batch_mean": float(np.mean([c.per_step for c in runs])),
             "censored_per_seed": [c.censored for c in runs],
             "censored": int(sum(c.censored for c in runs)),
             "task_runs": int(sum(c.tasks for c in runs)),
         }
         if arm.alone is not None:
-            saved = updates_saved(runs, costs[arm.alone])
             entry["against"] = arm.alone
-            entry["transfer_updates_saved_per_seed"] = saved
-            entry["transfer_updates_saved"] = float(np.mean(saved))
+            entry.update(_saving(runs, costs[arm.alone]))
             base = float(np.mean([c.consumed for c in costs[arm.alone]]))
             # Beside it, the ratio of the seed means (less sensitive to one slow alone seed).
             entry["saved_of_means"] = 1.0 - entry["consumed_mean"] / base if base > 0 else math.nan
+            if robust is not None:
+                entry.update(_saving(robust[arm.name], robust[arm.alone], prefix="robust_"))
+        if robust is not None:
+            entry["robust_grad_steps_to_90_per_seed"] = [c.grad_steps for c in robust[arm.name]]
+            entry["robust_censored"] = int(sum(c.censored for c in robust[arm.name]))
+        if cka is not None and arm.name in cka:
+            per_seed = cka[arm.name]
+            entry["alignment_cka_per_seed"] = [dict(v) for v in per_seed]
+            entry["alignment_cka"] = {
+                key: float(np.mean([v[key] for v in per_seed])) for key in per_seed[0]
+            }
+        if arm.pretrain is not None and pretrain is not None:
+            entry["pretrain"] = pretrain[arm.pretrain]
         out[arm.name] = entry
     return out
+
+
+def pretrain_cost(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> dict[str, Any]:
+    """A source-only pre-training run: its gradient steps, the source's transitions, and whether every task reached."""
+    env = str(metrics["env"].iloc[0])
+    cost = target_cost(metrics, env=env, threshold=threshold)
+    return {
+        "grad_steps": int(metrics["grad_steps"].max()),
+        "consumed": float(metrics.groupby("task")["updates"].max().sum() * 1e6),
+        "reached_all": cost.censored == 0,
+    }
 
 
 def format_table(
     costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm], summary: Mapping[str, Any]
 ) -> str:
-    """Table 1's layout for the target: task rows, arm columns, M transitions to 90% as mean ± std (change) [k/n]."""
+    """Table 1's layout for the target: task rows, arm columns, M transitions to 90% as mean ± std (change) [k/n];
+    then the same cells taken apart (gradient steps x per-step batch), and one line per arm with its savings and CIs."""
+    chosen = [a for a in chosen if a.has_target]
     tasks = list(next(iter(costs.values()))[0].per_task)
     header = ["Task (point_view)", *(a.label for a in chosen)]
     rows: list[list[str]] = []
@@ -377,29 +510,101 @@ def format_table(
         "M transitions of the target consumed by updates until first >= 90% success; mean ± std over seeds "
         "(change vs. its Single Env column) [seeds that reached / seeds]; a task never reached counts its run's total."
     )
-    lines.append("")
+    lines += ["", *_decomposition_table(costs, chosen, tasks), ""]
     for arm in chosen:
         s = summary[arm.name]
         text = (
             f"{arm.label:<28} steps to 90% {format_number(s['grad_steps_to_90_mean'])} "
             f"{s['grad_steps_to_90_per_seed']}; censored {s['censored']}/{s['task_runs']}"
         )
-        if "transfer_updates_saved" in s:
-            per_seed = ", ".join(f"{v:+.3f}" for v in s["transfer_updates_saved_per_seed"])
+        if "steps_saved" in s:
             text += (
-                f"; transfer_updates_saved {s['transfer_updates_saved']:+.3f} ({per_seed}); "
-                f"of seed means {s['saved_of_means']:+.3f}"
+                f"; steps_saved {_with_ci(s, 'steps_saved', 'ci95')}"
+                f"; transfer_updates_saved {_with_ci(s, 'transfer_updates_saved', 'transfer_updates_saved_ci95')}"
+                f"; P(fewer steps) {s['probability_of_improvement']:.2f}"
+            )
+            if "robust_steps_saved" in s:
+                text += f"; 2 evals in a row: steps_saved {_with_ci(s, 'robust_steps_saved', 'robust_ci95')}"
+        if "alignment_cka" in s:
+            cka = s["alignment_cka"]
+            text += f"; CKA translator {cka['translator']:.2f}, trunk {cka['trunk']:.2f}"
+        if "pretrain" in s:
+            pre = s["pretrain"]
+            text += (
+                f"; source pre-training {format_number(pre['grad_steps_mean'])} steps, "
+                f"{format_number(pre['consumed_mean'] / 1e6)} M transitions, "
+                f"all tasks reached in {pre['reached_all']}/{len(pre['grad_steps_per_seed'])} seeds"
             )
         lines.append(text)
     return "\n".join(lines)
 
 
+def _with_ci(summary: Mapping[str, Any], key: str, ci_key: str) -> str:
+    """'+0.123 [-0.1, +0.3] (+0.2, ...)': a saving's mean, its 95% CI and its per-seed values; * when the CI excludes 0."""
+    from seal.stats import resolved
+
+    low, high = summary[ci_key]
+    per_seed = ", ".join(f"{v:+.2f}" for v in summary[f"{key}_per_seed"])
+    star = "*" if resolved((low, high)) else ""
+    return f"{summary[key]:+.3f}{star} 95% CI [{low:+.2f}, {high:+.2f}] ({per_seed})"
+
+
+def _decomposition_table(
+    costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm], tasks: Sequence[str]
+) -> list[str]:
+    """Per (task, arm): gradient steps to 90% x mean per-step batch = the transitions above (means over seeds)."""
+    header = ["Task (point_view)", *(a.label for a in chosen)]
+    rows = []
+    for task in tasks:
+        row = [task]
+        for arm in chosen:
+            runs = costs[arm.name]
+            steps = float(np.mean([c.per_task_steps[task] for c in runs]))
+            per_step = float(
+                np.mean([c.per_task[task] / max(c.per_task_steps[task], 1) for c in runs])
+            )
+            row.append(f"{format_number(steps)} x {per_step:.1f}")
+        rows.append(row)
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+    return [
+        "  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)),
+        "  ".join("-" * w for w in widths),
+        *("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows),
+        "Gradient steps to first >= 90% x the task's mean per-step batch over them (transitions per step), "
+        "means over seeds: the transitions above are steps x batch, so a change in them is a change in steps "
+        "times a change in batch share. Steps count from the target's first update.",
+    ]
+
+
 # ---------------------------------------------------------------- the command
+
+
+def alignment(
+    run_dirs: Mapping[tuple[str, int], Path], chosen: Sequence[Arm], seeds: int
+) -> dict[str, list[dict[str, float]]]:
+    """Per target arm and seed: linear CKA of the source's and the target's translator (and trunk) outputs on shared states.
+
+    A joint arm: its own two envs, from its last checkpoint. An alone arm: its target against
+    the source of the pre-training run of the same seed, two runs that never met (the baseline).
+    """
+    from seal.learner.probes import cka_from_checkpoints
+
+    pre = next((a.name for a in chosen if not a.has_target), None)
+    out: dict[str, list[dict[str, float]]] = {}
+    for arm in chosen:
+        if not arm.has_target or (arm.alone is None and pre is None):
+            continue
+        out[arm.name] = []
+        for seed in range(seeds):
+            target = last_checkpoint(run_dirs[(arm.name, seed)])
+            source = target if arm.alone is not None else last_checkpoint(run_dirs[(pre, seed)])
+            out[arm.name].append(cka_from_checkpoints(source, "source", target, TARGET_ENV))
+    return out
 
 
 def run_transfer_bench(
     full: bool = False,
-    seeds: int = 3,
+    seeds: int = 5,
     out: str | os.PathLike[str] = "reports/bench_transfer",
     parallel: int = 2,
     overrides: Sequence[str] = (),
@@ -409,9 +614,9 @@ def run_transfer_bench(
 ) -> dict[str, Any]:
     """Run every arm's seeds with `seal run`, read their run directories, and return the result as JSON-able dict.
 
-    `only` runs just the named arms (with the alone arms they are set against), e.g. the
-    `--full` arms after the minimum set; the headline figures are then None where not run.
-    `reuse` takes finished runs under `out` whose resolved config is today's (`finished_run`).
+    `only` runs just the named arms (with the arms they need), e.g. the `--full` arms after the
+    minimum set; the headline figures are then None where not run. `reuse` takes finished runs
+    under `out` whose resolved config is today's (`finished_run`).
     """
     from seal import load_run
     from seal.bench.timing import machine_load
@@ -423,33 +628,76 @@ def run_transfer_bench(
     chosen = arms(full, only)
     load_before = machine_load()
     started = time.monotonic()
-    # Longest arms first, so the last process does not run alone while a core idles.
-    order = sorted(chosen, key=lambda a: a.alone is None)
-    jobs = [(arm, seed) for arm in order for seed in range(seeds)]
+    # Pre-training first (the positive controls wait on it), then the longest arms, so the last
+    # process does not run alone while a core idles.
+    order = sorted(chosen, key=lambda a: (a.has_target, a.alone is None))
+    jobs = [(arm, seed) for seed in range(seeds) for arm in order]
+    jobs.sort(key=lambda job: (job[0].has_target, job[0].alone is None))
     run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
     wall = time.monotonic() - started
     loaded = {key: load_run(path) for key, path in run_dirs.items()}
-    costs = {
-        arm.name: [target_cost(loaded[(arm.name, s)].metrics) for s in range(seeds)]
-        for arm in chosen
-    }
+    targets = [a for a in chosen if a.has_target]
+
+    def costs_of(consecutive: int) -> dict[str, list[TargetCost]]:
+        return {
+            arm.name: [
+                target_cost(loaded[(arm.name, s)].metrics, consecutive=consecutive)
+                for s in range(seeds)
+            ]
+            for arm in targets
+        }
+
+    costs = costs_of(1)
+    pretrain = {}
+    for arm in chosen:
+        if not arm.has_target:
+            runs = [pretrain_cost(loaded[(arm.name, s)].metrics) for s in range(seeds)]
+            pretrain[arm.name] = {
+                "grad_steps_per_seed": [r["grad_steps"] for r in runs],
+                "grad_steps_mean": float(np.mean([r["grad_steps"] for r in runs])),
+                "consumed_per_seed": [r["consumed"] for r in runs],
+                "consumed_mean": float(np.mean([r["consumed"] for r in runs])),
+                "reached_all": int(sum(r["reached_all"] for r in runs)),
+            }
     mismatches = agent_mismatches({k: r.config.get("agent", {}) for k, r in loaded.items()}, chosen)
     versions = code_versions({k: r.provenance.get("git_sha") for k, r in loaded.items()})
-    summary = summarise(costs, chosen)
+    summary = summarise(
+        costs,
+        chosen,
+        robust=costs_of(ROBUST_CONSECUTIVE),
+        cka=alignment(run_dirs, chosen, seeds),
+        pretrain=pretrain,
+    )
 
-    def saved(name: str) -> float | None:
-        return summary[name]["transfer_updates_saved"] if name in summary else None
+    def figure(name: str, key: str = "transfer_updates_saved") -> Any:
+        return summary[name][key] if name in summary else None
 
-    headline = saved("high_source")
+    positives = {
+        name: {key: s[key] for key in ("steps_saved", "ci95")}
+        for name, s in summary.items()
+        if name.startswith("positive_")
+    }
+    # Issue 22: a positive control saves >= 30% of the target's steps with a CI above 0, and the
+    # no-correspondence control's CI includes 0 or lies below it.
+    positive_met = any(
+        p["steps_saved"] >= POSITIVE_GOAL and p["ci95"][0] > 0 for p in positives.values()
+    )
+    control_ci = figure("no_correspondence", "ci95")
     return {
-        "transfer_updates_saved": headline,
+        "transfer_updates_saved": figure("high_source"),
         "goal": {
             "transfer_updates_saved_ge": GOAL,
-            "met": None if headline is None else bool(headline >= GOAL),
-            "per_env": saved("high_source_per_env"),
-            "no_correspondence": saved("no_correspondence"),
+            "met": None if figure("high_source") is None else bool(figure("high_source") >= GOAL),
+            "per_env": figure("high_source_per_env"),
+            "no_correspondence": figure("no_correspondence"),
+            "positive_steps_saved_ge": POSITIVE_GOAL,
+            "positive": positives,
+            "positive_met": positive_met if positives else None,
+            "no_correspondence_ci95": control_ci,
+            "no_correspondence_ci_not_above_0": None if control_ci is None else control_ci[0] <= 0,
         },
         "arms": summary,
+        "pretrain": pretrain,
         "table": format_table(costs, chosen, summary),
         "seeds": seeds,
         "full": full,
@@ -481,6 +729,24 @@ def format_result(result: Mapping[str, Any]) -> str:
         f"(goal >= {goal['transfer_updates_saved_ge']}: {verdict}); "
         f"per_env {shown(goal['per_env'])}, no correspondence {shown(goal['no_correspondence'])}",
     ]
+    if goal["positive"]:
+        verdict = {True: "met", False: "not met"}[goal["positive_met"]]
+        shown_positive = "; ".join(
+            f"{name} {p['steps_saved']:+.3f} [{p['ci95'][0]:+.2f}, {p['ci95'][1]:+.2f}]"
+            for name, p in goal["positive"].items()
+        )
+        lines.append(
+            f"positive controls, steps_saved with 95% CI: {shown_positive} "
+            f"(goal >= {goal['positive_steps_saved_ge']} with the CI above 0: {verdict})"
+        )
+    if goal["no_correspondence_ci95"] is not None:
+        low, high = goal["no_correspondence_ci95"]
+        lines.append(
+            f"no-correspondence control steps_saved 95% CI [{low:+.2f}, {high:+.2f}] "
+            f"(goal: includes 0 or lies below it: {'met' if goal['no_correspondence_ci_not_above_0'] else 'not met'})"
+        )
+    if result["seeds"] < 3:
+        lines.append(f"{result['seeds']} seeds: fewer than 3, so no change is resolved.")
     lines += [f"WARNING, arms not comparable: {m}" for m in result["agent_mismatches"]]
     versions = result["code_versions"]
     if len(versions) > 1:

@@ -47,7 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--seeds",
         type=int,
         default=None,
-        help="with --learn transfer|kitchen: seeds per arm (default 3 for transfer, 2 for kitchen)",
+        help="with --learn transfer|kitchen: seeds per arm (default 5 for transfer, 2 for kitchen)",
     )
     parser.add_argument(
         "--arms",
@@ -154,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
 
         result = run_transfer_bench(
             full=args.full,
-            seeds=3 if args.seeds is None else args.seeds,
+            seeds=5 if args.seeds is None else args.seeds,
             out=args.out or "reports/bench_transfer",
             parallel=args.jobs,
             log=log,
