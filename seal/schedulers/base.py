@@ -110,9 +110,10 @@ class Plan:
     """Gradient steps after this epoch's collection; None = the runner's default; -1 = GRAD_STEPS_COLLECTED."""
     phase: str = ""
     """A short label for logs (e.g. "ratio 0.8/0.2", "stage1", "P3")."""
-    batch_scale: float = 1.0
-    """Multiplies the runner's update batch total: 1 draws all of it; a run that stands in for
-    one environment of a joint run draws that environment's share of the joint batch."""
+    absent_weights: dict[str, np.ndarray] = field(default_factory=dict)
+    """Per-task weights, in the joint run, of the envs a run stands in for but lacks
+    (`scheduler.absent`): their share is not drawn, and the rounding is the joint run's, so this
+    run's tasks get exactly the counts they get there. Empty for every other run."""
 
     def env_fraction(self, env: str) -> float:
         """The fraction of the update batch drawn from `env`."""
@@ -121,16 +122,27 @@ class Plan:
     def batch_counts(
         self, total: int, rng: np.random.Generator | None = None
     ) -> dict[str, np.ndarray]:
-        """Integer per-task sample counts summing to round(`total` x `batch_scale`), proportional to `batch_weights`.
+        """Integer per-task sample counts of one update of `total` transitions, proportional to `batch_weights`.
 
-        Largest-remainder rounding over all (env, task) pairs together. Equal remainders (e.g.
+        Largest-remainder rounding over all (env, task) pairs together. With `absent_weights`,
+        `total` is this run's tasks' part of the joint run's batch: the joint total is split over
+        the joint run's pairs and the absent envs' counts are dropped. Equal remainders (e.g.
         1152 samples over 10 equally weighted tasks) go to the earlier tasks, or, with `rng`, to
         tasks drawn at random so that no task is favoured on average. The counts are what the
         replay consumes, so the update-count metric stays exact either way.
         """
         if total < 0:
             raise ValueError(f"batch total must be >= 0, got {total}")
-        return split_counts(self.batch_weights, int(round(total * self.batch_scale)), rng)
+        if not self.absent_weights:
+            return split_counts(self.batch_weights, total, rng)
+        own = sum(len(w) for w in self.batch_weights.values())
+        absent = sum(len(w) for w in self.absent_weights.values())
+        share = 1.0 - float(sum(w.sum() for w in self.absent_weights.values()))
+        joint = {e: np.asarray(w) * share for e, w in self.batch_weights.items()}
+        counts = split_counts(
+            {**joint, **self.absent_weights}, int(round(total * (own + absent) / own)), rng
+        )
+        return {e: counts[e] for e in self.batch_weights}
 
 
 def split_counts(

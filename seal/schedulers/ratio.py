@@ -150,9 +150,7 @@ class RatioScheduler(Scheduler):
     ) -> None:
         super().__init__(env_tasks)
         self._fractions_at = fractions_at
-        present = sum(len(ts) for ts in self.env_tasks.values())
-        # The runner's batch is batch_per_task x this run's tasks; the joint run's counts them all.
-        self._task_scale = (present + sum((absent or {}).values())) / present
+        self._absent = dict(absent or {})
         self.collect_mode: CollectMode = collect
         self.label = label
         # Credits for collect = "ratio": starting at 1 makes every env collect in epoch 0, so
@@ -189,8 +187,7 @@ class RatioScheduler(Scheduler):
         total = sum(float(w.sum()) for w in raw.values())
         weights = {e: w / total if total > 0 else w for e, w in raw.items()}
         # Absent envs' shares are not drawn: this run's envs get exactly their joint-run batch.
-        share = sum(fractions[e] for e in self.env_tasks if self._has_data[e])
-        scale = share * self._task_scale if self._task_scale != 1.0 else 1.0
+        absent = {e: np.full(n, fractions[e] / n) for e, n in self._absent.items()}
         collect = {
             e: np.full(len(ts), collecting[e], dtype=bool) for e, ts in self.env_tasks.items()
         }
@@ -199,7 +196,7 @@ class RatioScheduler(Scheduler):
             status: dict[TaskKey, str] = {(e, t): f"{fractions[e]:.4g}" for e, t in self.task_keys}
             self._record(progress.epoch, progress.env_steps, status)
         label = f"{self.label} " + "/".join(f"{fractions[e]:.4g}" for e in self.env_tasks)
-        return Plan(collect=collect, batch_weights=weights, phase=label, batch_scale=scale)
+        return Plan(collect=collect, batch_weights=weights, phase=label, absent_weights=absent)
 
     def state_dict(self) -> dict[str, Any]:
         """Collection credits, which envs have data, and the timeline."""

@@ -48,7 +48,7 @@ def test_constant_absent_and_collect_ratio() -> None:
 def test_without_absent_the_batch_is_unscaled() -> None:
     joint = build_scheduler(STEPPED, {"source": ("a",), "target": ("t0",)})
     plan = joint.plan(Progress(epoch=0))
-    assert plan.batch_scale == 1.0
+    assert plan.absent_weights == {}
     assert np.sum([c.sum() for c in plan.batch_counts(100).values()]) == 100
 
 
