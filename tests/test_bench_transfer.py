@@ -65,16 +65,35 @@ def test_every_arm_is_a_loadable_protocol_with_the_same_network_and_batch() -> N
     assert [a.name for a in arms()] == [
         "alone",
         "high_source",
-        "high_source_per_env",
         "no_correspondence",
+        "pretrain_source",
+        "positive_pretrained",
+        "alone_sparse",
+        "positive_sparse_target",
     ]
-    for name, config in configs.items():
-        assert config.envs["target"].adapter == "point_view", name
-        assert config.agent.architecture == "seal", name
-        assert (config.training.batch_per_task, config.protocol.threads) == (40, 1), name
+    for arm in ARMS:
+        config = configs[arm.name]
+        env = "target" if arm.has_target else "source"
+        assert list(config.envs) == (["source", "target"] if arm.alone else [env]), arm.name
+        assert config.agent.architecture == "seal", arm.name
+        assert (config.training.batch_per_task, config.protocol.threads) == (40, 1), arm.name
+        assert config.agent.latent_dim == 64 and config.agent.trunk_hidden == (64, 64), arm.name
+        # A positive control starts from its pre-training, at the alone arm's learning rates.
+        if arm.pretrain is not None:
+            assert config.transfer is not None and config.transfer.lr_factor == 1.0, arm.name
+            pre = configs[arm.pretrain]
+            assert pre.envs["source"].adapter == "point" and pre.evaluation.stop_when_reached
+            assert pre.agent.critic_sharing == config.agent.critic_sharing, arm.name
     assert configs["high_source_per_env"].agent.shared_update == "per_env"
     assert configs["high_source"].agent.shared_update == configs["alone"].agent.shared_update
     assert configs["no_correspondence"].envs["source"].adapter == "point_diagonal"
+    # The hard target is rewarded only on success, in its control and in its alone arm alike.
+    for name in ("positive_sparse_target", "alone_sparse"):
+        assert configs[name].envs["target"].options == {"reward": "success"}, name
+    # Every alone arm draws the target's share of its joint arm's batch.
+    for arm in ARMS:
+        if arm.alone is not None:
+            assert configs[arm.alone].scheduler.absent == {"source": 4}, arm.name
 
 
 def test_arms_adds_the_alone_arms_they_are_set_against() -> None:
@@ -84,7 +103,13 @@ def test_arms_adds_the_alone_arms_they_are_set_against() -> None:
         "alone_high_target",
         "high_target",
     ]
-    assert len(arms(full=True)) == 8
+    # A positive control brings its pre-training and its alone arm.
+    assert [a.name for a in arms(only=["positive_sparse_target"])] == [
+        "pretrain_source",
+        "alone_sparse",
+        "positive_sparse_target",
+    ]
+    assert len(arms(full=True)) == len(ARMS) == 15
     with pytest.raises(SealError, match="unknown testbed arm 'nope'"):
         arms(only=["nope"])
 

@@ -80,6 +80,23 @@ ARMS: tuple[Arm, ...] = (
     Arm("joint_50_50", "50/50", "alone_50_50", full=True),
     Arm("alone_high_target", "Single Env (High Tgt batch)", None, full=True),
     Arm("high_target", "High Tgt", "alone_high_target", full=True),
+    # A diagnostic added after the first round-4 measurement, not a positive control: does the
+    # target gain once its critic shares a pre-trained trunk too? (docs/transfer_testbed.md)
+    Arm(
+        "pretrain_source_shared_critic",
+        "Source pre-training (shared critic)",
+        None,
+        full=True,
+        has_target=False,
+    ),
+    Arm("alone_shared_critic", "Single Env (shared critic)", None, full=True),
+    Arm(
+        "diag_shared_critic",
+        "Diag: shared critic",
+        "alone_shared_critic",
+        full=True,
+        pretrain="pretrain_source_shared_critic",
+    ),
 )
 """The minimum set (docs/transfer_testbed.md, round 4), then the --full arms; the default-mode
 high-source arm gives the round-3 headline, the `positive_` arms are the positive controls."""
@@ -589,9 +606,12 @@ def alignment(
     """
     from seal.learner.probes import cka_from_checkpoints
 
-    pre = next((a.name for a in chosen if not a.has_target), None)
+    # An alone arm's source: the pre-training of the arms set against it, else the first one run.
+    first = next((a.name for a in chosen if not a.has_target), None)
+    partner = {a.alone: a.pretrain for a in chosen if a.pretrain is not None}
     out: dict[str, list[dict[str, float]]] = {}
     for arm in chosen:
+        pre = partner.get(arm.name, first)
         if not arm.has_target or (arm.alone is None and pre is None):
             continue
         out[arm.name] = []
@@ -599,6 +619,54 @@ def alignment(
             target = last_checkpoint(run_dirs[(arm.name, seed)])
             source = target if arm.alone is not None else last_checkpoint(run_dirs[(pre, seed)])
             out[arm.name].append(cka_from_checkpoints(source, "source", target, TARGET_ENV))
+    return out
+
+
+def curve_distance(a: pd.DataFrame, b: pd.DataFrame, env: str = TARGET_ENV) -> float:
+    """Mean |success difference| of `env`'s tasks between two runs, over the evaluations both made."""
+    curves = [
+        m[m["env"] == env].pivot_table(index="grad_steps", columns="task", values="success")
+        for m in (a, b)
+    ]
+    left, right = curves[0].align(curves[1], join="inner")
+    return float(np.abs(left.to_numpy() - right.to_numpy()).mean())
+
+
+def source_sensitivity(
+    metrics: Mapping[tuple[str, int], pd.DataFrame], chosen: Sequence[Arm], seeds: int
+) -> dict[str, float] | None:
+    """How much the target's success curve moves when only its source changes, against seed noise.
+
+    Every joint arm shares high_source's target (its init and random streams: same seed, same
+    source shapes), so `curve_distance` to high_source's run of the same seed measures what the
+    source's goals or pre-training change for the target; `between_seeds` (high_source seed s
+    against seed s + 1) is the scale of a change that matters. None without high_source.
+    """
+    names = {a.name for a in chosen}
+    if "high_source" not in names or seeds < 2:
+        return None
+    out = {
+        arm.name: float(
+            np.mean(
+                [
+                    curve_distance(metrics[(arm.name, s)], metrics[("high_source", s)])
+                    for s in range(seeds)
+                ]
+            )
+        )
+        for arm in chosen
+        if arm.alone == "alone" and arm.name != "high_source"
+    }
+    out["between_seeds"] = float(
+        np.mean(
+            [
+                curve_distance(
+                    metrics[("high_source", s)], metrics[("high_source", (s + 1) % seeds)]
+                )
+                for s in range(seeds)
+            ]
+        )
+    )
     return out
 
 
@@ -698,6 +766,9 @@ def run_transfer_bench(
         },
         "arms": summary,
         "pretrain": pretrain,
+        "target_curve_distance": source_sensitivity(
+            {k: r.metrics for k, r in loaded.items()}, chosen, seeds
+        ),
         "table": format_table(costs, chosen, summary),
         "seeds": seeds,
         "full": full,
@@ -744,6 +815,13 @@ def format_result(result: Mapping[str, Any]) -> str:
         lines.append(
             f"no-correspondence control steps_saved 95% CI [{low:+.2f}, {high:+.2f}] "
             f"(goal: includes 0 or lies below it: {'met' if goal['no_correspondence_ci_not_above_0'] else 'not met'})"
+        )
+    distance = result["target_curve_distance"]
+    if distance is not None:
+        moved = ", ".join(f"{k} {v:.3f}" for k, v in distance.items() if k != "between_seeds")
+        lines.append(
+            f"target success curve vs high_source's, same seed, mean |difference|: {moved}; "
+            f"between seeds of high_source {distance['between_seeds']:.3f}"
         )
     if result["seeds"] < 3:
         lines.append(f"{result['seeds']} seeds: fewer than 3, so no change is resolved.")
