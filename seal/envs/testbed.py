@@ -26,7 +26,7 @@ import gymnasium as gym
 import numpy as np
 
 from seal.envs.base import EnvAdapter, ObsLayout
-from seal.envs.point import GOAL_RADIUS, GOALS, MAX_STEP, PointAdapter, PointEnv
+from seal.envs.point import ARENA, GOAL_RADIUS, GOALS, MAX_STEP, PointAdapter, PointEnv
 from seal.errors import SealError, UnknownNameError
 
 # A fixed random map, written out rather than drawn so that every numpy and LAPACK gives the same
@@ -95,6 +95,22 @@ def view_action(point_move: np.ndarray) -> np.ndarray:
     for axis, (index, sign) in enumerate(ACTION_MAP):
         out[..., index] = sign * move[..., axis]
     return out
+
+
+def paired_states(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """`n` states of the one world both testbed envs see, as (point obs (n, 4), point_view obs (n, 6)).
+
+    Positions are uniform over the arena and velocities uniform within `MAX_STEP` per axis, drawn
+    from numpy's default_rng(`seed`) alone; row i of the second array is VIEW_MATRIX @ row i of
+    the first, so the rows pair one state seen by each env (`point_diagonal` sees `point`'s obs).
+    """
+    if n < 1:
+        raise SealError(f"paired_states: n must be >= 1, got {n}")
+    rng = np.random.default_rng(seed)
+    positions = rng.uniform(-ARENA, ARENA, size=(n, 2))
+    velocities = rng.uniform(-MAX_STEP, MAX_STEP, size=(n, 2))
+    point_obs = np.concatenate([positions, velocities], axis=1)
+    return point_obs, point_obs @ VIEW_MATRIX.T
 
 
 def _view_observation_space() -> gym.spaces.Box:

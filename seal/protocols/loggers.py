@@ -8,6 +8,11 @@ mirror what the phase loop writes to them, at the same steps (the phase's gradie
     losses/<env>/<key>, charts/<env>/<key>                 every train.csv row (keys ending in "loss"
                                                            go under losses/)
 
+`AlignmentLogger` is no mirror: in a joint SEAL run of the transfer testbed's two envs it
+measures, at every evaluation, how alike the two translators map one world (linear CKA,
+`seal.learner.probes`), appends the rows `alignment/cka_translator` and `alignment/cka_trunk` to
+train.csv and hands them to the other callbacks' `on_train_log`, so the mirrors log them too.
+
 `[logging] tensorboard` turns on `TensorBoardLogger` (events under tb/<phase>/), `[logging] wandb`
 ("offline" or "online") turns on `WandbLogger` (files under wandb/; needs the `wandb` extra).
 """
@@ -79,6 +84,72 @@ class ScalarLogger(LoopCallback):
 
     def on_checkpoint(self, loop: PhaseLoop) -> None:
         self.flush()
+
+
+ALIGNMENT_STATES = 1024
+"""Testbed states the alignment logger feeds each env under each of the 4 task pairs."""
+ALIGNMENT_SEED = 0
+"""Seed of those states' own generator: the same states at every evaluation, no draw from the run's."""
+
+
+def alignment_envs(config: ProtocolConfig) -> tuple[str, str] | None:
+    """(point-world env, point_view env) of a joint SEAL run whose envs are exactly those two; else None."""
+    from seal.learner.probes import POINT_VIEW, POINT_WORLD
+
+    if config.kind != "joint" or config.agent.architecture != "seal" or len(config.envs) != 2:
+        return None
+    world = [e for e, c in config.envs.items() if c.adapter in POINT_WORLD]
+    view = [e for e, c in config.envs.items() if c.adapter == POINT_VIEW]
+    return (world[0], view[0]) if len(world) == len(view) == 1 else None
+
+
+class AlignmentLogger(ScalarLogger):
+    """At every evaluation: linear CKA of the two testbed envs' translator (and trunk) outputs, as train rows.
+
+    One world seen by both envs (`seal.envs.testbed.paired_states`), each env's one-hot set to
+    corresponding tasks (`seal.learner.probes.shared_world_cka`). The rows go under the point_view env
+    (`target`); forward passes without gradient on states of the logger's own generator, so the
+    run learns exactly as it would without it.
+    """
+
+    def __init__(self, world_env: str, view_env: str) -> None:
+        self.world_env, self.view_env = world_env, view_env
+
+    def on_evaluation(self, loop: PhaseLoop) -> None:
+        from seal.learner.probes import shared_world_cka
+
+        model, state = loop.model, loop.state
+        envs = (self.world_env, self.view_env)
+        if loop.phase.aligned or not set(envs) <= set(loop.phase.envs):
+            return
+        cka = shared_world_cka(
+            *(loop.agent, model.agent_env[self.world_env], model.adapters[self.world_env]),
+            *(loop.agent, model.agent_env[self.view_env], model.adapters[self.view_env]),
+            n=ALIGNMENT_STATES,
+            seed=ALIGNMENT_SEED,
+        )
+        rows: list[TrainRow] = [
+            {
+                "seed": loop.owner.seed,
+                "phase": loop.phase.name,
+                "epoch": state.epoch,
+                "grad_steps": state.grad_steps,
+                "env": self.view_env,
+                "key": f"alignment/cka_{part}",
+                "value": value,
+            }
+            for part, value in cka.items()
+        ]
+        loop.owner.rundir.log_train(rows)
+        for callback in loop.callbacks:
+            if callback is not self:
+                callback.on_train_log(loop, rows)
+
+    def on_train_log(self, loop: PhaseLoop, rows: Sequence[TrainRow]) -> None:
+        """Nothing: this logger makes rows, it mirrors none."""
+
+    def write(self, scalars: Mapping[str, float], step: int, loop: PhaseLoop) -> None:
+        """Nothing (see `on_train_log`)."""
 
 
 class TensorBoardLogger(ScalarLogger):
@@ -185,12 +256,16 @@ def wandb_run_id(folder: Path) -> str:
 def open_loggers(
     config: ProtocolConfig, run_dir: Path, purge: Mapping[str, int] | None = None
 ) -> list[ScalarLogger]:
-    """The loggers `[logging]` turns on for one run (TensorBoard is skipped if not installed);
-    `purge`: per phase, the step from which a resumed run hides events (`TensorBoardLogger`)."""
+    """The loggers `[logging]` turns on for one run (TensorBoard is skipped if not installed),
+    then, in a joint run of the testbed's two envs, the `AlignmentLogger`; `purge`: per phase,
+    the step from which a resumed run hides events (`TensorBoardLogger`)."""
     loggers: list[ScalarLogger] = []
     if config.logging.tensorboard:
         with contextlib.suppress(ImportError):  # tensorboard missing: the CSVs remain the record
             loggers.append(TensorBoardLogger(run_dir, purge))
     if config.logging.wandb != "off":
         loggers.append(WandbLogger(run_dir, config.logging.wandb, config))
+    testbed = alignment_envs(config)
+    if testbed is not None:
+        loggers.append(AlignmentLogger(*testbed))
     return loggers
