@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
@@ -52,7 +52,9 @@ def _require_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> 
         raise SealError(f"{what} lacks column(s) {missing}; it has {list(frame.columns)}")
 
 
-def first_reach(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> pd.DataFrame:
+def first_reach(
+    metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD, consecutive: int = 1
+) -> pd.DataFrame:
     """Per (seed, phase, env, task): the first evaluation with success >= threshold.
 
     Returns one row per (seed, phase, env, task) present in `metrics`, in order of first
@@ -64,7 +66,16 @@ def first_reach(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> 
     `paper_updates` is Appendix B's C x GS x BS at that evaluation, the phase's gradient steps
     times the task's batch in force then (metrics.csv's `batch`; NaN for runs written before it):
     equal to `updates` under a constant batch, and what the paper would report under a changing one.
+
+    `consecutive` = K > 1 is a robust criterion: a task has reached when K successive evaluations
+    (in training order) are all >= threshold, and the row reported is the first of those K, so a
+    single lucky evaluation does not count. K = 1 is the paper's criterion.
     """
+    if isinstance(consecutive, bool) or not isinstance(consecutive, int) or consecutive < 1:
+        raise SealError(
+            f"consecutive = {consecutive!r}: expected a whole number of evaluations >= 1 "
+            f"(1 = the paper's first evaluation >= threshold)"
+        )
     _require_columns(metrics, REQUIRED_METRICS_COLUMNS, "metrics table")
     keys = ["seed", "phase", "env", "task"]
     values = ["epoch", "updates", "grad_steps", "env_steps", "paper_updates"]
@@ -75,7 +86,14 @@ def first_reach(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> 
     )
     # Evaluations in training order; "first" is the earliest epoch of the phase.
     ordered = metrics.sort_values([*keys, "epoch", "grad_steps"], kind="stable")
-    hits = ordered[ordered["success"] >= threshold - SUCCESS_TOLERANCE]  # as evaluation.reaches
+    hit = ordered["success"] >= threshold - SUCCESS_TOLERANCE  # as evaluation.reaches
+    # Default K = 1, the paper's criterion (Appendix B: the first evaluation at 90%).
+    run = hit
+    for ahead in range(1, consecutive):
+        # The evaluation `ahead` places later in the same task's run must hit too (none: no reach).
+        later = hit.groupby([ordered[k] for k in keys], sort=False).shift(-ahead)
+        run = run & later.fillna(False).astype(bool)
+    hits = ordered[run]
     first = hits.groupby(keys, sort=False).head(1)[keys + values]
     all_tasks = metrics[keys].drop_duplicates()
     out = all_tasks.merge(first, on=keys, how="left", indicator=True)
@@ -89,6 +107,38 @@ def first_reach(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> 
     return out[[*keys, "reached", *values]].reset_index(drop=True)
 
 
+def decompose_first_reach(first: pd.DataFrame) -> pd.DataFrame:
+    """`first_reach`'s output with the update count split into gradient steps x per-step batch.
+
+    Adds `transitions` (the task's transitions consumed until it first reached, `updates` x 1e6),
+    `steps` (gradient steps until then) and `per_step` (transitions / steps: the task's mean
+    per-step batch over that span; NaN when steps is 0, as for a task never reached). So
+    transitions = steps x per_step, and the ratio of two arms' transitions is the ratio of their
+    steps times the ratio of their per-step batches: fewer transitions may come from learning in
+    fewer steps or from a smaller share of each batch.
+    """
+    _require_columns(first, ["updates", "grad_steps"], "first-reach table")
+    # Transitions are whole counts; rounding undoes the float error of metrics.csv's millions.
+    transitions = np.round(first["updates"].to_numpy(dtype=float) * 1e6)
+    steps = first["grad_steps"].to_numpy(dtype=np.int64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        per_step = np.where(steps > 0, transitions / np.maximum(steps, 1), math.nan)
+    return first.assign(transitions=transitions, steps=steps, per_step=per_step)
+
+
+def batch_share(per_step: float | np.ndarray | pd.Series, total_batch: float) -> Any:
+    """A task's share of the whole batch: its per-step batch / the transitions of one update.
+
+    `total_batch` is one gradient step's batch over all tasks (and envs) of the run, e.g. 40 per
+    task x 8 tasks = 320. Works elementwise on arrays and Series.
+    """
+    if not (
+        isinstance(total_batch, int | float) and math.isfinite(total_batch) and total_batch > 0
+    ):
+        raise SealError(f"total_batch {total_batch!r}: expected a positive number of transitions")
+    return per_step / float(total_batch)
+
+
 def aggregate_seeds(
     per_seed: pd.DataFrame, keys: Sequence[str] = ("phase", "env", "task")
 ) -> pd.DataFrame:
@@ -96,7 +146,8 @@ def aggregate_seeds(
 
     `per_seed` is `first_reach`'s output (possibly with extra key columns such as a report
     column). Returns one row per `keys` with `updates_mean`, `updates_std`, `grad_steps_mean`,
-    `env_steps_mean` (over reaching seeds), `reached` (k) and `seeds` (n). With k = 0 the means
+    `per_step_mean` (the task's mean per-step batch over those steps: updates_mean x 1e6 /
+    grad_steps_mean; NaN if never reached), `env_steps_mean` (over reaching seeds), `reached` (k) and `seeds` (n). With k = 0 the means
     are 0 (never reached); with k < 2 the std is NaN, since one seed has no spread.
     """
     keys = list(keys)
@@ -122,12 +173,18 @@ def aggregate_seeds(
     for column in ("updates_mean", "grad_steps_mean", "env_steps_mean"):
         out[column] = out[column].fillna(0.0)
     out = out.reset_index()
+    # Ratio of the means, so that updates_mean x 1e6 = grad_steps_mean x per_step_mean exactly.
+    steps = out["grad_steps_mean"].to_numpy(dtype=float)
+    out["per_step_mean"] = np.where(
+        steps > 0, out["updates_mean"].to_numpy(dtype=float) * 1e6 / np.maximum(steps, 1), math.nan
+    )
     return out[
         [
             *keys,
             "updates_mean",
             "updates_std",
             "grad_steps_mean",
+            "per_step_mean",
             "env_steps_mean",
             "paper_updates_mean",
             "reached",
@@ -217,6 +274,14 @@ def format_percent(pct: float | None) -> str:
     return f"{pct:+.1f}%"
 
 
+def format_ci(ci: tuple[float, float]) -> str:
+    """A relative change's CI (fractions) in percent: "[-71.2, -8.4]"; "[n/a]" if not finite."""
+    low, high = ci
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return "[n/a]"
+    return f"[{100 * low:+.1f}, {100 * high:+.1f}]"
+
+
 def format_count(
     mean: float,
     std: float,
@@ -225,10 +290,15 @@ def format_count(
     pct: float | None = None,
     show_pct: bool = False,
     style: Style = "plain",
+    bold: bool | None = None,
+    ci: tuple[float, float] | None = None,
 ) -> str:
     """One table cell: "mean ± std (pct) [k/n]", "—" if never reached; bold (md/LaTeX) when pct < 0.
 
     `show_pct` adds the percent change ("n/a" when it is undefined); the baseline column leaves it off.
+    `ci` (a relative change's CI, as fractions) is shown after the percent as "[lo, hi]" when
+    finite. `bold` overrides the rule: a report passes pct < 0 and the CI excluding 0, so a change
+    within the noise of its seeds is not bold.
     """
     pm = r"$\pm$" if style == "latex" else "±"
     dash = "---" if style == "latex" else NEVER_REACHED
@@ -242,8 +312,12 @@ def format_count(
         pct_text = format_percent(pct)
         if style == "latex":
             pct_text = pct_text.replace("%", r"\%")
+        if ci is not None and math.isfinite(ci[0]) and math.isfinite(ci[1]):
+            pct_text += f" {format_ci(ci)}"
         text += f" ({pct_text})"
-    if pct is not None and math.isfinite(pct) and pct < 0:
+    if bold is None:
+        bold = pct is not None and math.isfinite(pct) and pct < 0
+    if bold:
         if style == "markdown":
             text = f"**{text}**"
         elif style == "latex":

@@ -13,8 +13,11 @@ from seal.errors import SealError
 from seal.metrics import (
     add_percent_change,
     aggregate_seeds,
+    batch_share,
+    decompose_first_reach,
     env_totals,
     first_reach,
+    format_ci,
     format_count,
     format_number,
     format_percent,
@@ -257,3 +260,124 @@ def test_one_rule_for_reaching_the_threshold() -> None:
         f"0,train,1,mw,a,{below!r},1,10,10,0.001,1\n"
     )
     assert bool(first_reach(frame, 0.9)["reached"].iloc[0])
+
+
+# ---- the robust criterion: K successive evaluations >= 90%, the first of them reported.
+# drawer-close (CONSTANT_BATCH) hits at epochs 3 (0.92) and 5 (0.95), missing at 4 (0.88): with
+# K = 2 it never has two in a row. A second task hits at 2, misses at 3, hits at 4 and 5: K = 2
+# reports epoch 4 (the first of the pair 4, 5), K = 3 finds no run of three.
+ROBUST = """seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s
+0,train,1,mw,door-open-v3,0.50,1,500,500,0.064,1
+0,train,2,mw,door-open-v3,0.90,1,1000,1000,0.128,2
+0,train,3,mw,door-open-v3,0.70,1,1500,1500,0.192,3
+0,train,4,mw,door-open-v3,0.95,1,2000,2000,0.256,4
+0,train,5,mw,door-open-v3,1.00,1,2500,2500,0.320,5
+"""
+
+
+def test_consecutive_evaluations_report_the_first_of_the_run() -> None:
+    frame = pd.concat([_csv(CONSTANT_BATCH), _csv(ROBUST)], ignore_index=True)
+    one = first_reach(frame).set_index("task")
+    assert one.loc["door-open-v3", "epoch"] == 2 and one.loc["drawer-close-v3", "epoch"] == 3
+    pd.testing.assert_frame_equal(first_reach(frame, consecutive=1), first_reach(frame))
+    two = first_reach(frame, consecutive=2).set_index("task")
+    assert two.loc["door-open-v3", "epoch"] == 4
+    assert two.loc["door-open-v3", "updates"] == pytest.approx(0.256)
+    assert two.loc["door-open-v3", "grad_steps"] == 2000
+    assert not two.loc["drawer-close-v3", "reached"]  # 3 and 5 hit, 4 does not
+    assert not two.loc["reach-v3", "reached"]
+    three = first_reach(frame, consecutive=3).set_index("task")
+    assert not three["reached"].any()
+
+
+def test_consecutive_keeps_seeds_apart() -> None:
+    # Seed 0's last evaluation hits and seed 1's first does: not two in a row of one run.
+    rows = """seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s
+0,train,1,mw,t,0.10,1,500,500,0.064,1
+0,train,2,mw,t,0.95,1,1000,1000,0.128,2
+1,train,1,mw,t,0.95,1,500,500,0.064,1
+1,train,2,mw,t,0.20,1,1000,1000,0.128,2
+"""
+    assert not first_reach(_csv(rows), consecutive=2)["reached"].any()
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, True])
+def test_consecutive_must_be_a_positive_count(bad: object) -> None:
+    with pytest.raises(SealError, match="consecutive"):
+        first_reach(_csv(CONSTANT_BATCH), consecutive=bad)  # type: ignore[arg-type]
+
+
+# ---- steps x per-step batch. Two arms of one 2-task env, one seed each, hand-computed:
+#   base (alone, 64 per task per step, 500 steps/epoch): task a reaches at epoch 3 -> 1500 steps,
+#     1500 x 64 = 96,000 transitions; task b at epoch 2 -> 1000 steps, 64,000 transitions.
+#   arm (joint, the env's tasks draw 16 per step, 500 steps/epoch): task a reaches at epoch 4 ->
+#     2000 steps, 2000 x 16 = 32,000 transitions; task b never.
+DECOMPOSE_BASE = """seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s
+0,train,1,mw,a,0.10,1,500,500,0.032,1
+0,train,1,mw,b,0.50,1,500,500,0.032,1
+0,train,2,mw,a,0.50,1,1000,1000,0.064,2
+0,train,2,mw,b,0.90,1,1000,1000,0.064,2
+0,train,3,mw,a,0.91,1,1500,1500,0.096,3
+0,train,3,mw,b,1.00,1,1500,1500,0.096,3
+"""
+DECOMPOSE_ARM = """seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s
+0,train,2,mw,a,0.30,1,1000,1000,0.016,2
+0,train,2,mw,b,0.30,1,1000,1000,0.016,2
+0,train,4,mw,a,0.92,1,2000,2000,0.032,4
+0,train,4,mw,b,0.40,1,2000,2000,0.032,4
+"""
+
+
+def test_transitions_are_steps_times_per_step_batch() -> None:
+    base = decompose_first_reach(first_reach(_csv(DECOMPOSE_BASE))).set_index("task")
+    arm = decompose_first_reach(first_reach(_csv(DECOMPOSE_ARM))).set_index("task")
+    assert base.loc["a", "transitions"] == 96_000 and base.loc["a", "steps"] == 1500
+    assert base.loc["a", "per_step"] == 64.0
+    assert base.loc["b", "transitions"] == 64_000 and base.loc["b", "per_step"] == 64.0
+    assert arm.loc["a", "transitions"] == 32_000 and arm.loc["a", "steps"] == 2000
+    assert arm.loc["a", "per_step"] == 16.0
+    # Never reached: 0 transitions over 0 steps, no per-step batch.
+    assert arm.loc["b", "steps"] == 0 and math.isnan(arm.loc["b", "per_step"])
+    for frame in (base, arm.loc[["a"]]):
+        assert (frame["transitions"] == frame["steps"] * frame["per_step"]).all()
+    # Task a: 1/3 of the transitions = 4/3 of the steps x 1/4 of the per-step batch.
+    ratio_transitions = arm.loc["a", "transitions"] / base.loc["a", "transitions"]
+    ratio_steps = arm.loc["a", "steps"] / base.loc["a", "steps"]
+    ratio_per_step = arm.loc["a", "per_step"] / base.loc["a", "per_step"]
+    assert ratio_transitions == pytest.approx(1 / 3)
+    assert ratio_steps == pytest.approx(4 / 3) and ratio_per_step == pytest.approx(1 / 4)
+    assert ratio_transitions == pytest.approx(ratio_steps * ratio_per_step, rel=1e-15)
+    # 16 of a 128-transition update (8 tasks x 16): an eighth of the batch.
+    assert batch_share(arm.loc["a", "per_step"], 128) == 0.125
+    with pytest.raises(SealError, match="total_batch"):
+        batch_share(16.0, 0)
+
+
+def test_aggregate_per_step_mean_keeps_the_identity() -> None:
+    # Two seeds of task a: (1500 steps, 96,000) and (1000 steps, 48,000): means 1250 and 72,000,
+    # per-step batch 72,000 / 1250 = 57.6 (the ratio of the means, not the mean of 64 and 48).
+    per_seed = pd.DataFrame(
+        {
+            "phase": "train",
+            "env": "mw",
+            "task": "a",
+            "seed": [0, 1],
+            "reached": True,
+            "updates": [0.096, 0.048],
+            "grad_steps": [1500, 1000],
+            "env_steps": [1500, 1000],
+        }
+    )
+    row = aggregate_seeds(per_seed).iloc[0]
+    assert row["per_step_mean"] == pytest.approx(57.6)
+    assert row["updates_mean"] * 1e6 == pytest.approx(row["grad_steps_mean"] * row["per_step_mean"])
+
+
+def test_bold_follows_the_resolution_when_given() -> None:
+    # The old rule (pct < 0) without `bold`; a report passes bold=False for an unresolved change.
+    assert format_count(0.1, 0.01, 3, 3, -20.0, True, "markdown") == "**0.1 ± 0.01 (-20.0%)** [3/3]"
+    unresolved = format_count(0.1, 0.01, 3, 3, -20.0, True, "markdown", bold=False, ci=(-0.4, 0.05))
+    assert unresolved == "0.1 ± 0.01 (-20.0% [-40.0, +5.0]) [3/3]"
+    resolved_cell = format_count(0.1, 0.01, 3, 3, -20.0, True, "latex", bold=True, ci=(-0.4, -0.05))
+    assert resolved_cell == r"\textbf{0.1 $\pm$ 0.01 (-20.0\% [-40.0, -5.0])} [3/3]"
+    assert format_ci((math.nan, 0.1)) == "[n/a]"
