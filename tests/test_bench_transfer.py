@@ -14,6 +14,7 @@ from seal.bench.transfer import (
     arms,
     code_versions,
     finished_run,
+    format_result,
     run_transfer_bench,
     target_cost,
     updates_saved,
@@ -120,7 +121,6 @@ TINY = [
     "training.grad_steps_per_epoch=2",
     "evaluation.interval=1",
     "evaluation.episodes=1",
-    "envs.target.episode_length=5",
     "agent.translator_hidden=[8]",
     "agent.latent_dim=8",
     "agent.trunk_hidden=[8]",
@@ -131,13 +131,27 @@ TINY = [
 def test_tiny_end_to_end(tmp_path) -> None:
     # One seed of the minimum set, 2 epochs of 2 updates: the point is the plumbing, not learning.
     result = run_transfer_bench(seeds=1, out=tmp_path, parallel=4, overrides=TINY)
-    assert set(result["arms"]) == {a.name for a in arms()}
+    assert set(result["arms"]) == {a.name for a in arms() if a.has_target}
     alone, high = result["arms"]["alone"], result["arms"]["high_source"]
     # 2 epochs x 2 updates x 8 target transitions per task (10% of 320) x 4 tasks, all censored.
     assert alone["consumed_per_seed"] == high["consumed_per_seed"] == [128.0]
     assert (alone["censored"], alone["grad_steps_to_90_per_seed"]) == (4, [4])
+    # Censored in both: steps x per-step batch = 4 tasks x 4 steps x 8 = 128, nothing saved.
+    assert (alone["task_steps_per_seed"], alone["per_step_batch_per_seed"]) == ([16], [8.0])
     assert result["transfer_updates_saved"] == high["transfer_updates_saved_per_seed"][0] == 0.0
-    assert "Single Env" in result["table"] and "High Src per_env" in result["table"]
+    assert high["steps_saved_per_seed"] == [0.0]
+    # One seed has no spread: no CI, and the output says that nothing is resolved.
+    assert all(math.isnan(v) for v in high["ci95"])
+    assert "fewer than 3, so no change is resolved" in format_result(result)
+    # The positive control started from its seed's pre-training, whose cost is reported beside it.
+    positive = result["arms"]["positive_pretrained"]
+    assert positive["pretrain"]["grad_steps_per_seed"] == [4]
+    assert "transfer.checkpoint=" in str(result["commands"]["positive_pretrained/seed-0"])
+    for name in ("high_source", "alone", "positive_pretrained"):
+        cka = result["arms"][name]["alignment_cka"]
+        assert 0.0 <= cka["translator"] <= 1.0 and 0.0 <= cka["trunk"] <= 1.0, name
+    assert "Single Env" in result["table"] and "Pos: pre-trained src" in result["table"]
+    assert result["target_curve_distance"] is None  # one seed: no seed-to-seed scale to read it by
 
 
 def test_cli_errors_are_one_line(capsys) -> None:

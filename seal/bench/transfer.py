@@ -774,6 +774,7 @@ def run_transfer_bench(
         "full": full,
         "overrides": list(overrides),
         "run_dirs": {f"{a}/seed-{s}": str(p) for (a, s), p in run_dirs.items()},
+        "commands": {f"{a}/seed-{s}": r.provenance.get("command") for (a, s), r in loaded.items()},
         "reused": sorted(f"{a}/seed-{s}" for a, s in reused),
         "agent_mismatches": mismatches,
         "code_versions": versions,
