@@ -292,13 +292,16 @@ def format_count(
     style: Style = "plain",
     bold: bool | None = None,
     ci: tuple[float, float] | None = None,
+    vs: str = "",
+    also: str = "",
 ) -> str:
     """One table cell: "mean ± std (pct) [k/n]", "—" if never reached; bold (md/LaTeX) when pct < 0.
 
     `show_pct` adds the percent change ("n/a" when it is undefined); the baseline column leaves it off.
     `ci` (a relative change's CI, as fractions) is shown after the percent as "[lo, hi]" when
-    finite. `bold` overrides the rule: a report passes pct < 0 and the CI excluding 0, so a change
-    within the noise of its seeds is not bold.
+    finite; `vs` labels the change ("-20.0% vs Single Env") and `also` is written after it inside
+    the parentheses (a second, labelled change). `bold` overrides the rule: a report passes
+    pct < 0 and the CI excluding 0, so a change within the noise of its seeds is not bold.
     """
     pm = r"$\pm$" if style == "latex" else "±"
     dash = "---" if style == "latex" else NEVER_REACHED
@@ -314,7 +317,9 @@ def format_count(
             pct_text = pct_text.replace("%", r"\%")
         if ci is not None and math.isfinite(ci[0]) and math.isfinite(ci[1]):
             pct_text += f" {format_ci(ci)}"
-        text += f" ({pct_text})"
+        if vs:
+            pct_text += f" vs {vs}"
+        text += f" ({pct_text}{also})"
     if bold is None:
         bold = pct is not None and math.isfinite(pct) and pct < 0
     if bold:

@@ -160,8 +160,8 @@ def stratified_change_ci(
 
     Stratified bootstrap (rliable's): runs are resampled within each task, tasks independently;
     paired, a task's arm and base share one index draw. Both mappings must name the same tasks;
-    NaNs are dropped (paired: the pair). (nan, nan) when a task has no value on a side, when no
-    task has 2 values to resample, or when the base total is not positive.
+    NaNs are dropped (paired: the pair). (nan, nan) when a task has fewer than 2 values on a side
+    (as `change_ci`), or when the base total is not positive.
     """
     if set(arm) != set(base):
         raise SealError(
@@ -174,7 +174,7 @@ def stratified_change_ci(
         pairs = [_paired_finite(arm[t], base[t]) for t in tasks]
     else:
         pairs = [(_finite(arm[t]), _finite(base[t])) for t in tasks]
-    if any(len(a) == 0 or len(b) == 0 for a, b in pairs):
+    if any(len(a) < 2 or len(b) < 2 for a, b in pairs):  # as change_ci: 2 values a side
         return math.nan, math.nan
     if not sum(b.mean() for _, b in pairs) > 0:
         return math.nan, math.nan

@@ -253,26 +253,48 @@ def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path
         "Total (MW)",
         "Total (FK)",
     ]
+    # Two seeds a group: nothing is bold, whatever the CI (MIN_SEEDS_RESOLVED = 3). High FK and
+    # Single Env ran seeds 0 and 1 on MW, so drawer-close is paired by seed: the resamples give
+    # 0.02/0.128 - 1 = -84.4%, 0.035/0.16 - 1 = -78.1% or 0.05/0.192 - 1 = -74.0%, hence the CI.
+    # Beside each count: gradient steps x per-step batch, e.g. 750 steps x 46.67 = 35,000.
     assert rows["drawer-close-v3 (MW)"] == [
-        "0.16 ± 0.04525 [2/2]",
-        "**0.035 ± 0.02121 (-78.1%)** [2/2]",
-        "**0.064 (-60.0%)** [1/1]",
+        "0.16 ± 0.04525 [2/2] · 1250 steps × 128",
+        "0.035 ± 0.02121 (-78.1% [-84.4, -74.0]) [2/2] · 750 steps × 46.67",
+        "0.064 (-60.0%) [1/1] · 500 steps × 128",
         "",
     ]
-    assert rows["reach-v3 (MW)"] == ["0.192 [1/2]", "— [0/2]", "— [0/1]", ""]
+    assert rows["reach-v3 (MW)"] == ["0.192 [1/2] · 1500 steps × 128", "— [0/2]", "— [0/1]", ""]
     assert rows["slide-cabinet (FK)"] == [
-        "0.192 [1/1]",
-        "**0.14 ± 0.05657 (-27.1%)** [2/2]",
+        "0.192 [1/1] · 1500 steps × 128",
+        "0.14 ± 0.05657 (-27.1%) [2/2] · 750 steps × 186.7",  # one baseline seed: no CI
         "",
-        "**0.128 (-33.3%)** [1/1]",
+        "0.128 (-33.3%) [1/1] · 1000 steps × 128",
     ]
-    assert rows["microwave (FK)"] == ["— [0/1]", "0.24 (n/a) [1/2]", "", "— [0/1]"]
-    assert rows["Total (MW)"] == ["0.352 (2/2 tasks)", "0.035 (1/2 tasks)", "0.064 (1/2 tasks)", ""]
-    assert rows["Total (FK)"] == ["0.192 (1/2 tasks)", "0.38 (2/2 tasks)", "", "0.128 (1/2 tasks)"]
+    assert rows["microwave (FK)"] == [
+        "— [0/1]",
+        "0.24 (n/a) [1/2] · 1500 steps × 160",
+        "",
+        "— [0/1]",
+    ]
+    assert rows["Total (MW)"] == [
+        "0.352 (2/2 tasks)",
+        "0.035 (1/2 tasks) (-78.1% [-84.4, -74.0] vs Single Env on 1 shared task)",
+        "0.064 (1/2 tasks) (-60.0% vs Single Env on 1 shared task)",
+        "",
+    ]
+    assert rows["Total (FK)"] == [
+        "0.192 (1/2 tasks)",
+        "0.38 (2/2 tasks) (-27.1% vs Single Env on 1 shared task)",
+        "",
+        "0.128 (1/2 tasks) (-33.3% vs Single Env on 1 shared task)",
+    ]
+    assert "Fewer than 3 seeds in" in md and "no change against or of them is resolved" in md
+    assert "Paired by seed (the same seeds in both): High FK vs Single Env (MW)" in md
     assert "— = never reached 90% in any seed" in md
 
     tex = (out / "tables" / "update_counts.tex").read_text()
-    assert r"\textbf{0.035 $\pm$ 0.02121 (-78.1\%)} [2/2]" in tex and r"\begin{tabular}" in tex
+    assert r"0.035 $\pm$ 0.02121 (-78.1\% [-84.4, -74.0]) [2/2] $\cdot$ 750 steps" in tex
+    assert r"\textbf" not in tex and r"\begin{tabular}" in tex
     assert "drawer-close-v3 (MW)" in tex and "--- [0/2]" in tex
 
     csv = pd.read_csv(out / "tables" / "update_counts.csv")

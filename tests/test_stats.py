@@ -135,6 +135,8 @@ def test_stratified_change_ci_undefined_cases() -> None:
     nan_side = stratified_change_ci({"a": [1.0, 2.0]}, {"a": [math.nan, math.nan]}, paired=False)
     assert all(math.isnan(v) for v in nan_side)
     assert all(math.isnan(v) for v in stratified_change_ci({}, {}, paired=True))
+    one_seed = stratified_change_ci({"a": ARM, "b": [0.5]}, {"a": BASE, "b": [0.6]}, paired=False)
+    assert all(math.isnan(v) for v in one_seed)  # task b has one value: as change_ci, undefined
 
 
 def test_probability_of_improvement_is_mann_whitney_u_for_costs() -> None:

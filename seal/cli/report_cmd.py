@@ -1,10 +1,11 @@
-"""`seal report RUN_OR_GROUP... [--json] [--out DIR] [--threshold T] [--x grad_steps|epoch]`."""
+"""`seal report RUN_OR_GROUP... [--json] [--out DIR] [--threshold T] [--consecutive K] [--x grad_steps|epoch]`."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -15,7 +16,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Merge the seeds of one or more groups (reports/<protocol>/<group-id>/) or single runs "
             "(.../seed-<n>/) into the paper's update-count table (Task x {Single Env, 50/50, High FK, "
-            "High MW, Pre-train on X, Fine-tune on Y}) with the percent change against Single Env, "
+            "High MW, Pre-train on X, Fine-tune on Y}) with the percent change against Single Env and its "
+            "95% bootstrap CI, gradient steps x per-step batch beside each count, "
             "a final-success table, success curves per environment and critic-loss curves. "
             "Writes <out>/tables/ (Markdown, CSV, LaTeX) and <out>/plots/ (PNG)."
         ),
@@ -36,6 +38,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="success rate a task must reach for the update-count metric (default: the runs' [evaluation].threshold, else 0.9)",
     )
     parser.add_argument(
+        "--consecutive",
+        type=int,
+        default=1,
+        metavar="K",
+        help="a task has reached when K successive evaluations are >= the threshold; counted at the first of them (default: 1, the paper's criterion)",
+    )
+    parser.add_argument(
         "--x",
         choices=("grad_steps", "epoch"),
         default="grad_steps",
@@ -51,9 +60,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Build the report and print where it went (or one JSON line)."""
+    from seal.protocols.rundir import DirLock
     from seal.reports import report
 
-    result = report(args.paths, out=args.out, threshold=args.threshold, x=args.x)
+    # One writer per directory: lock the run or group the tables and plots go into (a
+    # comparison of several without --out writes a directory of its own and takes no lock).
+    target = args.out or (args.paths[0] if len(args.paths) == 1 else None)
+    lock = DirLock(Path(target)) if target is not None and Path(target).is_dir() else None
+    if lock is not None:
+        lock.acquire()
+    try:
+        result = report(
+            args.paths,
+            out=args.out,
+            threshold=args.threshold,
+            x=args.x,
+            consecutive=args.consecutive,
+        )
+    finally:
+        if lock is not None:
+            lock.release()
     for note in result.skipped:
         print(f"seal report: note: {note}", file=sys.stderr)
     for warning in result.warnings:

@@ -28,10 +28,12 @@ from seal.metrics import (
     DEFAULT_THRESHOLD,
     add_percent_change,
     aggregate_seeds,
+    decompose_first_reach,
     env_totals,
     first_reach,
 )
 from seal.protocols.rundir import METRICS_COLUMNS, TRAIN_COLUMNS  # defined once, by the writer
+from seal.reports.changes import _with_uncertainty, few_seeds, pairing
 from seal.reports.groups import (
     BASELINE_COLUMN,
     _column_rank,
@@ -60,6 +62,7 @@ from seal.reports.tables import (
     _update_count_table,
     _write_table,
 )
+from seal.stats import MIN_SEEDS_RESOLVED
 
 
 def _resolve_threshold(groups: Sequence[_Group], threshold: float | None) -> float:
@@ -138,29 +141,47 @@ class _Layout:
 
 
 def _update_counts(
-    metrics: pd.DataFrame, threshold: float
+    metrics: pd.DataFrame, threshold: float, consecutive: int = 1
 ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
-    """The update-count metric: (per seed, across seeds with % change against Single Env, env totals)."""
+    """The update-count metric: (per seed, across seeds with changes and CIs, env totals).
+
+    Per seed, `first_reach` split into gradient steps x per-step batch; across seeds, the change
+    against Single Env (and against a column's batch-matched alone arm) with bootstrap CIs.
+    """
     per_seed = []
     for (column, source), frame in metrics.groupby(["column", "source"], sort=False):
-        reach = first_reach(frame, threshold)
+        reach = decompose_first_reach(first_reach(frame, threshold, consecutive))
         reach.insert(0, "column", column)
         reach.insert(1, "source", source)
         per_seed.append(reach)
     per_seed_frame = pd.concat(per_seed, ignore_index=True)
     counts = aggregate_seeds(per_seed_frame, keys=("column", "env", "task"))
     counts = add_percent_change(counts, BASELINE_COLUMN, column_key="column", on=("env", "task"))
-    return per_seed_frame, counts, env_totals(counts, keys=("column", "env"))
+    totals = env_totals(counts, keys=("column", "env"))
+    counts, totals = _with_uncertainty(per_seed_frame, counts, totals)
+    return per_seed_frame, counts, totals
 
 
 def _count_notes(
-    counts: pd.DataFrame, threshold: float, layout: _Layout, warnings: Sequence[str]
+    per_seed: pd.DataFrame,
+    counts: pd.DataFrame,
+    threshold: float,
+    layout: _Layout,
+    warnings: Sequence[str],
+    consecutive: int = 1,
 ) -> list[str]:
     """The update-count table's notes: definitions, the paper's product where it differs, warnings."""
     notes = _notes(
         threshold,
         with_change=bool((counts["column"] == BASELINE_COLUMN).any() and len(layout.columns) > 1),
     )
+    if consecutive > 1:
+        notes.insert(
+            1,
+            f"Reached = {consecutive} successive evaluations >= {threshold:.0%}; counted at the "
+            f"first of them (the paper's criterion is 1).",
+        )
+    notes.extend(_uncertainty_notes(per_seed, counts, layout.labels))
     if (counts["reached"] > 0).any() and any(
         _paper_suffix(r.updates_mean, r.paper_updates_mean, int(r.reached), "plain")
         for r in counts.itertuples(index=False)
@@ -170,6 +191,40 @@ def _count_notes(
             "evaluation), shown where the batch changed during the run and it differs from the exact count."
         )
     notes.extend(f"WARNING: {w}; these columns are not the same experiment." for w in warnings)
+    return notes
+
+
+def _uncertainty_notes(
+    per_seed: pd.DataFrame, counts: pd.DataFrame, labels: dict[str, str]
+) -> list[str]:
+    """How the CIs were made (paired or not), the steps x batch split, and too few seeds."""
+    if not (counts["reference"] != "").any():
+        return []
+    notes = [
+        "steps × b = gradient steps to the threshold × the task's mean per-step batch over them "
+        "(transitions / steps), means over the seeds that reached it; their product is the count.",
+        "[lo, hi] after a change = its 95% percentile bootstrap CI in percent over seeds "
+        "(scipy.stats.bootstrap, 10,000 resamples, seed 0); a total's change is over the tasks "
+        "both columns reached, seeds resampled within each task (stratified bootstrap). Bold = a "
+        "decrease whose CI excludes 0 (against every labelled reference).",
+    ]
+    pairs = pairing(counts, labels)
+    if pairs["paired"]:
+        notes.append("Paired by seed (the same seeds in both): " + ", ".join(pairs["paired"]) + ".")
+    if pairs["unpaired"]:
+        notes.append("Unpaired (different seeds): " + ", ".join(pairs["unpaired"]) + ".")
+    if (counts["matched_reference"] != "").any():
+        notes.append(
+            "vs matched = against the column's batch-matched alone arm, Single Env (<column> "
+            "batch): the same per-task batch without the other environment's data."
+        )
+    few = few_seeds(per_seed, counts)
+    if few:
+        listed = ", ".join(f"{column} ({n})" for column, n in few.items())
+        notes.append(
+            f"Fewer than {MIN_SEEDS_RESOLVED} seeds in {listed}: no change against or of "
+            f"{'it' if len(few) == 1 else 'them'} is resolved, whatever its CI (none is bold)."
+        )
     return notes
 
 
@@ -210,6 +265,7 @@ def report(
     out: str | os.PathLike[str] | None = None,
     threshold: float | None = None,
     x: XAxis = "grad_steps",
+    consecutive: int = 1,
 ) -> ReportResult:
     """Merge runs and groups into the paper's tables and plots; write them under `out`.
 
@@ -218,7 +274,9 @@ def report(
     `tables/success.{md,csv,tex}`, `plots/success_<env>.png` and `plots/critic_loss.png` under
     `out` (default: the run or group directory when there is one, else
     `<reports root>/comparison/<protocols>/`). `threshold` defaults to the runs' configured
-    [evaluation].threshold when they agree, else 0.9. `x` is the plots' x axis.
+    [evaluation].threshold when they agree, else 0.9. `x` is the plots' x axis. `consecutive` = K
+    counts a task as reached at the first of K successive evaluations >= threshold
+    (`seal.metrics.first_reach`; 1, the default, is the paper's criterion).
     """
     if isinstance(paths, str | os.PathLike):
         paths = [paths]
@@ -230,10 +288,10 @@ def report(
     out_dir = Path(out) if out is not None else _default_out(paths, groups)
     tables_dir, plots_dir = _output_dirs(out_dir)
 
-    per_seed, counts, totals = _update_counts(metrics, threshold)
+    per_seed, counts, totals = _update_counts(metrics, threshold, consecutive)
     layout = _Layout.of(metrics)
     warnings = _comparability_warnings(groups)
-    notes = _count_notes(counts, threshold, layout, warnings)
+    notes = _count_notes(per_seed, counts, threshold, layout, warnings, consecutive)
     title = f"Millions of updates to reach {threshold:.0%} success"
     tables = _write_tables(tables_dir, metrics, (per_seed, counts, totals), layout, title, notes)
 

@@ -63,8 +63,10 @@ def column_label(run: RunData, phase: str, env: str) -> str:
 
     baseline -> "Single Env"; joint with a constant ratio -> "50/50" (or its ratio); joint with the
     `high_fk` / `high_mw` presets -> "High FK" / "High MW"; finetune -> "Pre-train on X" for its
-    pretrain phase and "Fine-tune on Y" for its finetune phase (Tables 6-7); anything else, such as
-    a baseline under an SMT or curriculum scheduler, -> its protocol name.
+    pretrain phase and "Fine-tune on Y" for its finetune phase (Tables 6-7); a baseline whose
+    scheduler has a non-empty `absent` table (a batch-matched alone arm) -> "Single Env (<the joint
+    column> batch)", e.g. "Single Env (High FK batch)"; anything else, such as a baseline under an
+    SMT or curriculum scheduler, -> its protocol name.
     """
     scheduler = run.scheduler()
     sched_kind = str(scheduler.get("kind", "") or "").lower()
@@ -76,33 +78,55 @@ def column_label(run: RunData, phase: str, env: str) -> str:
         if phase == "finetune":
             return f"Fine-tune on {run.env_label(env)}"
         return f"{run.protocol} ({phase})"
+    envs = list(run.config.get("envs", {})) or list(dict.fromkeys(run.metrics["env"]))
+    absent = scheduler.get("absent")
+    if run.kind == "baseline" and isinstance(absent, dict) and absent:
+        # Batch-matched alone: the joint run's schedule with the absent envs' share not drawn.
+        joint = _joint_label(run, scheduler, sched_kind, [*envs, *absent])
+        return matched_label(joint or run.protocol)
     if run.kind == "joint":
-        # `kind = "high_fk"` is seal.schedulers' shorthand for `kind = "stepped", preset = "high_fk"`.
-        preset = str(scheduler.get("preset", "") or sched_kind).lower()
-        if preset in _PRESET_COLUMNS:
-            return _PRESET_COLUMNS[preset]
-        envs = list(run.config.get("envs", {})) or list(dict.fromkeys(run.metrics["env"]))
-        start = scheduler.get("start")
-        if sched_kind == "stepped" and isinstance(start, dict) and start:
-            # A stepped schedule without a preset is named for the env it starts high on.
-            return f"High {run.env_label(max(start, key=lambda e: float(start[e])))}"
-        if sched_kind == "constant":
-            label = _ratio_label(scheduler, envs)
-            if label:
-                return label
-        if sched_kind in _PLAIN_SCHEDULERS:
-            # A uniform batch over all tasks: each env's share is its share of the tasks.
-            tasks = run.metrics.groupby("env", sort=False)["task"].nunique()
-            label = _ratio_label({"ratios": {e: int(tasks.get(e, 0)) for e in envs}}, envs)
-            if label:
-                return label
+        label = _joint_label(run, scheduler, sched_kind, envs)
+        if label:
+            return label
     return run.protocol
+
+
+def matched_label(joint: str) -> str:
+    """The column of the batch-matched alone arm of joint column `joint`: "Single Env (High FK batch)"."""
+    return f"{BASELINE_COLUMN} ({joint} batch)"
+
+
+def _joint_label(
+    run: RunData, scheduler: dict[str, Any], sched_kind: str, envs: Sequence[str]
+) -> str | None:
+    """The column a joint schedule over `envs` gets ("High FK", "50/50"), or None."""
+    # `kind = "high_fk"` is seal.schedulers' shorthand for `kind = "stepped", preset = "high_fk"`.
+    preset = str(scheduler.get("preset", "") or sched_kind).lower()
+    if preset in _PRESET_COLUMNS:
+        return _PRESET_COLUMNS[preset]
+    start = scheduler.get("start")
+    if sched_kind == "stepped" and isinstance(start, dict) and start:
+        # A stepped schedule without a preset is named for the env it starts high on.
+        return f"High {run.env_label(max(start, key=lambda e: float(start[e])))}"
+    if sched_kind == "constant":
+        label = _ratio_label(scheduler, envs)
+        if label:
+            return label
+    if sched_kind in _PLAIN_SCHEDULERS:
+        # A uniform batch over all tasks: each env's share is its share of the tasks.
+        tasks = run.metrics.groupby("env", sort=False)["task"].nunique()
+        label = _ratio_label({"ratios": {e: int(tasks.get(e, 0)) for e in envs}}, envs)
+        if label:
+            return label
+    return None
 
 
 def _column_rank(label: str) -> tuple[int, int, int, str]:
     """Table 1's columns first, then fine-tune columns by environment (MW, FK, others), then the rest."""
     if label in _COLUMN_ORDER:
         return (_COLUMN_ORDER.index(label), 0, 0, "")
+    if label.startswith(f"{BASELINE_COLUMN} ("):
+        return (0, 1, 0, label)  # batch-matched alone arms next to Single Env
     for step, prefix in enumerate(("Pre-train on ", "Fine-tune on ")):
         if label.startswith(prefix):
             env = label.removeprefix(prefix)

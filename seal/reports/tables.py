@@ -18,7 +18,7 @@ from typing import Any
 
 import pandas as pd
 
-from seal.metrics import NEVER_REACHED, format_count, format_number
+from seal.metrics import NEVER_REACHED, format_ci, format_count, format_number, format_percent
 from seal.reports.groups import _ENV_RANK, BASELINE_COLUMN, _Group
 
 
@@ -101,6 +101,92 @@ def _escape_latex(text: str) -> str:
     return re.sub(r"([_&%#$])", r"\\\1", text)
 
 
+def _ci(row: Any, prefix: str = "") -> tuple[float, float]:
+    """A row's CI of its change against the reference of `prefix`, as fractions."""
+    return (
+        float(getattr(row, f"{prefix}pct_ci_low")) / 100,
+        float(getattr(row, f"{prefix}pct_ci_high")) / 100,
+    )
+
+
+def _change(pct: float, ci: tuple[float, float], label: str = "") -> str:
+    """ "-27.1% [-40.2, -9.8] vs X" (the CI where finite, " vs X" where labelled)."""
+    text = format_percent(None if math.isnan(pct) else pct)
+    if math.isfinite(ci[0]) and math.isfinite(ci[1]):
+        text += f" {format_ci(ci)}"
+    return f"{text} vs {label}" if label else text
+
+
+def _decomposition(row: Any) -> str:
+    """ " · 1250 steps × 64" : gradient steps to the threshold x the mean per-step batch."""
+    if int(row.reached) == 0 or not math.isfinite(row.per_step_mean):
+        return ""
+    return f" · {format_number(row.grad_steps_mean)} steps × {format_number(row.per_step_mean)}"
+
+
+def _cell(row: Any, show_pct: bool, style: str) -> str:
+    """One update-count cell: count ± std, its changes with CIs, [k/n], C×GS×BS, steps × batch."""
+    pct = None if math.isnan(row.pct_change) else float(row.pct_change)
+    matched = getattr(row, "matched_reference", "")
+    bold = pct is not None and pct < 0 and bool(row.resolved)
+    if matched and show_pct:
+        # Against both references, each labelled; bold only for fewer updates than both, resolved.
+        bold = bold and row.matched_pct_change < 0 and bool(row.matched_resolved)
+        also = "; " + _change(row.matched_pct_change, _ci(row, "matched_"), "matched")
+        cell = format_count(
+            row.updates_mean,
+            row.updates_std,
+            int(row.reached),
+            int(row.seeds),
+            pct,
+            show_pct,
+            style,
+            bold=bold,
+            ci=_ci(row),
+            vs=BASELINE_COLUMN,
+            also=also.replace("%", r"\%") if style == "latex" else also,
+        )
+    else:
+        cell = format_count(
+            row.updates_mean,
+            row.updates_std,
+            int(row.reached),
+            int(row.seeds),
+            pct,
+            show_pct,
+            style,
+            bold=bold,
+            ci=_ci(row) if show_pct else None,
+        )
+    cell += _paper_suffix(row.updates_mean, row.paper_updates_mean, int(row.reached), style)
+    decomposition = _decomposition(row)
+    if style == "latex":
+        decomposition = decomposition.replace("×", r"$\times$").replace("·", r"$\cdot$")
+    return cell + decomposition
+
+
+def _total_cell(total: Any, style: str) -> str:
+    """ "0.38 (2/2 tasks)", with the change of the shared tasks' total and its stratified CI."""
+    text = (
+        f"{format_number(float(total.updates_total))} "
+        f"({int(total.tasks_reached)}/{int(total.tasks)} tasks)"
+    )
+    changes = []
+    for prefix, label in (("", BASELINE_COLUMN), ("matched_", "matched")):
+        if not getattr(total, f"{prefix}reference", "") or not getattr(
+            total, f"{prefix}shared_tasks", 0
+        ):
+            continue
+        shared = int(getattr(total, f"{prefix}shared_tasks"))
+        changes.append(
+            _change(float(getattr(total, f"{prefix}pct_change")), _ci(total, prefix), label)
+            + f" on {shared} shared task{'s' if shared != 1 else ''}"
+        )
+    if changes:
+        text += " (" + "; ".join(changes) + ")"
+    return text.replace("%", r"\%") if style == "latex" else text
+
+
 def _update_count_table(
     counts: pd.DataFrame,
     totals: pd.DataFrame,
@@ -112,6 +198,7 @@ def _update_count_table(
     """The display table: Task x columns, cells from seal.metrics.format_count, total rows per env."""
     has_baseline = set(counts.loc[counts["column"] == BASELINE_COLUMN, "env"])
     cells = {(r.column, r.env, r.task): r for r in counts.itertuples(index=False)}
+    total_rows = {(t.column, t.env): t for t in totals.itertuples(index=False)}
     esc = _escape_latex if style == "latex" else (lambda s: s)
     records = []
     for env, task in rows:
@@ -122,27 +209,13 @@ def _update_count_table(
                 record[esc(column)] = ""
                 continue
             show_pct = column != BASELINE_COLUMN and env in has_baseline
-            pct = None if math.isnan(row.pct_change) else float(row.pct_change)
-            record[esc(column)] = format_count(
-                row.updates_mean,
-                row.updates_std,
-                int(row.reached),
-                int(row.seeds),
-                pct,
-                show_pct,
-                style,
-            ) + _paper_suffix(row.updates_mean, row.paper_updates_mean, int(row.reached), style)
+            record[esc(column)] = _cell(row, show_pct, style)
         records.append(record)
     for env in dict.fromkeys(env for env, _ in rows):
         record = {"Task": esc(f"Total ({labels[env]})")}
         for column in columns:
-            total = totals[(totals["column"] == column) & (totals["env"] == env)]
-            record[esc(column)] = (
-                ""
-                if total.empty
-                else f"{format_number(float(total['updates_total'].iloc[0]))} "
-                f"({int(total['tasks_reached'].iloc[0])}/{int(total['tasks'].iloc[0])} tasks)"
-            )
+            total = total_rows.get((column, env))
+            record[esc(column)] = "" if total is None else _total_cell(total, style)
         records.append(record)
     return pd.DataFrame.from_records(records)
 
@@ -206,7 +279,8 @@ def _notes(threshold: float, with_change: bool) -> list[str]:
     if with_change:
         notes.insert(
             2,
-            f"(±x%) = change against {BASELINE_COLUMN} for the same task; bold = fewer updates; "
+            f"(±x%) = change against {BASELINE_COLUMN} for the same task; bold = fewer updates, "
+            f"resolved (its CI excludes 0); "
             f"n/a = the baseline or this column never reached it.",
         )
     return notes
