@@ -14,6 +14,7 @@ import seal
 from seal.cli.main import main
 from seal.errors import SealError
 from seal.reports import RunData, column_label, load_run, report
+from seal.stats import change_ci
 
 HEADER = "seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s\n"
 TRAIN_HEADER = "seed,phase,epoch,grad_steps,env,key,value\n"
@@ -497,3 +498,105 @@ def test_cli_report_bad_path_exits_2(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert main(["report", str(tmp_path / "missing")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("seal report: error: ") and "missing does not exist" in err
+
+
+# ---- three seeds a group, with a batch-matched alone arm (protocols/matched/*): FK only, two
+# tasks, 500 gradient steps an epoch. Each seed reaches 90% at the epoch given and stays there.
+#   a: Single Env 0.064/epoch, epochs 3, 3, 3 -> 0.192 each; High FK 0.02/epoch, epochs 1, 1, 2
+#      -> 0.02, 0.02, 0.04; matched 0.02/epoch, epochs 2, 3, 3 -> 0.04, 0.06, 0.06. Every High FK
+#      seed is below its Single Env and its matched seed, so every paired resample is a decrease:
+#      resolved against both, bold.
+#   b: Single Env epochs 1, 2, 3 -> 0.064, 0.128, 0.192; High FK 0.05/epoch, epochs 1, 2, 4 ->
+#      0.05, 0.1, 0.2 (mean -8.9%), but seed 2 alone gives 0.2 / 0.192 = +4.2%: the CI includes 0,
+#      so the decrease is not bold.
+MATCHED_CONFIG = (
+    '[protocol]\nname = "high_fk_fk_alone"\nkind = "baseline"\n\n[envs.fk]\n'
+    'adapter = "franka_kitchen_dense"\n\n[scheduler]\nkind = "stepped"\n'
+    "start = { fk = 0.9, mw = 0.1 }\nstep = 0.1\ninterval = 1000\nabsent = { mw = 10 }\n"
+)
+THREE_SEEDS = {  # protocol -> task -> (updates per epoch, epoch each seed reaches)
+    "baseline_fk": {"a": (0.064, (3, 3, 3)), "b": (0.064, (1, 2, 3))},
+    "high_fk": {"a": (0.02, (1, 1, 2)), "b": (0.05, (1, 2, 4))},
+    "high_fk_fk_alone": {"a": (0.02, (2, 3, 3)), "b": (0.05, (2, 2, 2))},
+}
+
+
+def _three_seed_groups(root: Path) -> list[Path]:
+    CONFIGS.setdefault("high_fk_fk_alone", MATCHED_CONFIG)
+    paths = []
+    for protocol, tasks in THREE_SEEDS.items():
+        runs = {}
+        for seed in range(3):
+            lines = []
+            for epoch in range(1, 5):
+                for task, (rate, reach) in tasks.items():
+                    success = 0.95 if epoch >= reach[seed] else 0.1
+                    updates = round(rate * epoch, 6)
+                    lines.append(
+                        f"{seed},train,{epoch},fk,{task},{success},1,{500 * epoch},"
+                        f"{280 * epoch},{updates},{epoch}\n"
+                    )
+            runs[seed] = "".join(lines)
+        paths.append(_write_group(root, protocol, runs))
+    return paths
+
+
+def test_matched_alone_column_and_the_not_bold_rule(tmp_path: Path) -> None:
+    result = report(_three_seed_groups(tmp_path / "reports"), out=tmp_path / "out")
+    md = (tmp_path / "out" / "tables" / "update_counts.md").read_text()
+    lines = [line for line in md.splitlines() if line.startswith("|")]
+    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    assert header == ["Task", "Single Env", "Single Env (High FK batch)", "High FK"]
+    rows = {
+        cells[0]: cells[1:]
+        for cells in ([c.strip() for c in line.strip("|").split("|")] for line in lines[2:])
+    }
+    counts = result.update_counts.set_index(["column", "env", "task"])
+    a = counts.loc[("High FK", "fk", "a")]
+    assert a["reference"] == "Single Env" and a["matched_reference"] == "Single Env (High FK batch)"
+    assert a["paired"] and a["matched_paired"]  # the same seeds 0, 1, 2 in every group
+    # Mean 0.02667 against 0.192 (-86.1%) and against 0.05333 (-50.0%).
+    assert a["pct_change"] == pytest.approx(100 * (0.08 / 3 / 0.192 - 1))
+    assert a["matched_pct_change"] == pytest.approx(-50.0)
+    assert (a["pct_ci_low"], a["pct_ci_high"]) == pytest.approx(
+        tuple(100 * v for v in change_ci([0.02, 0.02, 0.04], [0.192] * 3, paired=True))
+    )
+    assert a["resolved"] and a["matched_resolved"]
+    # Against Single Env (0.192 in every seed) the resampled means run from 0.02 (-89.6%) to 0.04
+    # (-79.2%); 500, 500, 1000 steps -> 666.7 steps x 40 transitions a step = 26,667.
+    assert rows["a (FK)"][2] == (
+        "**0.02667 ± 0.01155 (-86.1% [-89.6, -79.2] vs Single Env; -50.0% [-66.7, -33.3] vs "
+        "matched)** [3/3] · 666.7 steps × 40"
+    )
+    b = counts.loc[("High FK", "fk", "b")]
+    assert b["pct_change"] == pytest.approx(100 * (0.35 / 0.384 - 1))
+    assert b["pct_ci_low"] < 0 < b["pct_ci_high"] and not b["resolved"]
+    assert not rows["b (FK)"][2].startswith("**")
+    # The matched arm is set against Single Env only: the batch's effect without the other env.
+    matched_a = counts.loc[("Single Env (High FK batch)", "fk", "a")]
+    assert matched_a["reference"] == "Single Env" and matched_a["matched_reference"] == ""
+    # Totals: a stratified CI over the tasks both reached, against both references.
+    total = result.totals.set_index(["column", "env"]).loc[("High FK", "fk")]
+    assert total["shared_tasks"] == 2 and total["matched_shared_tasks"] == 2
+    assert total["pct_change"] == pytest.approx(100 * ((0.08 / 3 + 0.35 / 3) / (0.192 + 0.128) - 1))
+    assert "vs matched on 2 shared tasks" in rows["Total (FK)"][2]
+    assert "Fewer than 3 seeds" not in md
+    assert "vs matched = against the column's batch-matched alone arm" in md
+
+
+def test_cli_report_consecutive(
+    tmp_path: Path, groups: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    # High FK microwave: seed 0 reaches 0.9 only at its last evaluation, seed 1 never, so with 2
+    # successive evaluations required no seed reaches it; slide-cabinet's seeds stay at epochs 2, 1.
+    def counts(*extra: str) -> dict:
+        out = tmp_path / f"cli{len(extra)}"
+        assert main(["report", str(groups["high_fk"]), "--json", "--out", str(out), *extra]) == 0
+        return json.loads(capsys.readouterr().out)["update_counts"]["High FK"]["fk"]
+
+    assert counts()["microwave"]["reached"] == 1
+    robust = counts("--consecutive", "2")
+    assert robust["microwave"]["reached"] == 0
+    assert robust["slide-cabinet"]["mean"] == pytest.approx(0.14)
+    assert main(["report", str(groups["high_fk"]), "--consecutive", "0"]) == 2
+    assert "consecutive" in capsys.readouterr().err

@@ -68,6 +68,9 @@ class ReportResult:
                 "env_steps": num(float(row.env_steps_mean)),
                 "pct_change": num(float(row.pct_change)),
                 "paper_updates": num(float(row.paper_updates_mean)),
+                "per_step": num(float(row.per_step_mean)),
+                "pct_change_ci95": [num(float(row.pct_ci_low)), num(float(row.pct_ci_high))],
+                "resolved": bool(row.resolved),
             }
         totals: dict[str, dict[str, float]] = {}
         for row in self.totals.itertuples(index=False):
