@@ -111,10 +111,16 @@ def run(args: argparse.Namespace) -> int:
 def _report(group: Path) -> Path | None:
     """Tables and plots for the group; the update-count table's Markdown file, or None if the
     report failed (a failure here never loses the run)."""
+    from seal.errors import SealError
+    from seal.protocols.rundir import DirLock
     from seal.reports import report
 
     try:
-        return report([group], out=group).tables["update_counts.md"]
+        with DirLock(group):
+            return report([group], out=group).tables["update_counts.md"]
+    except SealError as exc:  # e.g. another process writes the group's report now
+        print(f"seal run: warning: no tables and plots for {group}: {exc}", file=sys.stderr)
+        return None
     except Exception:  # noqa: BLE001 - the runs are on disk; say what failed and go on
         print(
             f"seal run: warning: making tables and plots for {group} failed (the runs are complete; retry with `seal report {group}`):",

@@ -55,9 +55,11 @@ def atomic_save(obj: object, path: str | os.PathLike[str]) -> Path:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.filename is None:
+            exc.filename = str(path)  # a full disk's error then names the checkpoint
         raise
     # fsync the directory too, so the rename itself survives a power loss.
     with contextlib.suppress(OSError):

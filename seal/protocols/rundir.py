@@ -10,14 +10,21 @@
         tb/<phase>/        TensorBoard events, one run per phase ([logging] tensorboard; seal.protocols.loggers)
         wandb/             Weights & Biases files and run_id ([logging] wandb)
         checkpoints/       ckpt-<epoch>.pt (last K, phase-prefixed for finetune) and best.pt
+        .seal.lock         the writer's lock file (`DirLock`): pid and command of the last writer
 
 Crash safety: CSV rows are appended and fsync'ed; JSON and TOML are written atomically (temp file,
 then rename). A checkpoint records the number of rows of every CSV at the moment it was taken,
 so resuming truncates each CSV back to that row count: no duplicate and no missing rows.
+
+One writer at a time: `seal run`, `--resume`, sweep trials (on the seed directory) and `seal
+report` (on the directory it writes tables/ and plots/ into) hold an exclusive `flock` on the
+directory's `.seal.lock` while they write; a second writer is refused at once with the holder's
+pid and command. The OS drops the lock when its process dies, so a killed run never blocks.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import datetime as _dt
 import hashlib
@@ -30,6 +37,11 @@ from pathlib import Path
 from typing import Any, TypedDict
 
 from seal.errors import SealError
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: no locking
+    fcntl = None  # type: ignore[assignment]
 
 METRICS_COLUMNS: tuple[str, ...] = (
     "seed",
@@ -89,11 +101,80 @@ CsvRow = Mapping[str, object]
 def atomic_write_text(path: Path, text: str) -> None:
     """Write `text` to `path` atomically: a crash leaves the old file or the new one, never half."""
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "w") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)  # a full disk leaves no half-written temporary file behind
+        raise
+
+
+LOCK_FILE = ".seal.lock"
+
+
+class DirLock:
+    """An exclusive, non-blocking `flock` on `<directory>/.seal.lock`, held while one process writes.
+
+    `acquire` raises SealError naming the directory and the holder's pid and command when another
+    process (or another `DirLock` in this one) holds it. The lock belongs to the open file, so
+    the OS releases it when the holder exits, however it dies; the file itself stays.
+    """
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = Path(directory)
+        self.path = self.directory / LOCK_FILE
+        self._fd: int | None = None
+
+    def acquire(self, command: Sequence[str] | None = None) -> DirLock:
+        """Take the lock (creating the directory) and record this process in the lock file."""
+        if fcntl is None or self._fd is not None:
+            return self
+        self.directory.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise SealError(
+                f"{self.directory} is being written by another seal process ({self.holder()}); "
+                "wait for it to finish or stop it, then try again"
+            ) from None
+        holder = {"pid": os.getpid(), "command": " ".join(command or _this_command())}
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, (json.dumps(holder) + "\n").encode(), 0)
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        """Drop the lock (idempotent)."""
+        if self._fd is not None:
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+            os.close(self._fd)
+            self._fd = None
+
+    def holder(self) -> str:
+        """ "pid N: command" of the process that last took the lock, as its lock file says."""
+        try:
+            data = json.loads(self.path.read_text())
+            return f"pid {data['pid']}: {data['command']}"
+        except (OSError, ValueError, KeyError, TypeError):
+            return "pid unknown"
+
+    def __enter__(self) -> DirLock:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+def _this_command() -> list[str]:
+    import sys
+
+    return [Path(sys.argv[0]).name, *sys.argv[1:]] if sys.argv else []
 
 
 def new_group_id(config_text: str, now: _dt.datetime | None = None) -> str:
@@ -119,10 +200,14 @@ class CsvLog:
             writer.writerow({k: _fmt(v) for k, v in row.items()})
         if not buf.tell():
             return
-        with open(self.path, "a") as fh:
-            fh.write(buf.getvalue())
-            fh.flush()
-            os.fsync(fh.fileno())
+        try:
+            with open(self.path, "a") as fh:
+                fh.write(buf.getvalue())
+                fh.flush()
+                os.fsync(fh.fileno())
+        except OSError as exc:
+            exc.filename = exc.filename or str(self.path)  # a full disk's error names the CSV
+            raise
 
     def num_rows(self) -> int:
         """Data rows (header excluded); a partial last line from a crash is not counted."""
@@ -225,7 +310,18 @@ class RunDir:
         return counts
 
     def truncate_to(self, counts: Mapping[str, int]) -> None:
-        """Cut every CSV back to the row counts a checkpoint recorded."""
+        """Cut every CSV back to the row counts a checkpoint recorded.
+
+        SealError, cutting nothing, if a CSV holds fewer complete rows than recorded (rows the
+        checkpoint counts on are lost, so resuming from it would leave a gap).
+        """
+        for name in CSV_FILES:
+            p, want = self.path / name, int(counts.get(name, 0))
+            have = CsvLog(p, ()).num_rows() if p.exists() else 0
+            if have < want:
+                raise SealError(
+                    f"{p} has {have} complete rows, fewer than the {want} the checkpoint recorded"
+                )
         for name in CSV_FILES:
             p = self.path / name
             if p.exists():

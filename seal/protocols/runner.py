@@ -24,13 +24,23 @@ run then replays exactly what the uninterrupted run did.
 Evaluation runs on env instances of its own, several per task (`PhaseLoop._eval_collector`),
 built once per phase: each evaluation episode resets with a seed derived from (phase, grad
 steps, episode), so they need no rebuilding at checkpoints.
+
+A resume starts from the newest intact checkpoint: one that does not read as a seal checkpoint
+(torn, zero bytes) or whose CSV rows are no longer all there is skipped, named on stderr with the
+reason and in provenance.json's "resumes"; none intact is a one-line refusal that changes nothing.
+
+Before anything is created, a run checks its estimated memory (`seal.protocols.resources`) and
+takes its directory's lock (`seal.protocols.rundir.DirLock`), which it holds until it ends; a
+full disk (ENOSPC, EDQUOT) while it writes stops it with one line naming the file.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import errno
 import json
 import math
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,7 +67,8 @@ from seal.protocols.phase import (
     ProgressBar,
     derive_seed,
 )
-from seal.protocols.rundir import RunDir, new_group_id, parse_seed_dir, seed_dir
+from seal.protocols.resources import check_resources
+from seal.protocols.rundir import DirLock, RunDir, new_group_id, parse_seed_dir, seed_dir
 
 if TYPE_CHECKING:
     from seal.envs.alignment import Alignment
@@ -189,9 +200,30 @@ class Run:
             build_alignment(config, self.adapters) if config.kind == "finetune" else None
         )
         self.agent_cfg = run_agent_config(config, self.device)
+        # Sizes the machine cannot hold fail here, in one line, before anything is allocated or written.
+        check_resources(config, self.adapters, self.device)
         # [transfer]: read the source checkpoint now, so a bad path fails before anything is written
         # (a resumed run restores its own agent and does not need the source any more).
         self.transfer_state = None if resume else transfer_source(config)
+        self.lock = DirLock(path)
+        """Held from here to the end of `run()`: one writer per run directory."""
+        if resume:
+            RunDir.open(path)  # not a run directory: refuse before creating a lock file in it
+        self.lock.acquire(command)
+        try:
+            self._open_rundir(config, path, resume, command)
+        except BaseException:
+            self.lock.release()
+            raise
+        self.results: dict[str, PhaseState] = {}
+        self.loggers: list[ScalarLogger] = []
+        """The run's TensorBoard and wandb loggers while it runs (`seal.protocols.loggers`)."""
+        self.checkpointer = Checkpointer(self)
+        """Writes best.pt and the epoch checkpoints (`seal.protocols.checkpointing`)."""
+
+    def _open_rundir(
+        self, config: ProtocolConfig, path: Path, resume: bool, command: list[str] | None
+    ) -> None:
         if resume:
             self.rundir = RunDir.open(path)
         else:
@@ -206,15 +238,25 @@ class Run:
                 phase_names=[p.name for p in self.phases],
             )
             self.rundir = RunDir.create(path, dumps_toml(config_to_dict(config)), prov)
-        self.results: dict[str, PhaseState] = {}
-        self.loggers: list[ScalarLogger] = []
-        """The run's TensorBoard and wandb loggers while it runs (`seal.protocols.loggers`)."""
-        self.checkpointer = Checkpointer(self)
-        """Writes best.pt and the epoch checkpoints (`seal.protocols.checkpointing`)."""
 
     # ------------------------------------------------------------ driver
     def run(self) -> RunResult:
-        """Run (or resume) every phase; returns the run's headline numbers."""
+        """Run (or resume) every phase, holding the directory's lock; returns the headline numbers."""
+        self.lock.acquire()  # a no-op unless run() is called again after it released the lock
+        try:
+            return self._run()
+        except OSError as exc:
+            if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+                raise
+            raise SealError(
+                f"{self.rundir.path}: writing {exc.filename or 'a file'} failed: {exc.strerror}; "
+                "the last checkpoint and the CSV rows up to it are intact: free space, then "
+                f"resume with --resume {self.rundir.path}"
+            ) from None
+        finally:
+            self.lock.release()
+
+    def _run(self) -> RunResult:
         resume_payload = self._resume_point()
         start_phase = 0 if resume_payload is None else int(resume_payload["runner"]["phase_index"])
         purge = None
@@ -248,15 +290,45 @@ class Run:
                 # Killed before the first checkpoint: start over cleanly.
                 self.rundir.truncate_to({})
             return None
-        payload = cast("EpochCheckpoint", read_checkpoint(latest))
-        self.rundir.truncate_to(payload["runner"]["rows"])
+        payload, latest, skipped = self._newest_intact()
         resumes = self.rundir.read_provenance().get("resumes", [])
-        self.rundir.update_provenance(
-            resumes=[*resumes, {"time": provenance.utc_now(), "from": latest.name}]
-        )
+        record = {"time": provenance.utc_now(), "from": latest.name}
+        if skipped:
+            record["skipped"] = skipped
+        self.rundir.update_provenance(resumes=[*resumes, record])
         for name, state in payload["runner"].get("finished_phases", {}).items():
             self.results[name] = PhaseState(**state)
         return payload
+
+    def _newest_intact(self) -> tuple[EpochCheckpoint, Path, list[dict[str, str]]]:
+        """The newest checkpoint that reads and whose CSV rows are all there, with the CSVs cut
+        back to it, and the newer ones it skipped (each named on stderr with the reason).
+
+        A skipped file stays: the resumed run writes a checkpoint of the same name when it gets
+        there again, and until then it is older than every new one, so `prune` drops it first.
+        SealError if no checkpoint is intact.
+        """
+        skipped: list[dict[str, str]] = []
+        for path in reversed(self.rundir.epoch_checkpoints()):
+            try:
+                payload = cast("EpochCheckpoint", read_checkpoint(path))
+                self.rundir.truncate_to(payload["runner"]["rows"])
+            except SealError as exc:
+                skipped.append({"file": path.name, "why": str(exc)})
+                continue
+            for skip in skipped:
+                print(
+                    f"seal run --resume: skipping {self.rundir.checkpoints / skip['file']}: {skip['why']}",
+                    file=sys.stderr,
+                )
+            if skipped:
+                print(f"seal run --resume: resuming from {path}", file=sys.stderr)
+            return payload, path, skipped
+        why = "; ".join(s["why"] for s in skipped)
+        raise SealError(
+            f"--resume {self.rundir.path}: no intact checkpoint to resume from ({why}); "
+            f"delete {self.rundir.checkpoints} to start the run over"
+        )
 
     def _result(self) -> RunResult:
         """The headline numbers and the per-part timing of the finished phases."""

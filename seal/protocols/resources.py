@@ -1,0 +1,188 @@
+"""Memory a protocol needs, estimated from the resolved config before anything is allocated.
+
+`seal run` calls `check_resources` before it creates the run directory, and `seal protocol
+explain` prints `estimate_resources`. For each phase the estimate adds:
+
+- the replay: `replay.capacity_per_env` transitions of every env, float32 (`replay_bytes`);
+- the networks: actor, twin critic and its target, built on PyTorch's "meta" device (shapes
+  only, nothing allocated) and counted; each trainable parameter also has a gradient and Adam's
+  two moments, so 4 floats per actor and critic parameter plus 1 for the target critic;
+- one update's activations: the batch (`training.batch_per_task` x the phase's tasks) times
+  the hidden widths it passes through (the actor twice, the twin critic three times: Q(s, a),
+  the target's Q(s', a'), Q(s, pi(s))), doubled for what backward keeps, plus the sampled
+  batch itself and its int64 row indices.
+
+The largest phase counts. Replay, networks and activations live on the training device: on
+CUDA they are compared with the device's free memory (`torch.cuda.mem_get_info`), on the CPU
+with the host's available memory (`seal.learner.replay.available_memory_bytes`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import torch
+
+from seal.envs.base import EnvAdapter
+from seal.errors import ConfigError
+from seal.learner.config import AgentConfig, EnvSpec
+from seal.learner.replay import available_memory_bytes, replay_bytes
+from seal.learner.sac import Agent
+from seal.protocols.config import ProtocolConfig
+from seal.protocols.phase import Phase, PhaseModel
+
+FLOAT = 4
+"""Bytes of a float32: the dtype of every network, optimiser state, activation and replay field."""
+
+
+@dataclass(frozen=True)
+class PhaseEstimate:
+    """One phase's estimated memory, in bytes, by part."""
+
+    phase: str
+    replay: int
+    networks: int
+    activations: int
+    parameters: int
+    """Trainable parameters of actor and critic (the target critic not counted)."""
+
+    @property
+    def total(self) -> int:
+        return self.replay + self.networks + self.activations
+
+
+@dataclass(frozen=True)
+class ResourceEstimate:
+    """A run's estimated memory: the largest phase's, against what the device has available."""
+
+    peak: PhaseEstimate
+    device: str
+    available: int | None
+    """Bytes available now on the device (None: unknown, no check)."""
+
+    def key(self, config: ProtocolConfig) -> str:
+        """The protocol key behind the largest part, to name in a refusal."""
+        part = max(("replay", "networks", "activations"), key=lambda p: getattr(self.peak, p))
+        if part == "replay":
+            return "replay.capacity_per_env"
+        if part == "activations":
+            return "training.batch_per_task"
+        return _width_key(config.agent)
+
+    def describe(self) -> str:
+        """One line: the total, its parts and what is available."""
+        p = self.peak
+        avail = "unknown" if self.available is None else _gib(self.available)
+        return (
+            f"{_gib(p.total)} on {self.device} (phase {p.phase}: replay {_gib(p.replay)}, "
+            f"networks and optimiser state {_gib(p.networks)} for {p.parameters:,} parameters, "
+            f"one update's activations {_gib(p.activations)}); available: {avail}"
+        )
+
+
+def estimate_resources(
+    config: ProtocolConfig, adapters: Mapping[str, EnvAdapter], device: str
+) -> ResourceEstimate:
+    """The run's estimated memory on `device` (see the module docstring); allocates nothing."""
+    from seal.protocols.runner import build_alignment, plan_phases
+
+    alignment = build_alignment(config, adapters) if config.kind == "finetune" else None
+    phases = [
+        _phase_estimate(config, phase, PhaseModel(config, phase, adapters, alignment))
+        for phase in plan_phases(config)
+    ]
+    peak = max(phases, key=lambda p: p.total)
+    return ResourceEstimate(peak, device, _available(device))
+
+
+def check_resources(
+    config: ProtocolConfig, adapters: Mapping[str, EnvAdapter], device: str
+) -> ResourceEstimate:
+    """The estimate; ConfigError naming the largest part's key if it exceeds what is available."""
+    estimate = estimate_resources(config, adapters, device)
+    if estimate.available is not None and estimate.peak.total > estimate.available:
+        key = estimate.key(config)
+        raise ConfigError(
+            f"{config.path}: {key} = {_value_of(config, key)}: the run needs an estimated "
+            f"{estimate.describe()}; lower {key}"
+        )
+    return estimate
+
+
+# ---------------------------------------------------------------- parts
+
+
+def _phase_estimate(config: ProtocolConfig, phase: Phase, model: PhaseModel) -> PhaseEstimate:
+    actor, critic = _parameter_counts(config.agent, model.specs)
+    tasks = sum(s.num_tasks for s in model.replay_specs)
+    batch = config.training.batch_per_task * tasks
+    widest = max(2 * s.obs_dim + s.act_dim + 2 for s in model.replay_specs)
+    actor_width, critic_width = _widths(config.agent, len(model.specs))
+    per_sample = 2 * (2 * actor_width + 3 * 2 * critic_width) + widest
+    return PhaseEstimate(
+        phase=phase.name,
+        replay=replay_bytes(model.replay_specs, config.replay.capacity_per_env),
+        networks=FLOAT * (4 * actor + 5 * critic),
+        activations=batch * (FLOAT * per_sample + 8),
+        parameters=actor + critic,
+    )
+
+
+class _ShapesOnly(Agent):
+    """An Agent whose networks are built but never initialised, placed or given optimisers."""
+
+    def _initialise(self) -> None:
+        pass
+
+
+def _parameter_counts(agent: AgentConfig, specs: list[EnvSpec]) -> tuple[int, int]:
+    """(actor, critic) trainable parameters, from networks built on the meta device."""
+    shapes_only = dataclasses.replace(agent, device="cpu", compile=False)
+    with torch.device("meta"):
+        built = _ShapesOnly(specs, shapes_only, seed=0)
+    return (
+        sum(p.numel() for p in built.actor.parameters()),
+        sum(p.numel() for p in built.critic.parameters()),
+    )
+
+
+def _widths(agent: AgentConfig, num_envs: int) -> tuple[int, int]:
+    """Summed hidden widths one sample passes through in the actor and in one critic."""
+    if agent.architecture == "mtmhsac":
+        return sum(agent.hidden), sum(agent.hidden)
+    # Every env's translator sees only its own samples, so one translator's widths count.
+    actor = sum(agent.translator_hidden) + agent.latent_dim + sum(agent.trunk_hidden)
+    critic = sum(agent.critic_hidden) if agent.critic_sharing == "per_env" else actor
+    return actor, critic
+
+
+def _width_key(agent: AgentConfig) -> str:
+    """The widths key that dominates the networks' size."""
+    if agent.architecture == "mtmhsac":
+        return "agent.hidden"
+    keys = {
+        "agent.translator_hidden": max(agent.translator_hidden, default=0),
+        "agent.latent_dim": agent.latent_dim,
+        "agent.trunk_hidden": max(agent.trunk_hidden, default=0),
+        "agent.critic_hidden": max(agent.critic_hidden, default=0),
+    }
+    return max(keys, key=lambda k: keys[k])
+
+
+def _value_of(config: ProtocolConfig, key: str) -> object:
+    table, name = key.split(".")
+    value = getattr(getattr(config, table), name)
+    return list(value) if isinstance(value, tuple) else value
+
+
+def _available(device: str) -> int | None:
+    if device.startswith("cuda") and torch.cuda.is_available():
+        free, _total = torch.cuda.mem_get_info(torch.device(device))
+        return int(free)
+    return available_memory_bytes()
+
+
+def _gib(n: int) -> str:
+    return f"{n / 2**30:,.2f} GiB"

@@ -1,0 +1,104 @@
+"""The memory estimate: its parameter count against real agents, and refusals before any directory exists."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from seal.cli.main import main
+from seal.protocols import load_protocol
+from seal.protocols import resources as resources_module
+from seal.protocols.phase import PhaseModel
+from seal.protocols.resources import estimate_resources
+from seal.protocols.runner import build_adapters, plan_phases
+
+POINT = Path(__file__).parents[2] / "protocols" / "learn" / "point.toml"
+TWO_ENVS = """
+[protocol]
+name = "two"
+kind = "joint"
+epochs = 2
+device = "cpu"
+[envs.a]
+adapter = "point"
+tasks = ["east", "north"]
+[envs.b]
+adapter = "point"
+tasks = ["west"]
+[agent]
+translator_hidden = [8]
+latent_dim = 6
+trunk_hidden = [8, 8]
+critic_hidden = [5]
+"""
+
+
+@pytest.mark.parametrize(
+    ("protocol", "overrides"),
+    [
+        ("point", []),
+        ("two", []),
+        ("two", ['agent.critic_sharing="shared"']),
+        ("two", ["agent.one_hot=false", "agent.multi_head_policy=false"]),
+    ],
+)
+def test_parameter_count_is_the_real_agents(
+    protocol: str, overrides: list[str], tmp_path: Path
+) -> None:
+    if protocol == "point":
+        path = POINT
+    else:
+        path = tmp_path / "two.toml"
+        path.write_text(TWO_ENVS)
+    config = load_protocol(path, overrides)
+    adapters = build_adapters(config)
+    (phase,) = plan_phases(config)
+    model = PhaseModel(config, phase, adapters, None)
+    agent = dataclasses.replace(config.agent, device="cpu").build(model.specs, 0)
+    real = sum(p.numel() for net in (agent.actor, agent.critic) for p in net.parameters())
+    estimate = estimate_resources(config, adapters, "cpu")
+    assert estimate.peak.parameters == real
+    # Actor and critic: weights, gradients and two Adam moments; the target critic's weights.
+    actor = sum(p.numel() for p in agent.actor.parameters())
+    assert estimate.peak.networks == 4 * (4 * actor + 5 * (real - actor))
+
+
+@pytest.mark.parametrize(
+    ("override", "key"),
+    [
+        ("agent.hidden=[1000000, 1000000]", "agent.hidden = [1000000, 1000000]"),
+        ("training.batch_per_task=1000000000", "training.batch_per_task = 1000000000"),
+        ("replay.capacity_per_env=100000000000", "replay.capacity_per_env = 100000000000"),
+    ],
+)
+def test_too_large_for_the_machine_is_refused_in_one_line_before_the_run_directory(
+    override: str, key: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "reports"
+    code = main(["run", str(POINT), "--out", str(out), "--quiet", "--set", override])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert key in err[0] and "available" in err[0] and f"lower {key.split(' ')[0]}" in err[0]
+    assert not out.exists()
+
+
+def test_the_check_uses_the_memory_available(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The control: the shipped protocol, which runs, is refused on a machine with 1 MiB free.
+    monkeypatch.setattr(resources_module, "available_memory_bytes", lambda: 2**20)
+    out = tmp_path / "reports"
+    assert main(["run", str(POINT), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "replay.capacity_per_env = 1000000" in err and "available: 0.00 GiB" in err
+    assert not out.exists()
+
+
+def test_explain_prints_the_estimate(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["protocol", "explain", str(POINT)]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.startswith("# estimated memory: ") and "16,024 parameters" in last
+    config = load_protocol(POINT)
+    assert estimate_resources(config, build_adapters(config), "cpu").peak.parameters == 16_024
