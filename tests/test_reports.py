@@ -600,3 +600,22 @@ def test_cli_report_consecutive(
     assert robust["slide-cabinet"]["mean"] == pytest.approx(0.14)
     assert main(["report", str(groups["high_fk"]), "--consecutive", "0"]) == 2
     assert "consecutive" in capsys.readouterr().err
+
+
+def test_seeds_run_one_at_a_time_make_one_column(tmp_path: Path) -> None:
+    # `seal bench` runs each seed as its own `seal run --seeds s`: one group directory per seed.
+    # Groups of one protocol and config whose seeds do not overlap are seeds of one column.
+    root = tmp_path / "reports"
+    for path in _three_seed_groups(root):
+        for seed in (1, 2):
+            (path.parent / f"g-seed{seed}").mkdir()
+            (path / f"seed-{seed}").rename(path.parent / f"g-seed{seed}" / f"seed-{seed}")
+    runs = [p for p in root.glob("*/*/seed-*") if "baseline" not in str(p)]
+    result = report(runs, out=tmp_path / "out")
+    counts = result.update_counts.set_index(["column", "env", "task"])
+    assert set(counts.index.get_level_values("column")) == {"Single Env (High FK batch)", "High FK"}
+    a = counts.loc[("High FK", "fk", "a")]
+    assert (a["reached"], a["seeds"], a["matched_paired"]) == (3, 3, True)
+    # Without a Single Env column the cell still shows its change against the matched arm.
+    md = (tmp_path / "out" / "tables" / "update_counts.md").read_text()
+    assert "**0.02667 ± 0.01155 (-50.0% [-66.7, -33.3] vs matched)** [3/3]" in md

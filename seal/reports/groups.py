@@ -8,6 +8,7 @@ the column added, and `_disambiguate` tells apart columns that several groups gi
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -150,8 +151,29 @@ class _Group:
         return f"{self.runs[0].protocol}/{self.runs[0].group}"
 
 
+# Keys that differ between the seeds of one experiment run one seed at a time (`seal bench`,
+# sweeps): the seed range, and a checkpoint each seed starts from (a positive control's pre-training).
+_PER_SEED_KEYS = {"protocol": ("seeds", "first_seed"), "transfer": ("checkpoint",)}
+
+
+def _experiment(run: RunData) -> str:
+    """What makes two runs seeds of one experiment: the protocol name and the resolved config, per-seed keys aside."""
+    config = {
+        table: dict(values) for table, values in run.config.items() if isinstance(values, dict)
+    }
+    for table, keys in _PER_SEED_KEYS.items():
+        for key in keys:
+            config.get(table, {}).pop(key, None)
+    return f"{run.protocol}\n{json.dumps(config, sort_keys=True, default=str)}"
+
+
 def _gather(paths: Iterable[str | os.PathLike[str]]) -> list[_Group]:
-    """Resolve run and group paths into groups (runs given one by one join their group)."""
+    """Resolve run and group paths into groups (runs given one by one join their group).
+
+    Group directories of one experiment (same protocol and config but the per-seed keys, e.g.
+    one `seal run --seeds <s>` per seed) whose seeds do not overlap merge into one group, so
+    that their seeds make one column; otherwise every group directory is its own.
+    """
     by_group: dict[Path, dict[Path, RunData]] = {}
     for given in paths:
         for run_path in run_dirs(given):
@@ -161,7 +183,7 @@ def _gather(paths: Iterable[str | os.PathLike[str]]) -> list[_Group]:
                 by_group[resolved.parent][resolved] = load_run(run_path)
     if not by_group:
         raise SealError(f"no run or group directories given; {_EXPECTED}")
-    groups = []
+    groups: list[_Group] = []
     for group_path, runs in by_group.items():
         ordered = sorted(runs.values(), key=lambda r: r.seed)
         seeds = [r.seed for r in ordered]
@@ -169,7 +191,23 @@ def _gather(paths: Iterable[str | os.PathLike[str]]) -> list[_Group]:
             raise SealError(
                 f"{group_path}: several runs claim the same seed {seeds}; each seed-<n>/ must hold its own seed"
             )
-        groups.append(_Group(path=group_path, runs=ordered))
+        key = {_experiment(r) for r in ordered}
+        merge = next(
+            (
+                g
+                for g in groups
+                if len(key) == 1
+                and {_experiment(r) for r in g.runs} == key
+                and not {r.seed for r in g.runs} & set(seeds)
+            ),
+            None,
+        )
+        if merge is None:
+            groups.append(_Group(path=group_path, runs=ordered))
+        else:
+            groups[groups.index(merge)] = _Group(
+                path=merge.path, runs=sorted([*merge.runs, *ordered], key=lambda r: r.seed)
+            )
     return groups
 
 

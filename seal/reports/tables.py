@@ -149,6 +149,21 @@ def _cell(row: Any, show_pct: bool, style: str) -> str:
             vs=BASELINE_COLUMN,
             also=also.replace("%", r"\%") if style == "latex" else also,
         )
+    elif matched and math.isfinite(row.matched_pct_change):
+        # No Single Env in the report: the change against the batch-matched alone arm only.
+        change = float(row.matched_pct_change)
+        cell = format_count(
+            row.updates_mean,
+            row.updates_std,
+            int(row.reached),
+            int(row.seeds),
+            change,
+            True,
+            style,
+            bold=change < 0 and bool(row.matched_resolved),
+            ci=_ci(row, "matched_"),
+            vs="matched",
+        )
     else:
         cell = format_count(
             row.updates_mean,
