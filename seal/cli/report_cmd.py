@@ -65,8 +65,9 @@ def run(args: argparse.Namespace) -> int:
 
     # One writer per directory: lock the run or group the tables and plots go into (a
     # comparison of several without --out writes a directory of its own and takes no lock).
-    target = args.out or (args.paths[0] if len(args.paths) == 1 else None)
-    lock = DirLock(Path(target)) if target is not None and Path(target).is_dir() else None
+    single = args.paths[0] if len(args.paths) == 1 and Path(args.paths[0]).is_dir() else None
+    target = args.out or single
+    lock = DirLock(Path(target)) if target is not None else None
     if lock is not None:
         lock.acquire()
     try:
