@@ -40,6 +40,7 @@ import dataclasses
 import errno
 import json
 import math
+import shutil
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -73,6 +74,9 @@ from seal.protocols.rundir import DirLock, RunDir, new_group_id, parse_seed_dir,
 if TYPE_CHECKING:
     from seal.envs.alignment import Alignment
     from seal.learner.sac import Agent
+
+DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
+"""OSError numbers a run reports in one line: the user frees space and resumes."""
 
 # ---------------------------------------------------------------- results and phases
 
@@ -209,9 +213,20 @@ class Run:
         """Held from here to the end of `run()`: one writer per run directory."""
         if resume:
             RunDir.open(path)  # not a run directory: refuse before creating a lock file in it
+        missing = [p for p in (Path(path), *Path(path).parents) if not p.exists()]
+        created = missing[-1] if missing else None  # the top folder this run makes
         self.lock.acquire(command)
         try:
             self._open_rundir(config, path, resume, command)
+        except OSError as exc:
+            self.lock.release()
+            if created is not None:
+                shutil.rmtree(created, ignore_errors=True)  # leave no half-made run directory
+            if exc.errno not in DISK_FULL:
+                raise
+            raise SealError(
+                f"{path}: writing {exc.filename or 'a file'} failed: {exc.strerror}; free space and run again"
+            ) from None
         except BaseException:
             self.lock.release()
             raise
@@ -246,7 +261,7 @@ class Run:
         try:
             return self._run()
         except OSError as exc:
-            if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+            if exc.errno not in DISK_FULL:
                 raise
             raise SealError(
                 f"{self.rundir.path}: writing {exc.filename or 'a file'} failed: {exc.strerror}; "

@@ -228,6 +228,25 @@ def test_disk_full_during_a_csv_append_is_one_line(
     _assert_same_rows(run_dir, reference[0])
 
 
+def test_disk_full_while_creating_the_run_directory_is_one_line_and_leaves_nothing(
+    protocol: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from seal.protocols import rundir
+
+    def full_disk(text_path: Path, text: str) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(text_path))
+
+    monkeypatch.setattr(rundir, "atomic_write_text", full_disk)
+    out = tmp_path / "out"
+    code = main(["run", str(protocol), "--out", str(out), "--quiet", "--no-report"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "config.toml failed: No space left on device" in err[0]
+    assert not out.exists()
+
+
 # ---------------------------------------------------------------- corrupt files
 
 
