@@ -102,3 +102,14 @@ def test_explain_prints_the_estimate(capsys: pytest.CaptureFixture[str]) -> None
     assert last.startswith("# estimated memory: ") and "16,024 parameters" in last
     config = load_protocol(POINT)
     assert estimate_resources(config, build_adapters(config), "cpu").peak.parameters == 16_024
+
+
+def test_on_cuda_the_devices_free_memory_counts(monkeypatch: pytest.MonkeyPatch) -> None:
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "mem_get_info", lambda device=None: (3 * 2**30, 80 * 2**30))
+    monkeypatch.setattr(resources_module, "available_memory_bytes", lambda: 10**15)
+    config = load_protocol(POINT)
+    estimate = estimate_resources(config, build_adapters(config), "cuda")
+    assert estimate.available == 3 * 2**30 and "on cuda" in estimate.describe()
