@@ -185,7 +185,7 @@ def test_ratio_lever_bench_reports_every_mode_with_gradient_norm_ratios() -> Non
         "trunk_hidden": (16,),
         "critic_hidden": (16,),
     }
-    result = bench_ratio_lever(warmup_updates=2, batch_per_task=4, episodes=1, agent=small)
+    result = bench_ratio_lever(warmup_updates=2, batch_per_task=4, episodes=1, draws=2, agent=small)
     # point (4 tasks) and point_view at 90/10 of 4 x 8 tasks' samples, rounded per task as the
     # runner rounds a plan (split_counts): a's tasks 7.2 -> 7, b's 0.8 -> 0, and the 4 left over go
     # to the largest remainders, b's 0.8 each: 28 and 4 (env-level rounding would give 29 and 3)
@@ -195,7 +195,11 @@ def test_ratio_lever_bench_reports_every_mode_with_gradient_norm_ratios() -> Non
         assert mode["env"] == "a" and 0.0 < mode["lever"] < 1.0
         g = mode["grad_norm"]
         assert mode["grad_norm_ratio_a_over_b"] == g["a"] / g["b"]
+        expected = mode["expected"]
+        assert expected["env"] == "a" and expected["draws"] == 2 and 0.0 < expected["lever"] < 1.0
     assert result["ratio_lever"] == result["modes"]["weighted"]["lever"]
+    assert result["ratio_lever_expected"] == result["modes"]["weighted"]["expected"]["lever"]
+    assert result["draws"] == 2
     # raw-gradient share of A under "weighted": 28 |g_a| / (28 |g_a| + 4 |g_b|)
     g = result["modes"]["weighted"]["grad_norm"]
     assert result["gradient_lever"] == pytest.approx(28 * g["a"] / (28 * g["a"] + 4 * g["b"]))
@@ -204,3 +208,5 @@ def test_ratio_lever_bench_reports_every_mode_with_gradient_norm_ratios() -> Non
     table = _table_of("ratio_lever", result, ratio_lever=result)
     assert "ratio_lever" in table and ">=0.8" in table and "per_env" in table
     assert "pure-noise ceiling 0.73" in table
+    table = _table_of("ratio_lever_expected", result, ratio_lever=result)
+    assert "ratio_lever_expected" in table and "expected steps over 2 batches" in table

@@ -1,10 +1,12 @@
 """``ratio_lever``: the 90% environment's share of the shared policy trunk's step at a 90/10 data ratio.
 
-`Agent.ratio_lever` of a default-width SEAL agent on `point` / `point_view` replay, under every
-``shared_update`` mode (the headline is ``"weighted"``, the default), with the ratio of the two
-environments' trunk gradient norms, the weighted mode's share of the raw (pre-Adam, unclipped)
-gradient, and the share that a noise-dominated gradient allows any sample-count weighting. Not a
-timing.
+`Agent.ratio_lever_expected` (``ratio_lever_expected``, the headline: the share of the expected
+step, over `draws` independent batches from one state) and `Agent.ratio_lever` (``ratio_lever``:
+one batch's step, which per-sample gradient noise caps near sqrt(n_A) / (sqrt(n_A) + sqrt(n_B)))
+of a default-width SEAL agent on `point` / `point_view` replay, under every ``shared_update`` mode
+(headlines under ``"weighted"``, the default), with the ratio of the two environments' trunk
+gradient norms, the weighted mode's share of the raw (pre-Adam, unclipped) gradient, and the share
+that a noise-dominated gradient allows any sample-count weighting. Not a timing.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ def bench_ratio_lever(
     ratio: float = 0.9,
     batch_per_task: int = 128,
     episodes: int = 3,
+    draws: int = 32,
     modes: Sequence[str] = SHARED_UPDATES,
     agent: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
@@ -30,7 +33,8 @@ def bench_ratio_lever(
     Replay: seeded uniform-random episodes of `point` (A, the `ratio` share) and `point_view`
     (B: other observation and action spaces), `episodes` per task. Each mode's agent (same seed)
     first takes `warmup_updates` updates at the ratio so that Adam's moments are not fresh, then
-    the lever is measured on the next update's batches. Goal: >= 0.8 under "weighted".
+    `draws` batches are drawn: `ratio_lever` (v1) is measured on the first, `ratio_lever_expected`
+    (v2) on all of them, each from the warmed-up state. Goal: >= 0.8 under "weighted".
     `agent` overrides AgentConfig fields (default widths otherwise).
     """
     from seal.envs import make_adapter
@@ -50,6 +54,7 @@ def bench_ratio_lever(
     out: dict[str, Any] = {
         "ratio": ratio,
         "warmup_updates": warmup_updates,
+        "draws": draws,
         "batch": {k: int(v.sum()) for k, v in counts.items()},
         "modes": {},
     }
@@ -65,9 +70,14 @@ def bench_ratio_lever(
         replay.generator.manual_seed(seed)  # every mode sees the same batches
         for _ in range(warmup_updates):
             learner.update(replay.sample(counts))
-        lever = learner.ratio_lever(replay.sample(counts))
+        batch_draws = [replay.sample(counts) for _ in range(draws)]
+        lever = learner.ratio_lever(batch_draws[0])
         g = lever["grad_norm"]
-        out["modes"][mode] = {**lever, "grad_norm_ratio_a_over_b": g["a"] / g["b"]}
+        out["modes"][mode] = {
+            **lever,
+            "grad_norm_ratio_a_over_b": g["a"] / g["b"],
+            "expected": learner.ratio_lever_expected(batch_draws),
+        }
     n = out["batch"]
     # Where the optimiser's lever comes from, for "weighted": the same share of the raw gradient
     # sum_X (n_X / N) g_X (no Adam, no clip), and that share were every per-sample gradient
@@ -79,4 +89,5 @@ def bench_ratio_lever(
         out["gradient_lever"] = part["a"] / (part["a"] + part["b"])
     out["noise_ceiling"] = math.sqrt(n["a"]) / (math.sqrt(n["a"]) + math.sqrt(n["b"]))
     out["ratio_lever"] = out["modes"].get("weighted", {}).get("lever")
+    out["ratio_lever_expected"] = out["modes"].get("weighted", {}).get("expected", {}).get("lever")
     return out
