@@ -132,50 +132,29 @@ def _cell(row: Any, show_pct: bool, style: str) -> str:
     pct = None if math.isnan(row.pct_change) else float(row.pct_change)
     matched = getattr(row, "matched_reference", "")
     bold = pct is not None and pct < 0 and bool(row.resolved)
+    ci, vs, also = (_ci(row) if show_pct else None), "", ""
     if matched and show_pct:
         # Against both references, each labelled; bold only for fewer updates than both, resolved.
         bold = bold and row.matched_pct_change < 0 and bool(row.matched_resolved)
         also = "; " + _change(row.matched_pct_change, _ci(row, "matched_"), "matched")
-        cell = format_count(
-            row.updates_mean,
-            row.updates_std,
-            int(row.reached),
-            int(row.seeds),
-            pct,
-            show_pct,
-            style,
-            bold=bold,
-            ci=_ci(row),
-            vs=BASELINE_COLUMN,
-            also=also.replace("%", r"\%") if style == "latex" else also,
-        )
+        vs = BASELINE_COLUMN
     elif matched and math.isfinite(row.matched_pct_change):
         # No Single Env in the report: the change against the batch-matched alone arm only.
-        change = float(row.matched_pct_change)
-        cell = format_count(
-            row.updates_mean,
-            row.updates_std,
-            int(row.reached),
-            int(row.seeds),
-            change,
-            True,
-            style,
-            bold=change < 0 and bool(row.matched_resolved),
-            ci=_ci(row, "matched_"),
-            vs="matched",
-        )
-    else:
-        cell = format_count(
-            row.updates_mean,
-            row.updates_std,
-            int(row.reached),
-            int(row.seeds),
-            pct,
-            show_pct,
-            style,
-            bold=bold,
-            ci=_ci(row) if show_pct else None,
-        )
+        pct, show_pct, vs = float(row.matched_pct_change), True, "matched"
+        bold, ci = pct < 0 and bool(row.matched_resolved), _ci(row, "matched_")
+    cell = format_count(
+        row.updates_mean,
+        row.updates_std,
+        int(row.reached),
+        int(row.seeds),
+        pct,
+        show_pct,
+        style,
+        bold=bold,
+        ci=ci,
+        vs=vs,
+        also=also.replace("%", r"\%") if style == "latex" else also,
+    )
     cell += _paper_suffix(row.updates_mean, row.paper_updates_mean, int(row.reached), style)
     decomposition = _decomposition(row)
     if style == "latex":
