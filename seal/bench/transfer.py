@@ -698,9 +698,10 @@ def run_transfer_bench(
     started = time.monotonic()
     # Pre-training first (the positive controls wait on it), then the longest arms, so the last
     # process does not run alone while a core idles.
-    order = sorted(chosen, key=lambda a: (a.has_target, a.alone is None))
-    jobs = [(arm, seed) for seed in range(seeds) for arm in order]
-    jobs.sort(key=lambda job: (job[0].has_target, job[0].alone is None))
+    jobs = sorted(
+        ((arm, seed) for seed in range(seeds) for arm in chosen),
+        key=lambda job: (job[0].has_target, job[0].alone is None),
+    )
     run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
     wall = time.monotonic() - started
     loaded = {key: load_run(path) for key, path in run_dirs.items()}

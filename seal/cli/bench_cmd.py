@@ -19,7 +19,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "SEAL update (MT10 + 10 kitchens, batch 2,560) eager and compiled, CUDA graphs on a GPU. "
             "--learn adds the slow learning checks (point with/without one-hot, reach-v3); "
             "--learn transfer runs only the cross-environment transfer testbed (protocols/testbed, "
-            "docs/transfer_testbed.md) and prints its table and transfer_updates_saved; "
+            "docs/transfer_testbed.md): every arm, the positive controls included, against its alone arm, "
+            "with steps_saved and transfer_updates_saved, their 95% bootstrap CIs and the steps x "
+            "per-step-batch decomposition; "
             "--learn kitchen runs only the kitchen learning protocols (protocols/kitchen_learn: "
             "slide-cabinet, light-switch and bottom-left-burner, with and without demonstrations)."
         ),
@@ -41,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--full",
         action="store_true",
-        help="with --learn transfer: also the 50/50 and high-target arms and their target-alone arms",
+        help="with --learn transfer: also the per_env, 50/50 and high-target arms, the shared-critic diagnostic, and their target-alone arms",
     )
     parser.add_argument(
         "--seeds",
