@@ -212,3 +212,29 @@ def test_code_versions_group_runs_by_commit() -> None:
         "def": ["high_source/seed-0"],
     }
     assert code_versions({("alone", 0): None}) == {"unknown": ["alone/seed-0"]}
+
+
+def test_every_arm_has_the_jsons_keys() -> None:
+    from seal.bench.transfer import summarise
+
+    def cost(steps: int) -> TargetCost:
+        return TargetCost(8.0 * steps, steps, 0, 1, {"t0": 8.0 * steps}, ("t0",), {"t0": steps})
+
+    chosen = arms(only=["high_source"])
+    # 1 - 1500/2000 = 0.25 and 1 - 3000/2000 = -0.5 per seed; their mean -0.125.
+    summary = summarise(
+        {"alone": [cost(2000)] * 2, "high_source": [cost(1500), cost(3000)]}, chosen
+    )
+    for name in ("alone", "high_source"):
+        assert {"transfer_updates_saved", "steps_saved", "ci95", "alignment_cka"} <= set(
+            summary[name]
+        )
+    assert summary["alone"]["steps_saved"] is None and summary["alone"]["ci95"] is None
+    assert summary["high_source"]["steps_saved_per_seed"] == pytest.approx([0.25, -0.5])
+    assert summary["high_source"]["steps_saved"] == pytest.approx(-0.125)
+    # Two resamples' means of (0.25, -0.5) lie in [-0.5, 0.25]; the CI's ends are among them.
+    low, high = summary["high_source"]["ci95"]
+    assert -0.5 <= low <= high <= 0.25
+    # transitions = steps x 8 per step: the same saving, and a per-step batch of 8.
+    assert summary["high_source"]["transfer_updates_saved"] == pytest.approx(-0.125)
+    assert summary["high_source"]["per_step_batch_mean"] == 8.0

@@ -448,6 +448,8 @@ def summarise(
             "censored": int(sum(c.censored for c in runs)),
             "task_runs": int(sum(c.tasks for c in runs)),
         }
+        # An alone arm is its own reference: its savings are None (the JSON keys of every arm).
+        entry.update(steps_saved=None, ci95=None, transfer_updates_saved=None, alignment_cka=None)
         if arm.alone is not None:
             entry["against"] = arm.alone
             entry.update(_saving(runs, costs[arm.alone]))
@@ -534,7 +536,7 @@ def format_table(
             f"{arm.label:<28} steps to 90% {format_number(s['grad_steps_to_90_mean'])} "
             f"{s['grad_steps_to_90_per_seed']}; censored {s['censored']}/{s['task_runs']}"
         )
-        if "steps_saved" in s:
+        if s["steps_saved"] is not None:
             text += (
                 f"; steps_saved {_with_ci(s, 'steps_saved', 'ci95')}"
                 f"; transfer_updates_saved {_with_ci(s, 'transfer_updates_saved', 'transfer_updates_saved_ci95')}"
@@ -542,7 +544,7 @@ def format_table(
             )
             if "robust_steps_saved" in s:
                 text += f"; 2 evals in a row: steps_saved {_with_ci(s, 'robust_steps_saved', 'robust_ci95')}"
-        if "alignment_cka" in s:
+        if s["alignment_cka"] is not None:
             cka = s["alignment_cka"]
             text += f"; CKA translator {cka['translator']:.2f}, trunk {cka['trunk']:.2f}"
         if "pretrain" in s:
