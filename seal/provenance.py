@@ -10,6 +10,7 @@ import datetime as _dt
 import importlib.metadata
 import subprocess
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -64,15 +65,22 @@ def package_versions(names: tuple[str, ...] = TRACKED_PACKAGES) -> dict[str, str
     return out
 
 
-def reward_versions() -> dict[str, str]:
-    """Reward version of each installed environment package whose rewards are versioned
-    (the dense kitchens' `REWARD_VERSION`, also the suffix of their gymnasium ids)."""
+def reward_versions(envs: Iterable[Any] = ()) -> dict[str, str]:
+    """Reward version of each installed environment package whose rewards are versioned (the
+    dense kitchens': the suffix of their gymnasium ids). `envs`: a run's env configs; a kitchen
+    env's `options.reward_version` is the version it runs (several joined by "+"); without one,
+    the package's default `REWARD_VERSION`."""
     out: dict[str, str] = {}
     try:
         from franka_kitchen_dense import REWARD_VERSION
     except ImportError:
         return out
-    out["franka_kitchen_dense"] = REWARD_VERSION
+    used = {
+        str(env.options.get("reward_version", REWARD_VERSION))
+        for env in envs
+        if env.adapter == "franka_kitchen_dense"
+    }
+    out["franka_kitchen_dense"] = "+".join(sorted(used)) or REWARD_VERSION
     return out
 
 
@@ -98,13 +106,16 @@ def utc_now() -> str:
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
 
 
-def collect(command: list[str] | None = None, device: str = "auto", **extra: Any) -> dict[str, Any]:
-    """The provenance record: git SHA, package and reward versions, command line, device, plus `extra`."""
+def collect(
+    command: list[str] | None = None, device: str = "auto", envs: Iterable[Any] = (), **extra: Any
+) -> dict[str, Any]:
+    """The provenance record: git SHA, package and reward versions (of `envs`, a run's env
+    configs), command line, device, plus `extra`."""
     resolved = resolve_device(device)
     return {
         "git_sha": git_sha(),
         "packages": package_versions(),
-        "reward_versions": reward_versions(),
+        "reward_versions": reward_versions(envs),
         "command": " ".join(command if command is not None else sys.argv),
         "device": resolved,
         "device_name": device_description(resolved),

@@ -4,11 +4,23 @@ from __future__ import annotations
 
 from franka_kitchen_dense import gym_id
 
+from seal.protocols.config import EnvConfig
 from seal.provenance import collect, reward_versions
 
 
 def test_reward_version_is_recorded_and_matches_the_gym_ids() -> None:
-    assert reward_versions() == {"franka_kitchen_dense": "v2"}
-    assert gym_id("kettle") == "seal/FrankaKitchenDense-kettle-v2"
+    assert reward_versions() == {"franka_kitchen_dense": "v3"}
+    assert gym_id("kettle") == "seal/FrankaKitchenDense-kettle-v3"
     record = collect(command=["seal", "run"], device="cpu")
+    assert record["reward_versions"] == {"franka_kitchen_dense": "v3"}
+
+
+def test_a_runs_reward_version_option_is_recorded() -> None:
+    v2 = EnvConfig(
+        adapter="franka_kitchen_dense", tasks=["kettle"], options={"reward_version": "v2"}
+    )
+    assert reward_versions([v2]) == {"franka_kitchen_dense": "v2"}
+    default = EnvConfig(adapter="franka_kitchen_dense", tasks=["kettle"])
+    assert reward_versions([v2, default]) == {"franka_kitchen_dense": "v2+v3"}
+    record = collect(command=["seal", "run"], device="cpu", envs=[v2])
     assert record["reward_versions"] == {"franka_kitchen_dense": "v2"}

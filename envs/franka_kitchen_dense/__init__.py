@@ -1,6 +1,7 @@
 """Ten dense single-task Franka kitchens (SEAL Table 2), as gymnasium envs and a SEAL adapter.
 
-Importing the package registers `seal/FrankaKitchenDense-<task>-v2` for every task; the heavy
+Importing the package registers `seal/FrankaKitchenDense-<task>-<version>` for every task and every
+reward version still built (`REWARD_VERSIONS`: v2, v3; v3 is the default); the heavy
 modules (gymnasium-robotics, MuJoCo) load only when an env is made.
 """
 
@@ -11,6 +12,7 @@ import gymnasium as gym
 from franka_kitchen_dense.tasks import (
     DEFAULT_EPISODE_LENGTH,
     REWARD_VERSION,
+    REWARD_VERSIONS,
     TASK_NAMES,
     TASKS,
     KitchenTask,
@@ -20,6 +22,7 @@ from franka_kitchen_dense.tasks import (
 __all__ = [
     "DEFAULT_EPISODE_LENGTH",
     "REWARD_VERSION",
+    "REWARD_VERSIONS",
     "TASKS",
     "TASK_NAMES",
     "KitchenTask",
@@ -29,14 +32,16 @@ __all__ = [
 
 
 def register_envs() -> None:
-    """Register every task's gymnasium id (idempotent). The env truncates itself at `episode_length`."""
-    for task in TASK_NAMES:
-        if gym_id(task) not in gym.registry:
-            gym.register(
-                id=gym_id(task),
-                entry_point="franka_kitchen_dense.env:FrankaKitchenDenseEnv",
-                kwargs={"task": task},
-            )
+    """Register every task's gymnasium id under every reward version (idempotent). The env
+    truncates itself at `episode_length`."""
+    for version in REWARD_VERSIONS:
+        for task in TASK_NAMES:
+            if gym_id(task, version) not in gym.registry:
+                gym.register(
+                    id=gym_id(task, version),
+                    entry_point="franka_kitchen_dense.env:FrankaKitchenDenseEnv",
+                    kwargs={"task": task, "reward_version": version},
+                )
 
 
 register_envs()

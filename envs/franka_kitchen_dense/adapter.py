@@ -18,7 +18,13 @@ import gymnasium as gym
 import numpy as np
 from scipy.stats import spearmanr
 
-from franka_kitchen_dense.tasks import DEFAULT_EPISODE_LENGTH, TASK_NAMES, gym_id
+from franka_kitchen_dense.tasks import (
+    DEFAULT_EPISODE_LENGTH,
+    REWARD_VERSION,
+    REWARD_VERSIONS,
+    TASK_NAMES,
+    gym_id,
+)
 from seal.envs.base import EnvAdapter, ObsLayout
 from seal.errors import SealError, UnknownNameError
 
@@ -39,7 +45,11 @@ SHAPING_GOALS = {"expert_reward_spearman": 0.8, "return_ratio": 5.0, "flat_stret
 # Tasks no policy can finish by holding the handle; the verdict is re-measured by every check
 # (`evidence.reach_evidence`): the gripper must stay over the success radius from the handle at the goal.
 UNSOLVABLE = ("left-hinge-door",)
-OPTIONS = {"gravity_compensation": "true or false, default false"}  # adapter options and values
+OPTIONS = {  # adapter options and their values
+    "gravity_compensation": "true or false, default false",
+    "reward_version": " or ".join(f'"{v}"' for v in REWARD_VERSIONS)
+    + f', default "{REWARD_VERSION}"',
+}
 
 
 def interpolate_joint(start: np.ndarray, goal: np.ndarray, fraction: float) -> np.ndarray:
@@ -64,7 +74,8 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
         episode_length: int | None = None,
         **options: Any,
     ) -> None:
-        """`options`: `gravity_compensation` (bool, default False: upstream's arm sags, as in the paper)."""
+        """`options`: `gravity_compensation` (bool, default False: upstream's arm sags, as in the
+        paper); `reward_version` (one of `REWARD_VERSIONS`, default the newest)."""
         unknown = sorted(set(options) - set(OPTIONS))
         if unknown:
             raise SealError(
@@ -76,8 +87,15 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
             raise SealError(
                 f"adapter {self.name!r}: option gravity_compensation must be true or false, got {gravity!r}"
             )
+        version = options.get("reward_version", REWARD_VERSION)
+        if version not in REWARD_VERSIONS:
+            raise SealError(
+                f"adapter {self.name!r}: option reward_version must be "
+                f"{OPTIONS['reward_version'].split(',')[0]}, got {version!r}"
+            )
         super().__init__(tasks=tasks, episode_length=episode_length)
         self.gravity_compensation = gravity
+        self.reward_version: str = version
 
     @property
     def observation_space(self) -> gym.spaces.Box:
@@ -98,7 +116,7 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
         import franka_kitchen_dense  # noqa: F401 - registers the gymnasium ids
 
         return gym.make(
-            gym_id(task),
+            gym_id(task, self.reward_version),
             episode_length=self.episode_length,
             seed=int(seed),
             gravity_compensation=self.gravity_compensation,

@@ -45,7 +45,13 @@ from franka_kitchen_dense.rewards import (
     compute_reward,
     grip_effort,
 )
-from franka_kitchen_dense.tasks import DEFAULT_EPISODE_LENGTH, TASKS, KitchenTask
+from franka_kitchen_dense.tasks import (
+    DEFAULT_EPISODE_LENGTH,
+    REWARD_VERSION,
+    REWARD_VERSIONS,
+    TASKS,
+    KitchenTask,
+)
 
 UPSTREAM_OBS_DIM = 59
 OBS_DIM = UPSTREAM_OBS_DIM + 3
@@ -73,12 +79,18 @@ class FrankaKitchenDenseEnv(gym.Env):
         seed: int | None = None,
         render_mode: str | None = None,
         gravity_compensation: bool = False,
+        reward_version: str = REWARD_VERSION,
     ) -> None:
-        if task not in TASKS:
-            from seal.errors import UnknownNameError
+        from seal.errors import UnknownNameError
 
+        if task not in TASKS:
             raise UnknownNameError("franka_kitchen_dense task", task, list(TASKS))
+        if reward_version not in REWARD_VERSIONS:
+            raise UnknownNameError(
+                "franka_kitchen_dense reward version", reward_version, list(REWARD_VERSIONS)
+            )
         self.task: KitchenTask = TASKS[task]
+        self.reward_version = reward_version
         self.episode_length = int(episode_length)
         self.render_mode = render_mode
         self._pending_seed = seed
@@ -143,6 +155,13 @@ class FrankaKitchenDenseEnv(gym.Env):
         scratch.qpos[:] = self._init_qpos
         mujoco.mj_kinematics(self.model, scratch)
         init = self._read_geometry(scratch)
+        other_sites = [
+            scratch.site_xpos[self.model.site(t.site).id]
+            for t in TASKS.values()
+            if t.site != self.task.site
+        ]
+        # Reward v3's reach margin: the nearest other task's site (knobs 0.114 m apart).
+        reach_margin = min(float(np.linalg.norm(init["obj"] - site)) for site in other_sites)
         scratch.qpos[self._qpos_adr : self._qpos_adr + self._qpos_width] = self.task.goal_array
         mujoco.mj_kinematics(self.model, scratch)
         target = scratch.site_xpos[self._site_id].copy()
@@ -163,6 +182,7 @@ class FrankaKitchenDenseEnv(gym.Env):
             threshold=self.task.threshold,
             obj_radius=0.0 if obj_radius is None else obj_radius,  # door-open, dial-turn: unused
             near_object=near_object,
+            reach_margin=reach_margin,
         )
         return dataclasses.replace(
             constants, distance_init=self._distance(self._init_qpos, init["obj"], constants)
@@ -237,7 +257,7 @@ class FrankaKitchenDenseEnv(gym.Env):
     def evaluate(self, action: np.ndarray) -> tuple[float, dict[str, float]]:
         """Reward and info (with "success") of the current state under `action`, without stepping."""
         r = self.reading(np.asarray(action, dtype=np.float64))
-        reward, terms = compute_reward(self.task.family, r, self.constants)
+        reward, terms = compute_reward(self.task.family, r, self.constants, self.reward_version)
         info = {
             "success": float(r.distance <= self.task.threshold),
             "distance": r.distance,

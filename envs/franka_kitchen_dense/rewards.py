@@ -15,6 +15,13 @@ and change only what the kitchen forces:
 - The Sawyer's action[3] is a gripper effort, +1 closing. The kitchen's actions 7 and 8 are finger
   velocities, negative closing; `grip_effort` maps them to Meta-World's convention.
 
+Reward v3 (the default; v2 stays available, `compute_reward(..., version="v2")`) changes two
+families, each for a reason the learned policies showed: dial-turn gains the success override the
+other families have, and dial-turn's reach and sweep's caging take their margins from the
+kitchen's geometry (`Constants.reach_margin`: the distance from the task's site to the nearest
+other task's site) instead of the initial gripper distance, which in the kitchen is 0.3-0.8 m and
+made a gripper parked far from the object earn almost what one on it earns.
+
 All rewards lie in [0, 10]. They are pure functions of a `Reading` (the state and action) and
 `Constants` (the task's fixed geometry), so tests can check them against hand-computed numbers.
 """
@@ -98,6 +105,10 @@ class Constants:
     """Half-width of the grasped part (caging bounds)."""
     near_object: float = TCP_NEAR_OBJECT
     """Push / pick-place bonus gate: the gripper centre within this of the object site."""
+    reach_margin: float = 0.0
+    """Reward v3's reach margin: the distance from the task's site to the nearest other task's site
+    at the initial configuration, so a gripper at the wrong handle or knob earns at most the
+    tolerance's tail (0.1). Knobs 0.114 m apart, light switch 0.127 m from the nearest knob."""
 
 
 def _long_tail(x: float, upper: float, margin: float) -> float:
@@ -110,19 +121,26 @@ def _across(v: np.ndarray, u: np.ndarray) -> float:
     return float(np.linalg.norm(v - np.dot(v, u) * u))
 
 
-def _xz_caging(r: Reading, c: Constants) -> float:
-    """Gripper centre to object across the finger axis; margin from the initial configuration."""
-    margin = _across(c.obj_init - c.tcp_init, c.finger_axis_init) - XZ_SUCCESS_MARGIN
+def _xz_caging(r: Reading, c: Constants, margin: float | None = None) -> float:
+    """Gripper centre to object across the finger axis; margin from the initial configuration
+    (Meta-World's), or `margin` when given (reward v3's geometric margin)."""
+    if margin is None:
+        margin = _across(c.obj_init - c.tcp_init, c.finger_axis_init) - XZ_SUCCESS_MARGIN
     return _long_tail(_across(r.tcp - r.obj, r.finger_axis), XZ_SUCCESS_MARGIN, max(margin, 0.0))
 
 
-def _signed_pad_caging(r: Reading, c: Constants, upper: float) -> tuple[float, float]:
-    """Sweep / pick-place y-caging along u: signed pad-to-object gaps, margins from the initial pads."""
+def _signed_pad_caging(
+    r: Reading, c: Constants, upper: float, margin: float | None = None
+) -> tuple[float, float]:
+    """Sweep / pick-place y-caging along u: signed pad-to-object gaps, margins from the initial
+    pads (Meta-World's), or `margin` for both when given (reward v3's geometric margin)."""
     u = r.finger_axis
     gap_left = float(np.dot(r.left_pad - r.obj, u))
     gap_right = float(np.dot(r.obj - r.right_pad, u))
     margin_left = abs(abs(float(np.dot(r.obj - c.left_pad_init, u))) - PAD_SUCCESS_MARGIN)
     margin_right = abs(abs(float(np.dot(r.obj - c.right_pad_init, u))) - PAD_SUCCESS_MARGIN)
+    if margin is not None:
+        margin_left = margin_right = margin
     bounds = (c.obj_radius, upper)
     left = float(tolerance(gap_left, bounds=bounds, margin=margin_left, sigmoid="long_tail"))
     right = float(tolerance(gap_right, bounds=bounds, margin=margin_right, sigmoid="long_tail"))
@@ -153,11 +171,12 @@ def caging_base(r: Reading, c: Constants) -> float:
     return (hamacher_product(caging, gripping) + caging) / 2.0
 
 
-def caging_sweep(r: Reading, c: Constants) -> float:
-    """sweep-v3's `_gripper_caging_reward`: caging plus a tighter "gripping" band; it ignores the effort."""
-    left, right = _signed_pad_caging(r, c, PAD_SUCCESS_MARGIN)
-    left_grip, right_grip = _signed_pad_caging(r, c, c.obj_radius + 0.01)
-    caging = hamacher_product(hamacher_product(right, left), _xz_caging(r, c))
+def caging_sweep(r: Reading, c: Constants, margin: float | None = None) -> float:
+    """sweep-v3's `_gripper_caging_reward`: caging plus a tighter "gripping" band; it ignores the
+    effort. `margin`: every caging margin (reward v3); None: Meta-World's, from the initial pads."""
+    left, right = _signed_pad_caging(r, c, PAD_SUCCESS_MARGIN, margin)
+    left_grip, right_grip = _signed_pad_caging(r, c, c.obj_radius + 0.01, margin)
+    caging = hamacher_product(hamacher_product(right, left), _xz_caging(r, c, margin))
     gripping = hamacher_product(right_grip, left_grip) if caging > 0.95 else 0.0
     return (caging + gripping) / 2.0
 
@@ -231,6 +250,41 @@ def dial_turn(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
     return reward, {"grasp_reward": reach, "in_place_reward": in_place}
 
 
+def dial_turn_v3(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
+    """dial-turn, reward v3: v2's 10 * hamacher(reach, in_place), with a success override (10 on
+    success, as door-open, sweep, push and pick-place have) and the reach tolerance's margin from
+    the kitchen's geometry.
+
+    v2's reach margin was the initial gripper-to-knob distance (0.59-0.68 m) on a Gaussian, so a
+    gripper parked 27 cm away earned 0.93 of the 1.0 per step an untouched knob pays; and a knob
+    turned to success with the gripper gone earned about 0. v3's margin is the distance to the
+    nearest other knob (0.114 m), on a long tail so that far away still has a slope: reach is 0.1
+    at a neighbouring knob, 0.02 at 27 cm.
+    """
+    in_place = _long_tail(r.distance, c.threshold, abs(c.distance_init - c.threshold))
+    reach = _long_tail(float(np.linalg.norm(r.obj - r.tcp)), DIAL_REACH_RADIUS, c.reach_margin)
+    reach = (reach + hamacher_product(reach, min(max(0.0, r.effort), 1.0))) / 2.0
+    reward = 10.0 * hamacher_product(reach, in_place)
+    if r.distance <= c.threshold:
+        reward = 10.0
+    return reward, {"grasp_reward": reach, "in_place_reward": in_place}
+
+
+def sweep_v3(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
+    """sweep, reward v3: v2's 2 * grasped + 6 * hamacher(grasped, in_place), 10 on success, with
+    the caging margins (pads along the finger axis, gripper across it) equal to the geometric
+    `reach_margin` (0.127 m: the lever to the nearest knob) instead of the initial pads' distance,
+    and in_place's margin the switch's travel (initial distance - threshold), so that the
+    untouched switch pays the tail 0.1 (dial-turn's form) rather than v2's 0.26.
+    """
+    in_place = _long_tail(r.distance, c.threshold, abs(c.distance_init - c.threshold))
+    grasped = caging_sweep(r, c, margin=c.reach_margin)
+    reward = 2.0 * grasped + 6.0 * hamacher_product(grasped, in_place)
+    if r.distance <= c.threshold:
+        reward = 10.0
+    return reward, {"grasp_reward": grasped, "in_place_reward": in_place}
+
+
 def push(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
     """push-v3 (v2 reward): 2 * grasped, plus (1 + 2 * grasped + 5 * in_place) with the gripper
     within `near_object` of the handle (its radius) and not shut; 10 on success."""
@@ -259,18 +313,23 @@ def pick_place(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
     return reward, {"grasp_reward": grasped, "in_place_reward": in_place}
 
 
-REWARD_FAMILIES = {
+_V2_FAMILIES = {
     "door-open": door_open,
     "sweep": sweep,
     "dial-turn": dial_turn,
     "push": push,
     "pick-place": pick_place,
 }
+REWARD_FAMILIES = {
+    "v2": _V2_FAMILIES,
+    "v3": {**_V2_FAMILIES, "sweep": sweep_v3, "dial-turn": dial_turn_v3},
+}
+"""Each reward version's function per family; v3 changes sweep and dial-turn only."""
 
 
 def compute_reward(
-    family: str, reading: Reading, constants: Constants
+    family: str, reading: Reading, constants: Constants, version: str = "v3"
 ) -> tuple[float, dict[str, float]]:
-    """The `family`'s reward in [0, 10] and its named terms."""
-    reward, terms = REWARD_FAMILIES[family](reading, constants)
+    """The `family`'s reward under reward `version`, in [0, 10], and its named terms."""
+    reward, terms = REWARD_FAMILIES[version][family](reading, constants)
     return float(np.clip(reward, 0.0, 10.0)), terms

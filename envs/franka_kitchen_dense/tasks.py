@@ -99,10 +99,15 @@ DEFAULT_EPISODE_LENGTH = 280  # upstream FrankaKitchen-v1 max_episode_steps
 # Bumped whenever a reward changes, with the gymnasium ids' version; recorded in run provenance.
 # v0: Meta-World's push / pick-place object radius 0.015 and 2 cm "near" gate;
 # v1: both from the measured handle geometry (see README, "Departures from Meta-World's constants");
-# v2: dial-turn (burners) pays reach with open fingers: (reach + H(reach, closed)) / 2, not H(reach, closed).
-REWARD_VERSION = "v2"
+# v2: dial-turn (burners) pays reach with open fingers: (reach + H(reach, closed)) / 2, not H(reach, closed);
+# v3: dial-turn gains a success override; dial-turn's reach and sweep's caging margins are the
+#     distance to the nearest other task's site (not the initial distance); sweep's in_place
+#     margin is its travel (initial distance - threshold), so the start pays the tail 0.1.
+REWARD_VERSIONS: tuple[str, ...] = ("v2", "v3")
+"""Reward versions this package still builds (each has its gymnasium ids); the last is the default."""
+REWARD_VERSION = REWARD_VERSIONS[-1]
 
 
-def gym_id(task: str) -> str:
-    """The gymnasium id registered for `task`, e.g. "seal/FrankaKitchenDense-kettle-v2"."""
-    return f"seal/FrankaKitchenDense-{task}-{REWARD_VERSION}"
+def gym_id(task: str, version: str = REWARD_VERSION) -> str:
+    """The gymnasium id registered for `task` under reward `version`, e.g. "seal/FrankaKitchenDense-kettle-v3"."""
+    return f"seal/FrankaKitchenDense-{task}-{version}"

@@ -42,7 +42,11 @@ ARMS: tuple[Arm, ...] = (
     _arm("light_switch_demos", "light-switch + demos"),
     _arm("bottom_left_burner", "bottom-left-burner"),
     _arm("bottom_left_burner_demos", "bottom-left-burner + demos"),
+    _arm("microwave", "microwave"),
+    _arm("bottom_right_burner", "bottom-right-burner"),
 )
+"""The arms; those without demonstrations run reward v3, those with them reward v2 (their recorded
+results), each pinned by its protocol's `options.reward_version`."""
 
 
 def arms(only: Sequence[str] | None = None) -> list[Arm]:
@@ -115,6 +119,7 @@ def run_kitchen_bench(
             "env_steps_to_90_mean": float(np.mean([f["env_steps"] for f in figures])),
             "learned_within_budget": all(within),
             "demos": [_demos(run_dirs[(arm.name, s)]) for s in range(seeds)],
+            "reward_versions": [_reward_version(run_dirs[(arm.name, s)]) for s in range(seeds)],
         }
     shas = {key: load_run(path).provenance.get("git_sha") for key, path in run_dirs.items()}
     return {
@@ -133,6 +138,14 @@ def run_kitchen_bench(
         "load_before": load_before,
         "load_after": machine_load(),
     }
+
+
+def _reward_version(run_dir: Path) -> str | None:
+    """The kitchen reward version the run's provenance records (None if it records none)."""
+    from seal import load_run
+
+    versions = load_run(run_dir).provenance.get("reward_versions") or {}
+    return versions.get("franka_kitchen_dense")
 
 
 def _demos(run_dir: Path) -> dict[str, Any] | None:
@@ -167,6 +180,14 @@ def format_result(result: Mapping[str, Any]) -> str:
     if len(versions) > 1:
         listed = "; ".join(f"{sha}: {', '.join(runs)}" for sha, runs in versions.items())
         lines.append(f"note, runs made with {len(versions)} code versions: {listed}")
+    rewards = {
+        str(v): [a["label"] for a in result["arms"].values() if v in a.get("reward_versions", [])]
+        for a in result["arms"].values()
+        for v in a.get("reward_versions", [])
+    }
+    if len(rewards) > 1:
+        listed = "; ".join(f"{v}: {', '.join(labels)}" for v, labels in sorted(rewards.items()))
+        lines.append(f"note, runs on {len(rewards)} kitchen reward versions: {listed}")
     reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
     lines += [
         "env steps: the learner's own (demonstrations excluded) at the first evaluation >= 90%; "

@@ -242,7 +242,7 @@ class Run:
         if resume:
             self.rundir = RunDir.open(path)
         else:
-            prov = provenance.collect(command, self.device)
+            prov = provenance.collect(command, self.device, envs=config.envs.values())
             prov.update(
                 seed=self.seed,
                 start_time=provenance.utc_now(),

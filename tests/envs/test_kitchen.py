@@ -231,35 +231,39 @@ def test_door_open_reward_by_hand() -> None:
     assert compute_reward("door-open", _reading(0.049, -1.0), c)[0] == 10.0
 
 
-def test_sweep_reward_by_hand() -> None:
+def test_sweep_reward_v2_by_hand() -> None:
     c = _constants(distance_init=0.69, threshold=0.3, obj_radius=0.02)
     # pads 0.025 from the lever: inside (0.02, 0.05) and the gripping band (0.02, 0.03): grasped 1.
     # in_place: d = (0.69 - 0.3) / 0.69 = 0.565217, 1 / ((3d)^2 + 1) = 1 / 3.875236 = 0.258049
     # reward = 2 * 1 + 6 * hamacher(1, 0.258049) = 3.548293
-    assert compute_reward("sweep", _reading(0.69, 1.0), c)[0] == pytest.approx(3.548293, abs=1e-5)
+    assert compute_reward("sweep", _reading(0.69, 1.0), c, "v2")[0] == pytest.approx(
+        3.548293, abs=1e-5
+    )
     # sweep ignores the effort (as Meta-World's sweep-v3 does): same with the fingers opening
-    assert compute_reward("sweep", _reading(0.69, -1.0), c)[0] == pytest.approx(3.548293, abs=1e-5)
+    assert compute_reward("sweep", _reading(0.69, -1.0), c, "v2")[0] == pytest.approx(
+        3.548293, abs=1e-5
+    )
     # pads 0.04 away: caging 1 but outside the gripping band (0.02, 0.03); margins
     # | |0 -/+ 0.04| - 0.05 | = 0.01, d = (0.04 - 0.03) / 0.01 = 1 -> 0.1 each, hamacher(0.1, 0.1)
     # = 0.01 / 0.19 = 0.052632; grasped = (1 + 0.052632) / 2 = 0.526316
     # reward = 2 * 0.526316 + 6 * hamacher(0.526316, 0.258049) = 1.052632 + 6 * 0.209414 = 2.309114
-    assert compute_reward("sweep", _reading(0.69, 1.0, gap=0.04), c)[0] == pytest.approx(
+    assert compute_reward("sweep", _reading(0.69, 1.0, gap=0.04), c, "v2")[0] == pytest.approx(
         2.309114, abs=1e-5
     )
-    assert compute_reward("sweep", _reading(0.29, 1.0), c)[0] == 10.0
+    assert compute_reward("sweep", _reading(0.29, 1.0), c, "v2")[0] == 10.0
 
 
-def test_dial_turn_reward_by_hand() -> None:
+def test_dial_turn_reward_v2_by_hand() -> None:
     c = _constants(distance_init=0.88, threshold=0.3)
     # reach = 1 (on the knob), closed = 1; in_place at margin |0.88 - 0.3|: 0.1 -> 10 * 0.1 = 1
-    assert compute_reward("dial-turn", _reading(0.88, 1.0), c)[0] == pytest.approx(1.0)
+    assert compute_reward("dial-turn", _reading(0.88, 1.0), c, "v2")[0] == pytest.approx(1.0)
     # half closed: reach term (1 + hamacher(1, 0.5)) / 2 = 0.75; at the goal in_place = 1:
     # 10 * hamacher(0.75, 1) = 7.5
-    assert compute_reward("dial-turn", _reading(0.0, 0.5), c)[0] == pytest.approx(7.5)
-    assert compute_reward("dial-turn", _reading(0.0, 1.0), c)[0] == pytest.approx(10.0)
+    assert compute_reward("dial-turn", _reading(0.0, 0.5), c, "v2")[0] == pytest.approx(7.5)
+    assert compute_reward("dial-turn", _reading(0.0, 1.0), c, "v2")[0] == pytest.approx(10.0)
     # fingers opening (reward v2): reach term (1 + 0) / 2 = 0.5 -> 10 * hamacher(0.5, 1) = 5, even at
     # the goal (dial-turn has no success override); Meta-World's gate H(reach, closed) gave 0 here
-    assert compute_reward("dial-turn", _reading(0.0, -1.0), c)[0] == pytest.approx(5.0)
+    assert compute_reward("dial-turn", _reading(0.0, -1.0), c, "v2")[0] == pytest.approx(5.0)
 
 
 def test_push_reward_by_hand() -> None:
@@ -366,8 +370,9 @@ def test_unknown_task_names_the_valid_ones() -> None:
 def test_gymnasium_ids_are_registered() -> None:
     ids = {gym_id(t) for t in TASK_NAMES}
     assert ids <= set(gym.registry)
-    assert gym_id("light-switch") == "seal/FrankaKitchenDense-light-switch-v2"
-    env = gym.make("seal/FrankaKitchenDense-light-switch-v2", episode_length=2)
+    assert {gym_id(t, "v2") for t in TASK_NAMES} <= set(gym.registry)  # v2 stays available
+    assert gym_id("light-switch") == "seal/FrankaKitchenDense-light-switch-v3"
+    env = gym.make("seal/FrankaKitchenDense-light-switch-v3", episode_length=2)
     assert (
         isinstance(env.unwrapped, FrankaKitchenDenseEnv)
         and env.unwrapped.task.joint == "light_switch"
