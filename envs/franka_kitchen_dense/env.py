@@ -155,6 +155,7 @@ class FrankaKitchenDenseEnv(gym.Env):
         scratch.qpos[:] = self._init_qpos
         mujoco.mj_kinematics(self.model, scratch)
         init = self._read_geometry(scratch)
+        init_joint = float(self._init_qpos[self._qpos_adr])
         other_sites = [
             scratch.site_xpos[self.model.site(t.site).id]
             for t in TASKS.values()
@@ -183,6 +184,7 @@ class FrankaKitchenDenseEnv(gym.Env):
             obj_radius=0.0 if obj_radius is None else obj_radius,  # door-open, dial-turn: unused
             near_object=near_object,
             reach_margin=reach_margin,
+            travel=float(abs(self.task.goal[0] - init_joint)) if self._qpos_width == 1 else 0.0,
         )
         return dataclasses.replace(
             constants, distance_init=self._distance(self._init_qpos, init["obj"], constants)

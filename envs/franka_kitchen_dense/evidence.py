@@ -148,3 +148,117 @@ def reach_evidence(env: Any) -> dict[str, float]:
         ]
         out[f"reach_gap_{where}_m"] = round(float(min(errors)), 4)
     return out
+
+
+# ---- exploits -----------------------------------------------------------------------------------
+
+EXPLOIT_RATIO_MAX = 0.5
+"""A no-progress behaviour may earn at most this share of the expert's episode return."""
+OSCILLATION_FRACTIONS = (0.0, 0.025, 0.05, 0.075, 0.1, 0.075, 0.05, 0.025)
+"""One period of the oscillation: the object jiggled over the first 10% of its travel and back."""
+OVERSHOOT_FRACTIONS = (0.25, 0.5, 0.75, 1.0)
+"""Past the goal: these shares of the way from the goal to the joint's limit (the kettle: of its
+travel again, beyond the goal)."""
+PARKING_DISTANCES = (0.03, 0.06, 0.12)
+"""Parking points: the gripper this far (m) from the handle along +-x, +-y, +-z."""
+FINGER_ACTIONS = {"open": 1.0, "still": 0.0, "closing": -1.0}
+"""Finger actions (a7 = a8) tried at every posed state; the arm action is zero."""
+
+
+def _posed_reward(
+    env: gym.Env, seed: int, joint: np.ndarray, arm: np.ndarray, fingers: float
+) -> tuple[float, float]:
+    """(reward, success) of one `env.step` from the state with the task joint at `joint`, the arm
+    at `arm` (fingers open, at rest) and the finger action `fingers` (arm action zero)."""
+    from franka_kitchen_dense.posing import ARM_DOFS, FINGER_OPEN
+
+    raw = env.unwrapped
+    env.reset(seed=seed)
+    raw.set_task_joint(joint)
+    raw.data.qpos[:ARM_DOFS] = arm
+    raw.data.qpos[ARM_DOFS : ARM_DOFS + 2] = FINGER_OPEN
+    raw.data.qvel[: ARM_DOFS + 2] = 0.0
+    raw.sync()
+    action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+    action[7:9] = fingers
+    _, reward, _, _, info = env.step(action)
+    return float(reward), float(info["success"])
+
+
+def _best_step(
+    env: gym.Env, seed: int, joint: np.ndarray, offset: np.ndarray | None = None
+) -> tuple[float, float]:
+    """The gripper posed at the handle (+ `offset`) with the joint at `joint`: the best reward over
+    the finger actions, and whether that state is a success."""
+    from franka_kitchen_dense.posing import best_gripper_pose
+
+    raw = env.unwrapped
+    env.reset(seed=seed)
+    raw.set_task_joint(joint)
+    arm, _ = best_gripper_pose(raw, offset=offset)
+    steps = [_posed_reward(env, seed, joint, arm, f) for f in FINGER_ACTIONS.values()]
+    return max(r for r, _ in steps), max(s for _, s in steps)
+
+
+def _overshoot_joints(raw: Any) -> list[np.ndarray]:
+    """Joint values past the goal, on the far side from the start."""
+    start, goal = raw.initial_task_joint(), raw.task.goal_array
+    if goal.shape == (7,):  # the kettle: carried past its goal position, goal orientation
+        return [
+            np.concatenate([goal[:3] + f * (goal[:3] - start[:3]), goal[3:]])
+            for f in OVERSHOOT_FRACTIONS
+        ]
+    lo, hi = raw.model.jnt_range[raw.model.joint(raw.task.joint).id]
+    limit = hi if goal[0] > start[0] else lo
+    return [goal + f * (limit - goal) for f in OVERSHOOT_FRACTIONS]
+
+
+def exploit_evidence(env: gym.Env, expert_return: float, seed: int = 0) -> dict[str, Any]:
+    """Returns of four no-progress behaviours over an episode, each holding a posed state (or a
+    cycle of them) for `episode_length` steps, read through `env.step`, against `expert_return`:
+
+    - `hover`: the gripper at the handle, the object untouched;
+    - `oscillate`: the gripper at the handle while the object is jiggled over the first 10% of its
+      travel and back (`OSCILLATION_FRACTIONS`), mean over one period;
+    - `past_goal`: the object pushed past its goal (`OVERSHOOT_FRACTIONS` of the way to the joint's
+      limit) and out of the success band, gripper at the handle; the best such point (none when
+      the joint's limit lies inside the band);
+    - `parking`: the object untouched, the gripper at the best of the handle and 18 points around
+      it (`PARKING_DISTANCES` along +-x, +-y, +-z): the reward's best no-progress point.
+
+    At every state the best of the finger actions counts. `exploit_ratio` = the best exploit's
+    return / the expert's; `exploit_ok` when it is <= `EXPLOIT_RATIO_MAX`.
+    """
+    raw = env.unwrapped
+    length = raw.episode_length
+    start, goal = raw.initial_task_joint(), raw.task.goal_array
+    hover, _ = _best_step(env, seed, start)
+    wave = []
+    for fraction in OSCILLATION_FRACTIONS:
+        joint = start + fraction * (goal - start)
+        if joint.shape == (7,):
+            joint[3:] /= np.linalg.norm(joint[3:])
+        wave.append(_best_step(env, seed, joint)[0])
+    past = [_best_step(env, seed, joint) for joint in _overshoot_joints(raw)]
+    past_rewards = [r for r, success in past if success == 0.0]
+    parking = [hover]
+    for distance in PARKING_DISTANCES:
+        for axis in range(3):
+            for sign in (1.0, -1.0):
+                offset = np.zeros(3)
+                offset[axis] = sign * distance
+                parking.append(_best_step(env, seed, start, offset)[0])
+    returns = {
+        "hover": hover * length,
+        "oscillate": float(np.mean(wave)) * length,
+        "past_goal": max(past_rewards) * length if past_rewards else None,
+        "parking": max(parking) * length,
+    }
+    best = max(v for v in returns.values() if v is not None)
+    ratio = best / expert_return if expert_return > 0 else float("inf")
+    return {
+        "exploit_returns": {k: None if v is None else round(v, 1) for k, v in returns.items()},
+        "exploit_best": max((k for k, v in returns.items() if v is not None), key=returns.get),
+        "exploit_ratio": round(ratio, 4),
+        "exploit_ok": bool(ratio <= EXPLOIT_RATIO_MAX),
+    }

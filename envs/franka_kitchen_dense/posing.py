@@ -45,8 +45,10 @@ def solve_gripper_at_object(
     iterations: int = 300,
     damping: float = 0.05,
     rotation_weight: float = 0.3,
+    offset: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
-    """Arm joint angles (7) putting `end_effector` at the task site, oriented to grasp it.
+    """Arm joint angles (7) putting `end_effector` at the task site (plus `offset`, world metres),
+    oriented to grasp it.
 
     Works on a copy of the env's current state (the task joint as set). `start` seeds the solver
     (default: the current arm pose). Returns (arm qpos, remaining position error in metres).
@@ -78,6 +80,8 @@ def solve_gripper_at_object(
     jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
     quat, rot_err = np.zeros(4), np.zeros(3)
     target = data.site_xpos[env._site_id].copy()
+    if offset is not None:
+        target += offset
     for _ in range(iterations):
         mujoco.mj_kinematics(model, data)
         mujoco.mj_comPos(model, data)
@@ -95,7 +99,10 @@ def solve_gripper_at_object(
 
 
 def best_gripper_pose(
-    env: FrankaKitchenDenseEnv, start: np.ndarray | None = None, tolerance: float = 0.005
+    env: FrankaKitchenDenseEnv,
+    start: np.ndarray | None = None,
+    tolerance: float = 0.005,
+    offset: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
     """`solve_gripper_at_object` from a few starting poses, each with the grasp orientation and then
     with a looser one; returns the first pose within `tolerance` metres, else the closest found.
@@ -112,7 +119,7 @@ def best_gripper_pose(
     best: tuple[np.ndarray, float] | None = None
     for weight in (0.3, 0.03):
         for q0 in starts:
-            arm, error = solve_gripper_at_object(env, q0, rotation_weight=weight)
+            arm, error = solve_gripper_at_object(env, q0, rotation_weight=weight, offset=offset)
             if best is None or error < best[1] - 1e-4:
                 best = (arm, error)
             if error <= tolerance:
@@ -121,12 +128,14 @@ def best_gripper_pose(
     return best
 
 
-def pose_gripper_at_object(env: FrankaKitchenDenseEnv, start: np.ndarray | None = None) -> float:
+def pose_gripper_at_object(
+    env: FrankaKitchenDenseEnv, start: np.ndarray | None = None, offset: np.ndarray | None = None
+) -> float:
     """Write the best IK arm pose into the env with the fingers open and the robot at rest.
 
-    Returns the remaining distance (m) from `end_effector` to the task site.
+    Returns the remaining distance (m) from `end_effector` to the task site (plus `offset`).
     """
-    arm, error = best_gripper_pose(env, start)
+    arm, error = best_gripper_pose(env, start, offset=offset)
     env.data.qpos[:ARM_DOFS] = arm
     env.data.qpos[ARM_DOFS : ARM_DOFS + 2] = FINGER_OPEN
     env.data.qvel[: ARM_DOFS + 2] = 0.0

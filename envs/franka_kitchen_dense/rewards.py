@@ -28,6 +28,8 @@ All rewards lie in [0, 10]. They are pure functions of a `Reading` (the state an
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -105,6 +107,9 @@ class Constants:
     """Half-width of the grasped part (caging bounds)."""
     near_object: float = TCP_NEAR_OBJECT
     """Push / pick-place bonus gate: the gripper centre within this of the object site."""
+    travel: float = 0.0
+    """The task joint's displacement from its initial value to its goal (rad or m; 0 for the
+    kettle's free joint, which has no single coordinate)."""
     reach_margin: float = 0.0
     """Reward v3's reach margin: the distance from the task's site to the nearest other task's site
     at the initial configuration, so a gripper at the wrong handle or knob earns at most the
@@ -147,15 +152,18 @@ def _signed_pad_caging(
     return left, right
 
 
-def caging_base(r: Reading, c: Constants) -> float:
+def caging_base(r: Reading, c: Constants, geometric_margin: float | None = None) -> float:
     """`SawyerXYZEnv._gripper_caging_reward(obj_radius, pad_success_thresh=0.05, xz_thresh=0.005,
-    high_density=True)`, as push-v3 calls it, with y replaced by the finger axis."""
+    high_density=True)`, as push-v3 calls it, with y replaced by the finger axis.
+    `geometric_margin`: every caging margin (reward v3); None: Meta-World's."""
     u = r.finger_axis
     caging_lr = []
     for pad in (r.left_pad, r.right_pad):
         to_obj = abs(float(np.dot(pad - r.obj, u)))
         to_obj_init = abs(float(np.dot(pad - c.obj_init, u)))
         margin = abs(to_obj_init - PAD_SUCCESS_MARGIN)
+        if geometric_margin is not None:
+            margin = geometric_margin
         caging_lr.append(
             float(
                 tolerance(
@@ -166,7 +174,7 @@ def caging_base(r: Reading, c: Constants) -> float:
                 )
             )
         )
-    caging = hamacher_product(hamacher_product(*caging_lr), _xz_caging(r, c))
+    caging = hamacher_product(hamacher_product(*caging_lr), _xz_caging(r, c, geometric_margin))
     gripping = min(max(0.0, r.effort), 1.0) if caging > 0.97 else 0.0
     return (hamacher_product(caging, gripping) + caging) / 2.0
 
@@ -298,6 +306,43 @@ def push(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
     return reward, {"grasp_reward": grasped, "in_place_reward": in_place}
 
 
+def door_open_v3(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
+    """door-open, reward v3: 10 * hamacher(ready, opened), 10 on success (dial-turn's form).
+
+    v2's 2 * H(ready, grab) + 8 * opened paid a gripper holding the shut door 2.8 per step, and
+    0.2 * 8 more for any 2 degrees of movement ("trying"), so jiggling the door at its start earned
+    more than half of what the slow right-door expert earns (1,195 of its ~1,500). v3: `ready` =
+    the gripper near the handle (bounds the Meta-World handle radius 0.06, margin the geometric
+    `reach_margin`), with half of it for closing, as dial-turn's reach; `opened` = the handle's
+    distance to its goal (bounds 5 cm, margin its travel, so the shut door pays the tail 0.1); no
+    trying bonus. Holding the shut door pays 1.0 per step.
+    """
+    ready = _long_tail(float(np.linalg.norm(r.tcp - r.obj)), DOOR_HANDLE_RADIUS, c.reach_margin)
+    ready = (ready + hamacher_product(ready, min(max(0.0, r.effort), 1.0))) / 2.0
+    opened = _long_tail(r.distance, c.threshold, abs(c.distance_init - c.threshold))
+    reward = 10.0 * hamacher_product(ready, opened)
+    if r.distance <= c.threshold:
+        reward = 10.0
+    return reward, {"near_object": ready, "in_place_reward": opened}
+
+
+def push_v3(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
+    """push, reward v3: 10 * hamacher(grasped, in_place), 10 on success (dial-turn's form).
+
+    v2's 2 * grasped + (1 + 2 * grasped + 5 * in_place) near the handle paid a gripper on the
+    untouched slide handle 5.6 per step (1,581 per episode, 0.70 of the expert's). v3: `grasped` =
+    the base caging with every margin the geometric `reach_margin` (0.263 m: the slide handle to
+    the nearest knob); `in_place` margin = the travel (initial distance - 5 cm), tail 0.1 at the
+    start. Holding the untouched handle pays 1.0 per step.
+    """
+    in_place = _long_tail(r.distance, c.threshold, abs(c.distance_init - c.threshold))
+    grasped = caging_base(r, c, c.reach_margin)
+    reward = 10.0 * hamacher_product(grasped, in_place)
+    if r.distance <= c.threshold:
+        reward = 10.0
+    return reward, {"grasp_reward": grasped, "in_place_reward": in_place}
+
+
 def pick_place(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
     """pick-place-v3 (v2 reward): hamacher(grasped, in_place), plus (1 + 5 * in_place) with the
     gripper within `near_object` of the kettle handle (its radius), not shut, and the kettle lifted
@@ -313,6 +358,24 @@ def pick_place(r: Reading, c: Constants) -> tuple[float, dict[str, float]]:
     return reward, {"grasp_reward": grasped, "in_place_reward": in_place}
 
 
+def _overshoot_undone(r: Reading, c: Constants) -> Reading:
+    """Reward v3: a joint pushed past its goal and out of the success band reads as untouched
+    (the initial distance, no progress), so holding the object beyond the goal earns what not
+    starting earns. The path the reward shapes runs from the start to the goal; v2's distance
+    tolerances paid a microwave swung 0.34 rad past its goal 70% of success (and the "trying"
+    bonus), a knob just past its band 93%."""
+    if c.travel > 0.0 and r.progress > c.travel and r.distance > c.threshold:
+        return dataclasses.replace(r, distance=c.distance_init, progress=0.0)
+    return r
+
+
+def _v3(
+    family: Callable[[Reading, Constants], tuple[float, dict[str, float]]],
+) -> Callable[[Reading, Constants], tuple[float, dict[str, float]]]:
+    """`family` under reward v3's overshoot rule (`_overshoot_undone`)."""
+    return lambda r, c: family(_overshoot_undone(r, c), c)
+
+
 _V2_FAMILIES = {
     "door-open": door_open,
     "sweep": sweep,
@@ -322,9 +385,20 @@ _V2_FAMILIES = {
 }
 REWARD_FAMILIES = {
     "v2": _V2_FAMILIES,
-    "v3": {**_V2_FAMILIES, "sweep": sweep_v3, "dial-turn": dial_turn_v3},
+    "v3": {
+        family: _v3(f)
+        for family, f in {
+            **_V2_FAMILIES,
+            "door-open": door_open_v3,
+            "sweep": sweep_v3,
+            "dial-turn": dial_turn_v3,
+            "push": push_v3,
+        }.items()
+    },
 }
-"""Each reward version's function per family; v3 changes sweep and dial-turn only."""
+"""Each reward version's function per family; v3 has new door-open, sweep, dial-turn and push
+functions (pick-place is v2's), and every
+family reads an object pushed past its goal as untouched (`_overshoot_undone`)."""
 
 
 def compute_reward(
