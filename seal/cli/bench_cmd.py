@@ -100,6 +100,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="with --protocol: epochs per phase to measure (default 5)",
     )
     parser.add_argument(
+        "--cores",
+        type=int,
+        default=None,
+        help="with --protocol: project the env-stepping floor and the serial and overlapped wall times for this many cores (default: this machine's)",
+    )
+    parser.add_argument(
+        "--update-rate",
+        type=float,
+        default=None,
+        metavar="UPDATES_PER_S",
+        help="with --protocol: project with this update rate instead of the window's (e.g. 1000, the one-GPU goal)",
+    )
+    parser.add_argument(
+        "--floor-only",
+        action="store_true",
+        help="with --protocol: measure the env step costs only, no window (projections need --update-rate)",
+    )
+    parser.add_argument(
         "--set",
         dest="overrides",
         action="append",
@@ -148,7 +166,15 @@ def run(args: argparse.Namespace) -> int:
 
         if args.threads is not None:
             torch.set_num_threads(max(1, args.threads))
-        result = bench_protocol(args.protocol, args.epochs, args.overrides, log=log)
+        result = bench_protocol(
+            args.protocol,
+            args.epochs,
+            args.overrides,
+            log=log,
+            cores=args.cores,
+            update_rate=args.update_rate,
+            floor_only=args.floor_only,
+        )
         print(json.dumps(result, indent=2) if args.json else format_protocol_bench(result))
         return 0
     if args.learn == "transfer":

@@ -577,8 +577,8 @@ class _GymAsyncBackend(_Backend):
 AUTO_PARALLEL_MIN_SAVING_S = 1e-3
 
 
-def _probe_step_seconds(instance: _Instance, steps: int = 10) -> float:
-    """Median CPU seconds of one random-action step of a throwaway env of `instance`'s task."""
+def _step_costs(instance: _Instance, steps: int) -> np.ndarray:
+    """CPU seconds of each of `steps` random-action steps of a throwaway env of `instance`'s task."""
     env = instance.make()
     try:
         env.reset(seed=instance.seed)
@@ -594,7 +594,22 @@ def _probe_step_seconds(instance: _Instance, steps: int = 10) -> float:
                 env.reset()
     finally:
         env.close()
-    return float(np.median(costs))
+    return np.asarray(costs)
+
+
+def _probe_step_seconds(instance: _Instance, steps: int = 10) -> float:
+    """Median CPU seconds of one random-action step of a throwaway env of `instance`'s task."""
+    return float(np.median(_step_costs(instance, steps)))
+
+
+def step_seconds(adapter: EnvAdapter, task: str, steps: int = 100, seed: int = 0) -> float:
+    """Mean CPU seconds of one random-action step of `task` (a throwaway env; resets not counted).
+
+    CPU time of this process, so other jobs on the machine do not inflate it (they can still
+    slow it through shared caches and clock speed).
+    """
+    instance = _Instance(adapter.name, task, instance_seed(seed, adapter.name, task), adapter)
+    return float(np.mean(_step_costs(instance, steps)))
 
 
 def _auto_backend(
