@@ -193,9 +193,11 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
         return result
 
     def _expert_check(self, task: str, seed: int, episodes: int) -> dict[str, Any]:
-        """The expert's figures; ok when it solves >= 80% of seeds, or, for a task declared
-        unsolvable, when the measured reach gap at the goal still exceeds the success radius."""
-        from franka_kitchen_dense.evidence import expert_evidence, reach_evidence
+        """The expert's figures and the exploits' (`evidence.exploit_evidence`); ok when the expert
+        solves >= 80% of seeds and no exploit earns over half its return, or, for a task declared
+        unsolvable, when the measured reach gap at the goal still exceeds the success radius (its
+        exploit ratio is reported, not required: its expert earns little)."""
+        from franka_kitchen_dense.evidence import expert_evidence, exploit_evidence, reach_evidence
 
         figures = expert_evidence(
             lambda s: self.make(task, s),
@@ -210,8 +212,13 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
             "flat_stretch_share": figures["flat_stretch_share"]
             <= SHAPING_GOALS["flat_stretch_share"],
         }
+        env = self.make(task, seed)
+        figures.update(exploit_evidence(env, figures["expert_mean_return"], seed))
+        env.close()
         if task not in UNSOLVABLE:
-            figures["expert_ok"] = figures["scripted_success"] >= SCRIPTED_SUCCESS_MIN
+            figures["expert_ok"] = (
+                figures["scripted_success"] >= SCRIPTED_SUCCESS_MIN and figures["exploit_ok"]
+            )
             return figures
         env = self.make(task, seed)
         env.reset(seed=seed)
