@@ -55,3 +55,28 @@ class ObjectBlindKitchen(FrankaKitchenDenseAdapter):
 
     def make(self, task: str, seed: int) -> gym.Env:
         return _ObjectBlindReward(super().make(task, seed))
+
+
+class _HoverPayingReward(gym.Wrapper):
+    """The kitchen's own reward plus 5 while the gripper is within 5 cm of the task's handle and
+    the object is untouched (its distance within 1% of the initial one): hovering pays. The reward
+    still rises along the posed path to the goal (Spearman >= 0.9), so only the exploit check
+    catches it."""
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        raw = self.env.unwrapped
+        reading = raw.reading(action)
+        near = float(np.linalg.norm(reading.tcp - reading.obj)) < 0.05
+        if near and reading.distance >= 0.99 * raw.constants.distance_init:
+            reward += 5.0
+        return obs, reward, terminated, truncated, info
+
+
+class HoverPayingKitchen(FrankaKitchenDenseAdapter):
+    """The reward pays for hovering at the handle: fails the exploit check (exploit_ratio > 0.5)."""
+
+    name = "broken_hover_paying_kitchen"
+
+    def make(self, task: str, seed: int) -> gym.Env:
+        return _HoverPayingReward(super().make(task, seed))

@@ -7,6 +7,7 @@ test that edits its state starts with a seeded reset.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import pathlib
 import sys
@@ -211,24 +212,24 @@ def test_grip_effort_reads_the_finger_actions(a7: float, a8: float, effort: floa
     assert grip_effort(action) == pytest.approx(effort)
 
 
-def test_door_open_reward_by_hand() -> None:
+def test_door_open_reward_v2_by_hand() -> None:
     c = _constants(distance_init=0.35, threshold=0.05)
     # ready = 1 (gripper on the handle), grab = (1 + 1) / 2 = 1 -> 2 * hamacher(1, 1) = 2.
     # opened: d = (0.35 - 0.05) / 0.35 = 0.857143, 1 / ((3d)^2 + 1) = 1 / 7.612245 = 0.131367;
     # 0.8 * 0.131367 = 0.105094, no "trying" bonus (progress 0) -> 2 + 8 * 0.105094 = 2.840751
-    assert compute_reward("door-open", _reading(0.35, 1.0), c)[0] == pytest.approx(
+    assert compute_reward("door-open", _reading(0.35, 1.0), c, "v2")[0] == pytest.approx(
         2.840751, abs=1e-5
     )
     # moved 0.1 rad > pi/90 towards the goal: + 8 * 0.2 = 1.6 -> 4.440751
-    assert compute_reward("door-open", _reading(0.35, 1.0, progress=0.1), c)[0] == pytest.approx(
-        4.440751, abs=1e-5
-    )
+    assert compute_reward("door-open", _reading(0.35, 1.0, progress=0.1), c, "v2")[
+        0
+    ] == pytest.approx(4.440751, abs=1e-5)
     # fingers opening (effort -1): grab 0, hamacher(1, 0) = 0 -> 8 * 0.105094 = 0.840751
-    assert compute_reward("door-open", _reading(0.35, -1.0), c)[0] == pytest.approx(
+    assert compute_reward("door-open", _reading(0.35, -1.0), c, "v2")[0] == pytest.approx(
         0.840751, abs=1e-5
     )
     # within 5 cm of the goal: 10 whatever the gripper does
-    assert compute_reward("door-open", _reading(0.049, -1.0), c)[0] == 10.0
+    assert compute_reward("door-open", _reading(0.049, -1.0), c, "v2")[0] == 10.0
 
 
 def test_sweep_reward_v2_by_hand() -> None:
@@ -266,32 +267,109 @@ def test_dial_turn_reward_v2_by_hand() -> None:
     assert compute_reward("dial-turn", _reading(0.0, -1.0), c, "v2")[0] == pytest.approx(5.0)
 
 
-def test_push_reward_by_hand() -> None:
+def _v3_constants(distance_init: float, threshold: float, **kw: float) -> Constants:
+    """As `_constants`, with reward v3's geometry: reach margin 0.114 m (the burner knobs'
+    spacing), and the joint's travel = the initial distance (joint-measured tasks)."""
+    return dataclasses.replace(
+        _constants(distance_init, threshold, **kw), reach_margin=0.114, travel=distance_init
+    )
+
+
+@pytest.mark.parametrize("family", ["door-open", "sweep", "dial-turn", "push"])
+def test_v3_success_override_pays_10_with_the_gripper_gone(family: str) -> None:
+    c = _v3_constants(0.88, 0.3, obj_radius=0.02)
+    away = dataclasses.replace(_reading(0.29, -1.0), tcp=np.array([0.0, -1.0, 0.0]))
+    assert compute_reward(family, away, c, "v3")[0] == 10.0
+    if family == "dial-turn":  # v2's dial-turn had no override: a turned knob, gripper gone, ~0
+        assert compute_reward(family, away, c, "v2")[0] < 0.01
+
+
+def test_dial_turn_v3_reach_margin_at_the_knob_spacing() -> None:
+    c = _v3_constants(0.88, 0.3)
+    # on the knob, closing: reach 1; untouched knob: in_place = tail 0.1 -> 10 * H(1, 0.1) = 1.0
+    assert compute_reward("dial-turn", _reading(0.88, 1.0), c, "v3")[0] == pytest.approx(1.0)
+    # the gripper at bounds + margin = 0.005 + 0.114 = 0.119 m from the knob: long tail 0.1 (the
+    # neighbouring knob's distance); closing, reach = (0.1 + H(0.1, 1)) / 2 = 0.1
+    far = dataclasses.replace(_reading(0.88, 1.0), tcp=np.array([0.0, -0.119, 0.0]))
+    assert compute_reward("dial-turn", far, c, "v3")[1]["grasp_reward"] == pytest.approx(0.1)
+    # 27 cm away (where the v2 policy parked): 1 / ((0.265 * 3 / 0.114)^2 + 1) = 0.020147,
+    # 10 * H(0.020147, 0.1) = 10 * 0.002015 / 0.118132 = 0.1706 (v2 paid 0.93 there)
+    parked = dataclasses.replace(_reading(0.88, 1.0), tcp=np.array([0.0, -0.27, 0.0]))
+    assert compute_reward("dial-turn", parked, c, "v3")[0] == pytest.approx(0.1706, abs=1e-3)
+
+
+def test_sweep_v3_caging_margins_at_the_geometry() -> None:
+    c = _v3_constants(0.69, 0.3, obj_radius=0.02)
+    # lever caged (pads 0.025): grasped 1; in_place = tail 0.1 -> 2 + 6 * H(1, 0.1) = 2.6 (v2: 3.55)
+    assert compute_reward("sweep", _reading(0.69, 1.0), c, "v3")[0] == pytest.approx(2.6)
+    # gripper centred, pads 0.05 + 0.114 away: each pad's caging at its margin, 0.1;
+    # caging = H(0.01 / 0.19, 1) = 0.052632, below 0.95: grasped = 0.052632 / 2 = 0.026316
+    wide = _reading(0.69, 1.0, gap=0.164)
+    assert compute_reward("sweep", wide, c, "v3")[1]["grasp_reward"] == pytest.approx(
+        0.026316, abs=1e-5
+    )
+
+
+@pytest.mark.parametrize("family", ["door-open", "dial-turn", "push"])
+def test_v3_holding_the_untouched_object_pays_1_per_step(family: str) -> None:
+    c = _v3_constants(0.37, 0.05)
+    # contact 1 (on the handle, closing), in_place = tail 0.1: 10 * H(1, 0.1) = 1.0
+    assert compute_reward(family, _reading(0.37, 1.0), c, "v3")[0] == pytest.approx(1.0)
+
+
+def test_v3_past_the_goal_reads_as_untouched() -> None:
+    c = _v3_constants(0.88, 0.3)
+    untouched = compute_reward("dial-turn", _reading(0.88, 1.0), c, "v3")[0]
+    # the knob turned 0.88 + 0.35 rad: 0.35 past its goal, out of the 0.3 band
+    past = _reading(0.35, 1.0, progress=0.88 + 0.35)
+    assert compute_reward("dial-turn", past, c, "v3")[0] == pytest.approx(untouched)
+    assert compute_reward("dial-turn", past, c, "v2")[0] > 9.0  # v2 paid nearly the success's 10
+    # inside the band, past the goal: still a success
+    assert compute_reward("dial-turn", _reading(0.2, 1.0, progress=1.08), c, "v3")[0] == 10.0
+
+
+@pytest.mark.parametrize(
+    ("task", "margin"), [("bottom-left-burner", 0.114), ("light-switch", 0.127)]
+)
+def test_v3_reach_margin_is_the_nearest_other_tasks_site(
+    kitchen: Callable[[str], FrankaKitchenDenseEnv], task: str, margin: float
+) -> None:
+    # knobs 0.114 m apart (top-bottom, 2.340 - 2.226 m); the switch 0.127 m from the bottom-left knob
+    assert kitchen(task).constants.reach_margin == pytest.approx(margin, abs=1e-3)
+
+
+def test_push_reward_v2_by_hand() -> None:
     c = _constants(distance_init=0.37, threshold=0.05)
     # caging 1 (pads 0.025 in (0.015, 0.05), centred) > 0.97 so gripping = effort 1: grasped 1.
     # in_place: d = 0.32 / 0.37 = 0.864865, 1 / ((3d)^2 + 1) = 1 / 7.731921 = 0.129334
     # near the handle and open: 2 + (1 + 2 + 5 * 0.129334) = 5.646671
-    assert compute_reward("push", _reading(0.37, 1.0), c)[0] == pytest.approx(5.646671, abs=1e-5)
+    assert compute_reward("push", _reading(0.37, 1.0), c, "v2")[0] == pytest.approx(
+        5.646671, abs=1e-5
+    )
     # effort 0: gripping 0, grasped = (hamacher(1, 0) + 1) / 2 = 0.5 -> 1 + (1 + 1 + 0.646671) = 3.646671
-    assert compute_reward("push", _reading(0.37, 0.0), c)[0] == pytest.approx(3.646671, abs=1e-5)
+    assert compute_reward("push", _reading(0.37, 0.0), c, "v2")[0] == pytest.approx(
+        3.646671, abs=1e-5
+    )
     # fingers shut (opening 0): no bonus, 2 * grasped = 2
-    assert compute_reward("push", _reading(0.37, 1.0, opening=0.0), c)[0] == pytest.approx(2.0)
-    assert compute_reward("push", _reading(0.04, 1.0), c)[0] == 10.0
+    assert compute_reward("push", _reading(0.37, 1.0, opening=0.0), c, "v2")[0] == pytest.approx(
+        2.0
+    )
+    assert compute_reward("push", _reading(0.04, 1.0), c, "v2")[0] == 10.0
 
 
-def test_pick_place_reward_by_hand() -> None:
+def test_pick_place_reward_v2_by_hand() -> None:
     c = _constants(distance_init=0.4, threshold=0.05)
     # grasped 1 (as push); in_place: d = 0.35 / 0.4 = 0.875, 1 / ((3d)^2 + 1) = 1 / 7.890625 = 0.126733
     # kettle not lifted: hamacher(1, 0.126733) = 0.126733
-    assert compute_reward("pick-place", _reading(0.4, 1.0), c)[0] == pytest.approx(
+    assert compute_reward("pick-place", _reading(0.4, 1.0), c, "v2")[0] == pytest.approx(
         0.126733, abs=1e-5
     )
     # lifted 2 cm (> 1 cm) with the gripper on it: + 1 + 5 * 0.126733 = 1.760396
     lifted = np.array([0.0, 0.0, 0.02])
-    assert compute_reward("pick-place", _reading(0.4, 1.0, obj=lifted), c)[0] == pytest.approx(
-        1.760396, abs=1e-5
-    )
-    assert compute_reward("pick-place", _reading(0.04, 1.0), c)[0] == 10.0
+    assert compute_reward("pick-place", _reading(0.4, 1.0, obj=lifted), c, "v2")[
+        0
+    ] == pytest.approx(1.760396, abs=1e-5)
+    assert compute_reward("pick-place", _reading(0.04, 1.0), c, "v2")[0] == 10.0
 
 
 def test_slide_cabinet_reset_reward_in_the_env(
@@ -411,3 +489,21 @@ def test_broken_kitchen_adapters_fail_the_semantic_check() -> None:
         "right-hinge-door", seed=0
     )
     assert blind["ok"] is False and blind["goal_reward"] < 9.0 and blind["spearman"] < 0.0
+
+
+def test_the_exploit_check_fails_a_reward_that_pays_for_hovering() -> None:
+    sys.path.insert(0, str(pathlib.Path(__file__).parent))
+    try:
+        from broken_adapters import HoverPayingKitchen
+    finally:
+        sys.path.pop(0)
+    broken = HoverPayingKitchen(tasks=["bottom-left-burner"]).semantic_check(
+        "bottom-left-burner", seed=0, episodes=2
+    )
+    assert broken["spearman"] >= 0.9 and broken["scripted_success"] == 1.0  # all else passes ...
+    assert broken["exploit_ratio"] > 0.5 and broken["ok"] is False  # ... but hovering pays
+    assert broken["exploit_best"] in ("hover", "parking", "oscillate")
+    honest = FrankaKitchenDenseAdapter(tasks=["bottom-left-burner"]).semantic_check(
+        "bottom-left-burner", seed=0, episodes=2
+    )
+    assert honest["ok"] is True and honest["exploit_ratio"] <= 0.5
