@@ -619,3 +619,25 @@ def test_seeds_run_one_at_a_time_make_one_column(tmp_path: Path) -> None:
     # Without a Single Env column the cell still shows its change against the matched arm.
     md = (tmp_path / "out" / "tables" / "update_counts.md").read_text()
     assert "**0.02667 ± 0.01155 (-50.0% [-66.7, -33.3] vs matched)** [3/3]" in md
+
+
+def test_reward_versions_are_compared_only_for_adapters_the_runs_have(
+    tmp_path: Path, groups: dict[str, Path]
+) -> None:
+    def record(group: Path, version: str) -> None:
+        for provenance in group.glob("seed-*/provenance.json"):
+            data = json.loads(provenance.read_text())
+            data["reward_versions"] = {"franka_kitchen_dense": version}
+            provenance.write_text(json.dumps(data))
+
+    # Older runs recorded the kitchen's version whatever they ran: baseline_mw has no kitchen.
+    record(groups["baseline_mw"], "v2")
+    record(groups["baseline_fk"], "v3")
+    record(groups["high_fk"], "v3")
+    result = report(
+        [groups["baseline_mw"], groups["baseline_fk"], groups["high_fk"]], out=tmp_path / "o"
+    )
+    assert not any("reward version" in w for w in result.warnings)
+    record(groups["high_fk"], "v2")
+    result = report([groups["baseline_fk"], groups["high_fk"]], out=tmp_path / "o2")
+    assert any("reward version of franka_kitchen_dense" in w for w in result.warnings)

@@ -252,7 +252,14 @@ def _comparability_warnings(groups: Sequence[_Group]) -> list[str]:
             if value is not None:
                 seen.setdefault(f"{table}.{key}", {}).setdefault(str(value), []).append(group.name)
         versions = run.provenance.get("reward_versions") or {}
+        # Only adapters the run has: older runs recorded the kitchen's version whatever they ran.
+        adapters = {
+            (table.get("adapter") or name) if isinstance(table, dict) else name
+            for name, table in run.config.get("envs", {}).items()
+        }
         for env, version in versions.items() if isinstance(versions, dict) else ():
+            if env not in adapters:
+                continue
             seen.setdefault(f"reward version of {env}", {}).setdefault(str(version), []).append(
                 group.name
             )
