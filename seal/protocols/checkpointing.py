@@ -45,6 +45,8 @@ class RunnerFields(TypedDict):
     """random.getstate() (lists instead of tuples once read back)."""
     finished_phases: dict[str, dict[str, Any]]
     """Phase name -> `dataclasses.asdict` of its final `PhaseState`."""
+    pending_evaluations: list[dict[str, Any]]
+    """`PendingEvaluation.fields` of the asynchronous evaluations not yet written (resume re-runs them)."""
 
 
 class CheckpointFields(TypedDict):
@@ -110,8 +112,12 @@ class Checkpointer(LoopCallback):
         return self.run.rundir
 
     def write_best(self, loop: PhaseLoop) -> None:
+        assert loop.evaluated is not None
         fields: BestFields = {**self._fields(loop, best=True), "scheduler": None, "runner": None}
-        save_checkpoint(self.rundir.best_path(self._label(loop)), loop.agent, fields=fields)
+        # The agent evaluated: the live one, or an asynchronous evaluation's snapshot.
+        save_checkpoint(
+            self.rundir.best_path(self._label(loop)), loop.evaluated.agent, fields=fields
+        )
 
     def write_checkpoint(self, loop: PhaseLoop) -> None:
         state, checkpoint = loop.state, self.run.config.checkpoint
@@ -125,6 +131,7 @@ class Checkpointer(LoopCallback):
                 "torch_rng": torch.get_rng_state(),
                 "py_rng": random.getstate(),
                 "finished_phases": {k: dataclasses.asdict(v) for k, v in self.run.results.items()},
+                "pending_evaluations": [p.fields() for p in loop.pending],
             },
         }
         replay = loop.replay if checkpoint.save_replay else None
@@ -146,7 +153,7 @@ class Checkpointer(LoopCallback):
             "seed": self.run.seed,
             "phase": loop.phase.name,
             "phase_envs": list(loop.phase.envs),
-            "epoch": loop.state.epoch,
+            "epoch": loop.evaluated.epoch if best and loop.evaluated else loop.state.epoch,
             "best": best,
             "mean_success": loop.state.best_mean_success,
         }

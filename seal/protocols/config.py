@@ -145,6 +145,18 @@ class EvaluationConfig:
     """Success rate at which a task counts as learned for the update-count metric."""
     stop_when_reached: bool = False
     """End each phase at the first evaluation at which every task has reached `threshold` (its update count is then fixed); for learning checks."""
+    mode: Literal["sync", "async"] = "sync"
+    """"sync": evaluate with training stopped, as the paper's loop; "async": a worker process evaluates a snapshot while training goes on (the same rows, written when they come back).
+
+    sync is the default because the worker needs cores of its own: on a machine with few
+    (measured on 2 cores, docs/benchmarks.md) it competes with training, and async pays off only
+    where cores are spare. Asynchronous evaluation uses the same deterministic policy, seeded
+    episodes and consumed-update counts, so the rows are those of a synchronous evaluation of the
+    same snapshot; a scheduler that reads evaluations (the curricula) gets each before its next
+    plan. With `stop_when_reached` the phase ends at the first epoch end after the deciding
+    result comes back, so it trains a little longer than a synchronous run (its rows and update
+    counts are the same).
+    """
 
 
 @with_config(SCHEMA)

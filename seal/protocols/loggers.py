@@ -76,7 +76,8 @@ class ScalarLogger(LoopCallback):
         """End the logger (the `Run` calls this once, after its last phase)."""
 
     def on_evaluation(self, loop: PhaseLoop) -> None:
-        self.write(eval_scalars(loop), loop.state.grad_steps, loop)
+        assert loop.evaluated is not None
+        self.write(eval_scalars(loop), loop.evaluated.grad_steps, loop)
 
     def on_train_log(self, loop: PhaseLoop, rows: Sequence[TrainRow]) -> None:
         if rows:
@@ -118,13 +119,14 @@ class AlignmentLogger(ScalarLogger):
     def on_evaluation(self, loop: PhaseLoop) -> None:
         from seal.learner.probes import shared_world_cka
 
-        model, state = loop.model, loop.state
+        model, evaluated = loop.model, loop.evaluated
         envs = (self.world_env, self.view_env)
-        if loop.phase.aligned or not set(envs) <= set(loop.phase.envs):
+        if loop.phase.aligned or not set(envs) <= set(loop.phase.envs) or evaluated is None:
             return
+        agent = evaluated.agent  # the policy evaluated (an asynchronous evaluation's snapshot)
         cka = shared_world_cka(
-            *(loop.agent, model.agent_env[self.world_env], model.adapters[self.world_env]),
-            *(loop.agent, model.agent_env[self.view_env], model.adapters[self.view_env]),
+            *(agent, model.agent_env[self.world_env], model.adapters[self.world_env]),
+            *(agent, model.agent_env[self.view_env], model.adapters[self.view_env]),
             n=ALIGNMENT_STATES,
             seed=ALIGNMENT_SEED,
         )
@@ -132,8 +134,8 @@ class AlignmentLogger(ScalarLogger):
             {
                 "seed": loop.owner.seed,
                 "phase": loop.phase.name,
-                "epoch": state.epoch,
-                "grad_steps": state.grad_steps,
+                "epoch": evaluated.epoch,
+                "grad_steps": evaluated.grad_steps,
                 "env": self.view_env,
                 "key": f"alignment/cka_{part}",
                 "value": value,

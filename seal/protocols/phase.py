@@ -15,7 +15,7 @@ import random
 import sys
 import time
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -27,6 +27,7 @@ from seal.envs.base import EnvAdapter
 from seal.errors import SealError, TrainingDivergedError
 from seal.evaluation import AgentPolicy, evaluate, mean_success, reaches
 from seal.protocols.config import ProtocolConfig
+from seal.protocols.evaluator import EvaluationWorker, PendingEvaluation, Results, cpu_copy
 
 if TYPE_CHECKING:
     from tqdm import tqdm
@@ -134,6 +135,39 @@ class PhaseModel:
         if self.alignment is None:
             return np.arange(len(self.env_tasks[env]))
         return self.alignment.task_ids(self.adapters[env].name)
+
+
+def build_eval_collector(config: ProtocolConfig, model: PhaseModel, seed: int) -> Collector:
+    """Evaluation's instances of a phase, several per task, seeded from (run seed, phase) only:
+    every evaluation episode resets with a seed of its own (from its draw), so they need no
+    re-seeding at checkpoints and a resumed run evaluates exactly as the original did."""
+    from seal.learner.collection import evaluation_replicas
+
+    count = sum(len(ts) for ts in model.env_tasks.values())
+    return config.training.build_collector(
+        model.adapters,
+        derive_seed(seed, "eval", model.phase.index),
+        replicas=evaluation_replicas(config.evaluation.episodes, count),
+    )
+
+
+class Evaluated:
+    """The policy the latest evaluation ran: its epoch, gradient steps and agent.
+
+    Synchronous evaluation ran the live agent; asynchronous evaluation a snapshot, which
+    `agent` loads into an agent of its own only when asked (best.pt, the alignment logger).
+    """
+
+    def __init__(self, epoch: int, grad_steps: int, agent: Agent | Callable[[], Agent]) -> None:
+        self.epoch, self.grad_steps = epoch, grad_steps
+        self._agent = agent
+
+    @property
+    def agent(self) -> Agent:
+        """The agent evaluated (weights as they were at the evaluation)."""
+        if callable(self._agent) and not hasattr(self._agent, "state_dict"):
+            self._agent = self._agent()
+        return self._agent  # type: ignore[return-value]
 
 
 # ---------------------------------------------------------------- one phase
@@ -274,6 +308,25 @@ class PhaseLoop:
         self.collector: Collector = self._new_collector(self.state.anchor_epoch)
         self.eval_collector: Collector | None = None
         """Evaluation's own env instances, several per task (built at the first evaluation)."""
+        self.evaluator: EvaluationWorker | None = None
+        """evaluation.mode = "async": the worker process that evaluates snapshots (`run` starts it)."""
+        self.pending: list[PendingEvaluation] = (
+            []
+            if payload is None
+            else [
+                PendingEvaluation.from_fields(f)
+                for f in payload["runner"].get("pending_evaluations", [])
+            ]
+        )
+        """Evaluations handed to the worker whose rows are not written yet, oldest first."""
+        self.evaluated: Evaluated | None = None
+        """The policy of the latest evaluation whose results are in (`write_best`, `on_evaluation`)."""
+        self._snapshot_agent: Agent | None = None
+        from seal.schedulers.base import Scheduler as SchedulerBase
+
+        # A scheduler that reads evaluations sees each one before its next plan, as it would
+        # synchronously (asynchronous evaluation then waits for results before planning).
+        self._reads_eval = type(self.scheduler).observe_eval is not SchedulerBase.observe_eval
         if payload is None and cfg.training.demo_episodes:
             since = time.perf_counter()
             self.state.demos = self._demonstrations()
@@ -304,19 +357,9 @@ class PhaseLoop:
         return self.cfg.training.build_collector(self.model.adapters, seed, backend=backend)
 
     def _eval_collector(self) -> Collector:
-        """Evaluation's instances, seeded from (seed, phase) only: every evaluation episode resets
-        with a seed of its own (from `draw`), so they need no re-seeding at checkpoints and a
-        resumed run evaluates exactly as the original did."""
+        """Evaluation's instances (`build_eval_collector`), built at the first evaluation."""
         if self.eval_collector is None:
-            from seal.learner.collection import evaluation_replicas
-
-            episodes = self.cfg.evaluation.episodes
-            count = sum(len(ts) for ts in self.collector.tasks.values())
-            self.eval_collector = self.cfg.training.build_collector(
-                self.model.adapters,
-                derive_seed(self.owner.seed, "eval", self.phase.index),
-                replicas=evaluation_replicas(episodes, count),
-            )
+            self.eval_collector = build_eval_collector(self.cfg, self.model, self.owner.seed)
         return self.eval_collector
 
     def _restore(self, payload: EpochCheckpoint) -> None:
@@ -349,6 +392,14 @@ class PhaseLoop:
         for callback in self.callbacks:
             callback.on_phase_start(self)
         try:
+            if self.cfg.evaluation.mode == "async" or self.pending:
+                self.evaluator = EvaluationWorker(
+                    self.cfg, self.phase, self.owner.seed, self.owner.device
+                )
+                for (
+                    pending
+                ) in self.pending:  # a resumed run re-runs what its checkpoint left pending
+                    self.evaluator.submit(pending.draw, pending.agent)
             while self.state.epoch < self.phase.epochs and not self.all_reached():
                 plan = self._plan()
                 if plan.reset_agent:
@@ -364,6 +415,8 @@ class PhaseLoop:
             self.collector.close()
             if self.eval_collector is not None:
                 self.eval_collector.close()
+            if self.evaluator is not None:
+                self.evaluator.close()
             for callback in self.callbacks:
                 callback.on_phase_end(self)
         return self.state
@@ -371,6 +424,8 @@ class PhaseLoop:
     def _plan(self) -> Plan:
         from seal.schedulers import Progress
 
+        if self._reads_eval:
+            self._finish_evaluations(wait=True)
         state = self.state
         task_steps = {
             (e, t): state.env_steps[e][i]
@@ -554,50 +609,96 @@ class PhaseLoop:
         ]
 
     def _evaluate(self) -> None:
-        """Appendix B's evaluation: metrics.csv rows, first crossings, best.pt, then the callbacks."""
+        """Appendix B's evaluation: metrics.csv rows, first crossings, best.pt, then the callbacks.
+
+        Synchronous (`evaluation.mode = "sync"`): here and now, training stopped. Asynchronous:
+        a snapshot goes to the worker (`seal.protocols.evaluator`) and its results are recorded
+        when they come back (`_finish_evaluations`); the loop waits only for the previous one.
+        """
         self._read_logs()
         since = time.perf_counter()
-        cfg, state, model, phase, owner = self.cfg, self.state, self.model, self.phase, self.owner
+        state, agent = self.state, self.agent
         state.evaluated_at = state.grad_steps
-        with torch_threads(ACTING_THREADS):
-            results = evaluate(
-                self.eval_policy,
-                model.adapters,
-                episodes=cfg.evaluation.episodes,
-                seed=0,
-                collector=self._eval_collector(),
-                draw=state.grad_steps,  # one evaluation per grad-step count: its own episode seeds
+        if self.evaluator is None:
+            with torch_threads(ACTING_THREADS):
+                results = evaluate(
+                    self.eval_policy,
+                    self.model.adapters,
+                    episodes=self.cfg.evaluation.episodes,
+                    seed=0,
+                    collector=self._eval_collector(),
+                    draw=state.grad_steps,  # one evaluation per grad-step count: its own episode seeds
+                )
+            self.evaluated = Evaluated(state.epoch, state.grad_steps, agent)
+            self._record_evaluation(self._eval_rows(), results)
+            state.add_time("evaluate", since)
+            for callback in self.callbacks:
+                callback.on_evaluation(self)
+            return
+        self._finish_evaluations(wait=True)  # one in flight at most, so rows stay in order
+        if not self.all_reached():  # a synchronous run would have stopped at that result
+            pending = PendingEvaluation(
+                draw=state.grad_steps,
+                epoch=state.epoch,
+                grad_steps=state.grad_steps,
+                rows=self._eval_rows(),
+                agent=cpu_copy(agent.state_dict()),
             )
-        rows = self._eval_rows(results)
-        owner.rundir.log_eval(rows)
+            self.pending.append(pending)
+            self.evaluator.submit(pending.draw, pending.agent)
+        state.add_time("evaluate", since)
+
+    def _finish_evaluations(self, wait: bool) -> None:
+        """Record the asynchronous evaluations whose results are in (all of them with `wait`), oldest first."""
+        evaluator = self.evaluator
+        while self.pending and evaluator is not None and (wait or evaluator.done()):
+            since = time.perf_counter()
+            results = evaluator.result()
+            pending = self.pending.pop(0)
+            self.evaluated = Evaluated(
+                pending.epoch, pending.grad_steps, lambda p=pending: self._load_snapshot(p)
+            )
+            self._record_evaluation(pending.rows, results)
+            self.state.seconds["evaluate"] = (
+                self.state.seconds.get("evaluate", 0.0) + time.perf_counter() - since
+            )
+            for callback in self.callbacks:
+                callback.on_evaluation(self)
+
+    def _load_snapshot(self, pending: PendingEvaluation) -> Agent:
+        """An agent (one per phase, reused) holding an asynchronous evaluation's snapshot."""
+        if self._snapshot_agent is None:
+            config = dataclasses.replace(self.owner.agent_cfg, compile=False)
+            self._snapshot_agent = config.build(self.model.specs, 0)
+        self._snapshot_agent.load_state_dict(pending.agent)
+        return self._snapshot_agent
+
+    def _record_evaluation(self, rows: list[MetricsRow], results: Results) -> None:
+        """Write an evaluation's rows and pass it on: first crossings, scheduler, best.pt."""
+        state, model, phase = self.state, self.model, self.phase
+        rows = self._fill_rows(rows, results)
+        self.owner.rundir.log_eval(rows)
         self.last_rows = rows
         state.last_success = {
             e: {t: results[e][t]["success"] for t in model.env_tasks[e]} for e in phase.envs
         }
+        assert self.evaluated is not None
         self.scheduler.observe_eval(
-            state.epoch, {(r["env"], r["task"]): r["success"] for r in rows}
+            self.evaluated.epoch, {(r["env"], r["task"]): r["success"] for r in rows}
         )
         mean = mean_success(results)
         if mean > state.best_mean_success:
             state.best_mean_success = mean
             for callback in self.callbacks:
                 callback.write_best(self)  # best.pt (the Checkpointer): evaluation time
-        state.add_time("evaluate", since)
-        for callback in self.callbacks:
-            callback.on_evaluation(self)
 
-    def _eval_rows(
-        self, results: Mapping[str, Mapping[str, Mapping[str, float]]]
-    ) -> list[MetricsRow]:
-        """metrics.csv rows of one evaluation; records each task's first crossing in `state.reached`."""
+    def _eval_rows(self) -> list[MetricsRow]:
+        """metrics.csv rows of an evaluation of the agent as it is now, success and return to come."""
         state, model, batch = self.state, self.model, self.batch_now
-        wall = time.monotonic() - self.started
         rows: list[MetricsRow] = []
         for env in self.phase.envs:
             consumed = np.asarray(self.replay.consumed[model.agent_env[env]], dtype=np.int64)
             for i, task in enumerate(model.env_tasks[env]):
-                r = results[env][task]
-                updates = float(consumed[i]) / 1e6
                 rows.append(
                     {
                         "seed": self.owner.seed,
@@ -605,19 +706,30 @@ class PhaseLoop:
                         "epoch": state.epoch,
                         "env": env,
                         "task": task,
-                        "success": r["success"],
-                        "return": r["return"],
+                        "success": 0.0,
+                        "return": 0.0,
                         "grad_steps": state.grad_steps,
                         "env_steps": state.env_steps[env][i],
-                        "updates": updates,
+                        "updates": float(consumed[i]) / 1e6,
                         "batch": int(batch[env][i]) if env in batch else 0,
-                        "wall_s": round(wall, 3),
+                        "wall_s": 0.0,
                     }
                 )
-                first = task not in state.reached.get(env, {})
-                if first and reaches(r["success"], self.cfg.evaluation.threshold):
-                    state.reached.setdefault(env, {})[task] = updates
         return rows
+
+    def _fill_rows(self, rows: list[MetricsRow], results: Results) -> list[MetricsRow]:
+        """`rows` with an evaluation's results and the wall time now; records first crossings in `state.reached`."""
+        state = self.state
+        wall = round(time.monotonic() - self.started, 3)
+        filled: list[MetricsRow] = []
+        for row in rows:
+            env, task = row["env"], row["task"]
+            r = results[env][task]
+            filled.append({**row, "success": r["success"], "return": r["return"], "wall_s": wall})
+            first = task not in state.reached.get(env, {})
+            if first and reaches(r["success"], self.cfg.evaluation.threshold):
+                state.reached.setdefault(env, {})[task] = row["updates"]
+        return filled
 
     def _scores(self, request: ScoreRequest, epoch: int) -> dict[tuple[str, str], float]:
         """SMT Eq. 5 scores: mean over episodes of sum_t gamma^t r_t - log pi(a_t|s_t) (stochastic policy).
@@ -674,6 +786,7 @@ class PhaseLoop:
     def _end_epoch(self) -> bool:
         """Training curves, evaluation, scheduler scores and timeline, checkpoint; whether the phase ends."""
         run, state, cfg, scheduler = self.owner, self.state, self.cfg, self.scheduler
+        self._finish_evaluations(wait=False)
         state.epoch += 1
         epoch = state.epoch
         last_epoch = epoch >= self.phase.epochs or scheduler.done
@@ -693,6 +806,8 @@ class PhaseLoop:
         request = scheduler.wants_scores()
         if request is not None:
             scheduler.observe_scores(self._scores(request, epoch))
+        if last_epoch or self.all_reached():
+            self._finish_evaluations(wait=True)  # the phase's results are complete at its end
         last_epoch = last_epoch or self.all_reached()
         timeline = scheduler.timeline()
         if len(timeline) > state.timeline_rows:

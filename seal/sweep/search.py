@@ -149,8 +149,8 @@ class TuneReporter(LoopCallback):
         self._report(
             sum(float(r["success"]) for r in rows) / len(rows),
             sum(float(r["return"]) for r in rows) / len(rows),
-            loop.state.epoch,
-            loop.state.grad_steps,
+            int(rows[0]["epoch"]),
+            int(rows[0]["grad_steps"]),
             loop.phase.name,
         )
 
