@@ -58,6 +58,7 @@ def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() ->
     for name, config in configs.items():
         assert config.kind == "baseline" and config.envs["fk"].adapter == "franka_kitchen_dense"
         assert config.evaluation.stop_when_reached, name
+        assert config.envs["fk"].options == {"reward_version": "v3"}, name
         # 535 epochs x 280 steps = 149,800 env steps: within the 150k budget.
         assert config.protocol.epochs * config.envs["fk"].episode_length == 149_800
     for task in ("slide_cabinet", "light_switch", "bottom_left_burner"):

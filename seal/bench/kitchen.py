@@ -45,8 +45,7 @@ ARMS: tuple[Arm, ...] = (
     _arm("microwave", "microwave"),
     _arm("bottom_right_burner", "bottom-right-burner"),
 )
-"""The arms; those without demonstrations run reward v3, those with them reward v2 (their recorded
-results), each pinned by its protocol's `options.reward_version`."""
+"""The arms, each pinned to reward v3 by its protocol's `options.reward_version`."""
 
 
 def arms(only: Sequence[str] | None = None) -> list[Arm]:
