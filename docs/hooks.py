@@ -1,6 +1,8 @@
 """MkDocs hooks: pages generated from the sources they document, so the two cannot drift.
 
 - `kitchen.md` is `envs/franka_kitchen_dense/README.md`, the kitchen's own documentation.
+- `<!-- include-python: PATH -->` becomes the Python file at docs/PATH as a code block (so the
+  worked adapter example on the page is the file its test runs).
 - In `protocols.md`, `<!-- protocol-keys -->` becomes one table per protocol TOML table, built
   from the config dataclasses' field docstrings through `seal.typed_config.field_docs`, the same
   function `seal protocol explain` reads.
@@ -10,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import html
+import re
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +20,9 @@ from mkdocs.structure.files import File, Files
 
 ROOT = Path(__file__).resolve().parents[1]
 KITCHEN_README = ROOT / "envs" / "franka_kitchen_dense" / "README.md"
+DOCS = ROOT / "docs"
 MARKER = "<!-- protocol-keys -->"
+INCLUDE = re.compile(r"<!-- include-python: (\S+) -->")
 
 
 def on_files(files: Files, config: Any) -> Files:
@@ -27,7 +32,12 @@ def on_files(files: Files, config: Any) -> Files:
 
 
 def on_page_markdown(markdown: str, page: Any, config: Any, files: Files) -> str:
-    """Fill the protocol-keys marker of protocols.md."""
+    """Fill the protocol-keys marker of protocols.md and the include-python markers."""
+
+    def include(match: re.Match[str]) -> str:
+        return "```python\n" + (DOCS / match.group(1)).read_text().rstrip() + "\n```"
+
+    markdown = INCLUDE.sub(include, markdown)
     if MARKER not in markdown:
         return markdown
     return markdown.replace(MARKER, protocol_keys_markdown())
