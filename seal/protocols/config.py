@@ -111,6 +111,17 @@ class TrainingConfig:
     nor toward the env-step counts, and they count as consumed updates only when sampled.
     """
 
+    overlap: bool = False
+    """Collect beside the updates (actor-learner): each epoch's episodes are collected in a worker process with the policy as it was before the epoch's updates, while those updates train on the replay up to the previous epoch's episodes.
+
+    Against the paper's serial loop (collect, then update on what was just collected) the policy
+    that collects lags one epoch, and the updates start one epoch later (the first epoch after
+    the warm-up has nothing collected before it to train on). Each epoch takes as many gradient
+    steps as the episodes it trains on (`grad_steps_per_epoch`). Deterministic and resumable
+    exactly like the serial loop (the worker's instances are seeded as the loop's, its action
+    noise from (seed, phase, epoch)), but not the same run: off (the paper's loop) by default.
+    """
+
     def build_collector(
         self,
         adapters: Mapping[str, EnvAdapter],

@@ -27,13 +27,19 @@ from seal.envs.base import EnvAdapter
 from seal.errors import SealError, TrainingDivergedError
 from seal.evaluation import AgentPolicy, evaluate, mean_success, reaches
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.evaluator import EvaluationWorker, PendingEvaluation, Results, cpu_copy
+from seal.protocols.workers import (
+    ActorWorker,
+    EvaluationWorker,
+    PendingEvaluation,
+    Results,
+    cpu_copy,
+)
 
 if TYPE_CHECKING:
     from tqdm import tqdm
 
     from seal.envs.alignment import Alignment
-    from seal.learner.collection import Collector
+    from seal.learner.collection import Collector, EpisodeStats
     from seal.learner.replay import MultiTaskReplay
     from seal.learner.sac import Agent
     from seal.protocols.checkpointing import EpochCheckpoint
@@ -199,6 +205,8 @@ class PhaseState:
     """How many times each part ran (update: gradient steps; evaluate: evaluations)."""
     demos: dict[str, dict[str, float]] = field(default_factory=dict)
     """env -> demonstration figures (episodes, env steps, expert success rate) put in the replay at the phase's start."""
+    collected_lengths: dict[str, int] = field(default_factory=dict)
+    """training.overlap: env -> the longest episode of the last collection, which the next epoch's updates train on."""
     evaluated_at: int = -1
     """Gradient steps at the last evaluation (an evaluation every K steps that falls on the last
     update of the run is not repeated at its end)."""
@@ -305,7 +313,11 @@ class PhaseLoop:
         self.state = PhaseState(env_steps={e: [0] * len(t) for e, t in model.env_tasks.items()})
         if payload is not None:
             self._restore(payload)
-        self.collector: Collector = self._new_collector(self.state.anchor_epoch)
+        self._collector: Collector | None = None
+        self._backend: str | None = None
+        self.actor: ActorWorker | None = None
+        """training.overlap: the worker process that collects beside the updates (`run` starts it)."""
+        self._actor_passes: list[tuple[bool, dict[str, np.ndarray]]] = []
         self.eval_collector: Collector | None = None
         """Evaluation's own env instances, several per task (built at the first evaluation)."""
         self.evaluator: EvaluationWorker | None = None
@@ -331,6 +343,8 @@ class PhaseLoop:
             since = time.perf_counter()
             self.state.demos = self._demonstrations()
             self.state.add_time("demos", since)
+            if cfg.training.overlap:
+                self._close_collector()  # the actor has training instances of its own
         self.id_maps = {
             model.agent_env[e]: torch.as_tensor(model.aligned_ids(e), dtype=torch.long)
             for e in phase.envs
@@ -347,6 +361,19 @@ class PhaseLoop:
         """Sums on the device of the agent's log values (by name tuple) since `_read_logs`."""
         self.pending_since = self.agent.num_updates
         self.callbacks = tuple(callbacks)
+
+    @property
+    def collector(self) -> Collector:
+        """The phase's training instances, built when first used after each checkpoint."""
+        if self._collector is None:
+            self._collector = self._new_collector(self.state.anchor_epoch, self._backend)
+        return self._collector
+
+    def _close_collector(self) -> None:
+        if self._collector is not None:
+            self._backend = self._collector.backend_name
+            self._collector.close()
+            self._collector = None
 
     def _new_collector(self, anchor: int, backend: str | None = None) -> Collector:
         """The phase's env instances, seeded from (seed, phase, epoch of the last checkpoint).
@@ -396,27 +423,35 @@ class PhaseLoop:
                 self.evaluator = EvaluationWorker(
                     self.cfg, self.phase, self.owner.seed, self.owner.device
                 )
-                for (
-                    pending
-                ) in self.pending:  # a resumed run re-runs what its checkpoint left pending
+                # A resumed run re-runs the evaluations its checkpoint left pending.
+                for pending in self.pending:
                     self.evaluator.submit(pending.draw, pending.agent)
+            if self.cfg.training.overlap:
+                self.actor = ActorWorker(self.cfg, self.phase, self.owner.seed, self.owner.device)
             while self.state.epoch < self.phase.epochs and not self.all_reached():
                 plan = self._plan()
                 if plan.reset_agent:
                     self.agent.reset_parameters()
-                lengths = self._collect(plan)
-                self._train(plan, lengths)
+                if self.actor is None:
+                    self._train(plan, self._collect(plan))
+                else:
+                    # Actor-learner: this epoch's episodes are collected with the policy as it
+                    # is now while the updates train on the replay up to the last epoch's.
+                    self._start_collection(plan)
+                    self._train(plan, self.state.collected_lengths)
+                    self.state.collected_lengths = self._finish_collection()
                 last_epoch = self._end_epoch()
                 for callback in self.callbacks:
                     callback.on_epoch_end(self)
                 if last_epoch:
                     break
         finally:
-            self.collector.close()
+            self._close_collector()
             if self.eval_collector is not None:
                 self.eval_collector.close()
-            if self.evaluator is not None:
-                self.evaluator.close()
+            for worker in (self.evaluator, self.actor):
+                if worker is not None:
+                    worker.close()
             for callback in self.callbacks:
                 callback.on_phase_end(self)
         return self.state
@@ -446,39 +481,81 @@ class PhaseLoop:
 
         Returns env -> the longest episode it collected (envs that collected nothing are absent).
         """
-        state, model, envs = self.state, self.model, self.phase.envs
         since = time.perf_counter()
-        warm = {e: sum(state.env_steps[e]) < self.cfg.training.warmup_steps for e in envs}
         lengths: dict[str, int] = {}
-        for random_actions in (True, False):
-            active = {
-                e: np.asarray(plan.collect[e], dtype=bool) & (warm[e] == random_actions)
-                for e in envs
-            }
-            if not any(m.any() for m in active.values()):
-                continue
+        for random_actions, active in self._passes(plan):
             with torch_threads(ACTING_THREADS):
                 stats = self.collector.collect_episodes(
                     None if random_actions else self.train_policy,
                     active=active,
                     random_actions=random_actions,
-                    sink=_ReplaySink(self.replay, model),
+                    sink=_ReplaySink(self.replay, self.model),
                 )
-            for e in envs:
-                idx = np.flatnonzero(active[e])
-                if not idx.size:
-                    continue
-                for i in idx:
-                    state.env_steps[e][i] += int(stats.lengths[e][i])
-                lengths[e] = int(stats.lengths[e][idx].max())
-                self.scheduler.observe_episodes(
-                    e,
-                    [model.env_tasks[e][i] for i in idx],
-                    [float(stats.returns[e][i]) for i in idx],
-                    [float(stats.successes[e][i]) for i in idx],
-                    [int(stats.lengths[e][i]) for i in idx],
-                )
-        state.add_time("collect", since)
+            self._observe_episodes(active, stats, lengths)
+        self.state.add_time("collect", since)
+        return lengths
+
+    def _passes(self, plan: Plan) -> list[tuple[bool, dict[str, np.ndarray]]]:
+        """The epoch's collection calls: (random actions, env -> which tasks collect), warm-up first."""
+        state, envs = self.state, self.phase.envs
+        warm = {e: sum(state.env_steps[e]) < self.cfg.training.warmup_steps for e in envs}
+        passes = []
+        for random_actions in (True, False):
+            active = {
+                e: np.asarray(plan.collect[e], dtype=bool) & (warm[e] == random_actions)
+                for e in envs
+            }
+            if any(m.any() for m in active.values()):
+                passes.append((random_actions, active))
+        return passes
+
+    def _observe_episodes(
+        self, active: Mapping[str, np.ndarray], stats: EpisodeStats, lengths: dict[str, int]
+    ) -> None:
+        """Count a collection call's env steps, tell the scheduler, and note each env's longest episode."""
+        state, model = self.state, self.model
+        for e in self.phase.envs:
+            idx = np.flatnonzero(active[e])
+            if not idx.size:
+                continue
+            for i in idx:
+                state.env_steps[e][i] += int(stats.lengths[e][i])
+            lengths[e] = int(stats.lengths[e][idx].max())
+            self.scheduler.observe_episodes(
+                e,
+                [model.env_tasks[e][i] for i in idx],
+                [float(stats.returns[e][i]) for i in idx],
+                [float(stats.successes[e][i]) for i in idx],
+                [int(stats.lengths[e][i]) for i in idx],
+            )
+
+    def _start_collection(self, plan: Plan) -> None:
+        """training.overlap: hand the epoch's collection to the actor, with the policy as it is now."""
+        assert self.actor is not None
+        passes = self._passes(plan)
+        self._actor_passes = passes
+        acting = any(not random_actions for random_actions, _ in passes)
+        self.actor.submit(
+            [(r, {e: m.tolist() for e, m in active.items()}) for r, active in passes],
+            anchor=self.state.anchor_epoch,
+            act_seed=derive_seed(self.owner.seed, "act", self.phase.index, self.state.epoch),
+            agent_state=cpu_copy(self.agent.state_dict()) if acting else None,
+        )
+
+    def _finish_collection(self) -> dict[str, int]:
+        """training.overlap: wait for the actor's episodes, add them to the replay in order and
+        count them; env -> the longest episode collected (the next epoch's updates train on them)."""
+        assert self.actor is not None
+        since = time.perf_counter()
+        sink = _ReplaySink(self.replay, self.model)
+        lengths: dict[str, int] = {}
+        for (_, active), (steps, stats) in zip(
+            self._actor_passes, self.actor.result(), strict=True
+        ):
+            for step in steps:
+                sink(*step)
+            self._observe_episodes(active, stats, lengths)
+        self.state.add_time("collect", since)
         return lengths
 
     def _train(self, plan: Plan, lengths: Mapping[str, int]) -> None:
@@ -612,7 +689,7 @@ class PhaseLoop:
         """Appendix B's evaluation: metrics.csv rows, first crossings, best.pt, then the callbacks.
 
         Synchronous (`evaluation.mode = "sync"`): here and now, training stopped. Asynchronous:
-        a snapshot goes to the worker (`seal.protocols.evaluator`) and its results are recorded
+        a snapshot goes to the worker (`seal.protocols.workers`) and its results are recorded
         when they come back (`_finish_evaluations`); the loop waits only for the previous one.
         """
         self._read_logs()
@@ -831,12 +908,11 @@ class PhaseLoop:
             callback.write_checkpoint(self)
         state.add_time("checkpoint", since)
         if reseed:
-            # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly.
-            # The rebuild keeps the backend "auto" resolved to (no second probe of step costs);
-            # results never depend on the backend, only speed does.
-            backend = self.collector.backend_name
-            self.collector.close()
-            self.collector = self._new_collector(state.epoch, backend)
+            # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly:
+            # the instances are rebuilt from the new anchor epoch when next used (by the actor,
+            # training.overlap, from the anchor it is sent). The rebuild keeps the backend "auto"
+            # resolved to (no second probe of step costs); results never depend on the backend.
+            self._close_collector()
 
 
 def _tuple_state(state: Any) -> Any:

@@ -80,6 +80,8 @@ def test_unknown_options_and_bad_values_are_one_line_errors() -> None:
     assert "valid options: gravity_compensation (true or false" in message
     with pytest.raises(SealError, match="gravity_compensation must be true or false, got 'yes'"):
         FrankaKitchenDenseAdapter(gravity_compensation="yes")
+    with pytest.raises(SealError, match="""reward_version must be "v2" or "v3", got 'v9'"""):
+        FrankaKitchenDenseAdapter(reward_version="v9")
 
 
 def test_the_expert_told_of_gravity_compensation_still_solves_the_slide() -> None:
@@ -102,7 +104,8 @@ def test_the_expert_told_of_gravity_compensation_still_solves_the_slide() -> Non
         (
             "gravity=true",
             "seal envs: error: adapter 'franka_kitchen_dense': unknown option(s) ['gravity']; "
-            "valid options: gravity_compensation (true or false, default false)",
+            "valid options: gravity_compensation (true or false, default false), "
+            'reward_version ("v2" or "v3", default "v3")',
         ),
         (
             "gravity",
