@@ -378,8 +378,15 @@ def test_slide_cabinet_reset_reward_in_the_env(
     """The env feeds the reward real geometry: in_place at reset, by hand from the initial distance."""
     env = kitchen("slide-cabinet")
     _, info = env.evaluate(ZERO)
-    # d = 1 - 0.05 / 0.370466 = 0.865034, 1 / ((3d)^2 + 1) = 1 / 7.734551 = 0.129290
-    assert info["in_place_reward"] == pytest.approx(0.129290, abs=1e-5)
+    # v3: margin = the travel 0.370466 - 0.05, so at the start d = 1 and in_place = 1 / (9 + 1) = 0.1
+    assert info["in_place_reward"] == pytest.approx(0.1, abs=1e-9)
+    assert env.constants.travel == pytest.approx(0.370466, abs=1e-5)
+    v2 = FrankaKitchenDenseEnv("slide-cabinet", seed=0, reward_version="v2")
+    v2.reset(seed=0)
+    # v2: margin = the initial distance: d = 1 - 0.05 / 0.370466 = 0.865034,
+    # 1 / ((3d)^2 + 1) = 1 / 7.734551 = 0.129290
+    assert v2.evaluate(ZERO)[1]["in_place_reward"] == pytest.approx(0.129290, abs=1e-5)
+    v2.close()
 
 
 def test_rewards_stay_in_range_under_random_actions(

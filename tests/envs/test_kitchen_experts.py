@@ -86,11 +86,11 @@ def test_reward_along_the_slide_experts_trajectory() -> None:
     """Seed 0 of the slide-cabinet expert, through an Opaque env, at three hand-picked steps.
 
     Steps 58 and 60: the gripper holds the handle (2 mm from its site, fingers on it, closing):
-    caging 1 and gripping 1, so grasped g = 1, and within the 2.2 cm gate the push reward is
-    2 g + 1 + 2 g + 5 in_place = 5 + 5 LT(d, 0.05, d0) with d0 = 0.370466 (test_kitchen.py):
-      step 58, d 0.26270: (0.2127 / 0.370466) * 3 = 1.722427 -> 1 / (1.722427^2 + 1) = 0.252095
-        -> 5 + 5 * 0.252095 = 6.2605
-      step 60, d 0.24013: 0.513223 * 3 = 1.539668 -> 0.296685 -> 6.4834
+    caging 1 and gripping 1, so grasped g = 1, and reward v3's push is 10 H(g, in_place) =
+    10 LT(d, 0.05, travel) with travel = d0 - 0.05 = 0.320466 (test_kitchen.py):
+      step 58, d 0.26270: (0.2127 / 0.320466) * 3 = 1.991163 -> 1 / (1.991163^2 + 1) = 0.201424
+        -> 2.0142
+      step 60, d 0.24013: (0.19013 / 0.320466) * 3 = 1.779877 -> 0.239925 -> 2.3993
     Step 77: the handle within 5 cm of its goal (d 0.04733): success, 10.
     """
     env = FrankaKitchenDenseAdapter(tasks=["slide-cabinet"]).make("slide-cabinet", 0)
@@ -102,7 +102,7 @@ def test_reward_along_the_slide_experts_trajectory() -> None:
         rewards[t], distances[t], successes[t] = reward, info["distance"], info["success"]
     env.close()
     assert distances[58] == pytest.approx(0.26270, abs=1e-4)
-    assert rewards[58] == pytest.approx(6.2605, abs=1e-3)
+    assert rewards[58] == pytest.approx(2.0142, abs=1e-3)
     assert distances[60] == pytest.approx(0.24013, abs=1e-4)
-    assert rewards[60] == pytest.approx(6.4834, abs=1e-3)
+    assert rewards[60] == pytest.approx(2.3993, abs=1e-3)
     assert successes[76] == 0.0 and successes[77] == 1.0 and rewards[77] == 10.0
