@@ -10,8 +10,8 @@ import torch
 
 from seal.learner.checkpoint import read_checkpoint
 from seal.protocols import load_protocol, resume_run, run_seed
-from seal.protocols.workers import EvaluationWorker
 from seal.protocols.phase import LoopCallback, PhaseLoop
+from seal.protocols.workers import EvaluationWorker
 
 # Evaluations every 2 epochs and checkpoints every 3: an evaluation is often in flight at a
 # checkpoint; the stepped scheduler changes the batch mid-run, so rows carry changing counts.
