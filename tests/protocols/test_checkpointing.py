@@ -82,7 +82,9 @@ def test_checkpoint_fields(tmp_path: Path) -> None:
         "torch_rng",
         "py_rng",
         "finished_phases",
+        "pending_evaluations",
     }
+    assert epoch["runner"]["pending_evaluations"] == []  # synchronous evaluation leaves none
     assert epoch["runner"]["state"]["anchor_epoch"] == 2
     assert epoch["runner"]["rows"]["metrics.csv"] == 2 * 2  # two evaluations of two tasks
     best = read_checkpoint(run / "checkpoints" / "best.pt")
