@@ -40,7 +40,7 @@ def test_an_int_field_takes_an_integral_float_and_a_float_field_an_int() -> None
         (
             TrainingConfig,
             {"warmup_stepz": 1},
-            "training.warmup_stepz is not a valid key; valid keys: warmup_steps, batch_per_task, grad_steps_per_epoch, collector, demo_episodes",
+            "training.warmup_stepz is not a valid key; valid keys: warmup_steps, batch_per_task, grad_steps_per_epoch, collector, demo_episodes, overlap",
         ),
         (
             TrainingConfig,
