@@ -58,8 +58,10 @@ def atomic_save(obj: object, path: str | os.PathLike[str]) -> Path:
     except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
-        if isinstance(exc, OSError) and exc.filename is None:
-            exc.filename = str(path)  # a full disk's error then names the checkpoint
+        if isinstance(exc, OSError) and exc.filename is None and exc.errno is not None:
+            # A full disk's error then names the checkpoint; an OSError made of a bare message
+            # would print "[Errno None] None" with a filename, so it is left as it is.
+            exc.filename = str(path)
         raise
     # fsync the directory too, so the rename itself survives a power loss.
     with contextlib.suppress(OSError):
