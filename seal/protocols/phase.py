@@ -713,6 +713,7 @@ class PhaseLoop:
                 callback.on_evaluation(self)
             return
         self._finish_evaluations(wait=True)  # one in flight at most, so rows stay in order
+        since = time.perf_counter()  # the wait counted itself
         if not self.all_reached():  # a synchronous run would have stopped at that result
             pending = PendingEvaluation(
                 draw=state.grad_steps,
