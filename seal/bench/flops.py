@@ -463,7 +463,7 @@ def bench_update_rate(
 
     Default: the paper-scale SEAL update (protocols/high_fk.toml: MT10 and the 10 kitchens, 128
     per task, batch 2,560, 400-wide). On CUDA the compiled path replays each update stage as a CUDA
-    graph (`seal.learner.sac.compile_mode`). Every env gets batch_per_task samples per task (the
+    graph (`seal.learner.staging.compile_mode`). Every env gets batch_per_task samples per task (the
     50/50 point of a ratio schedule: the total batch, hence the work, is the same at any ratio).
     ``paper_update_rate`` is the headline path's updates/s (compiled when it compiled).
     """

@@ -3,18 +3,14 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal, NamedTuple
+from typing import Literal, NamedTuple
 
 import torch
 from pydantic import with_config
 
 from seal.errors import ConfigError
 from seal.typed_config import SCHEMA
-
-if TYPE_CHECKING:  # the agent imports this module
-    from seal.learner.sac import Agent
 
 ARCHITECTURES = ("mtmhsac", "seal")
 SHARED_UPDATES = ("weighted", "sequential", "per_env")
@@ -182,12 +178,6 @@ class AgentConfig:
             raise ConfigError(
                 f"agent.target_entropy: expected a finite number or None, got {self.target_entropy!r}"
             )
-
-    def build(self, specs: Sequence[EnvSpec], seed: int) -> Agent:
-        """The multi-task SAC agent of this config over `specs` (one EnvSpec per env), seeded by `seed`."""
-        from seal.learner.sac import Agent
-
-        return Agent(specs, self, seed)
 
     @property
     def critic_multi_head(self) -> bool:

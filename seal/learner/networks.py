@@ -16,7 +16,7 @@ Two architectures share one building block, `TaskNetwork`, which for environment
   the policy's pattern instead (per-env critic translators, a shared critic trunk, per-env per-task
   Q heads). The twin Qs are two independent copies, and the target critics are deep copies that
   share no tensor with the online ones. Which Adam owns which parameters follows
-  `shared_update` (see `seal.learner.sac`); the per-task log temperatures have their own Adam.
+  `shared_update` (see `seal.learner.update`); the per-task log temperatures have their own Adam.
 
 Speed: an ensemble of G identical MLPs (the twin Q, G=2) is one `baddbmm` per layer over stacked
 weights of shape (G, in, out); all heads of a layer are one matmul whose output is reshaped to

@@ -26,6 +26,7 @@ from seal.device import torch_threads
 from seal.envs.base import EnvAdapter
 from seal.errors import SealError, TrainingDivergedError
 from seal.evaluation import AgentPolicy, evaluate, mean_success, reaches
+from seal.learner.sac import Agent
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.workers import (
     ActorWorker,
@@ -41,7 +42,6 @@ if TYPE_CHECKING:
     from seal.envs.alignment import Alignment
     from seal.learner.collection import Collector, EpisodeStats
     from seal.learner.replay import MultiTaskReplay
-    from seal.learner.sac import Agent
     from seal.protocols.checkpointing import EpochCheckpoint
     from seal.protocols.rundir import MetricsRow, TrainRow
     from seal.protocols.runner import Run
@@ -747,7 +747,7 @@ class PhaseLoop:
         """An agent (one per phase, reused) holding an asynchronous evaluation's snapshot."""
         if self._snapshot_agent is None:
             config = dataclasses.replace(self.owner.agent_cfg, compile=False)
-            self._snapshot_agent = config.build(self.model.specs, 0)
+            self._snapshot_agent = Agent(self.model.specs, config, 0)
         self._snapshot_agent.load_state_dict(pending.agent)
         return self._snapshot_agent
 

@@ -55,6 +55,8 @@ from seal.envs.base import EnvAdapter
 from seal.errors import ConfigError, SealError
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.config import AgentConfig
+from seal.learner.sac import Agent
+from seal.learner.transfer import transfer_from
 from seal.protocols.checkpointing import Checkpointer, EpochCheckpoint, RunCheckpoint
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
@@ -73,7 +75,6 @@ from seal.protocols.rundir import DirLock, RunDir, new_group_id, parse_seed_dir,
 
 if TYPE_CHECKING:
     from seal.envs.alignment import Alignment
-    from seal.learner.sac import Agent
 
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 """OSError numbers a run reports in one line: the user frees space and resumes."""
@@ -368,7 +369,7 @@ class Run:
 
     # ------------------------------------------------------------ building blocks
     def _initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Agent:
-        agent = self.agent_cfg.build(model.specs, derive_seed(self.seed, "agent", phase.index))
+        agent = Agent(model.specs, self.agent_cfg, derive_seed(self.seed, "agent", phase.index))
         if resuming:
             return agent  # the checkpoint's agent state replaces everything (lr factor included)
         transfer = self.config.transfer
@@ -377,7 +378,7 @@ class Run:
             if state is None:
                 state = transfer_source(self.config)
             try:
-                agent.transfer_from(state, reinit_critic=transfer.reinit_critic)
+                transfer_from(agent, state, reinit_critic=transfer.reinit_critic)
             except SealError as exc:
                 raise ConfigError(
                     f"{self.config.path}: transfer.checkpoint = {transfer.checkpoint!r}: {exc}"
@@ -392,7 +393,7 @@ class Run:
                     f"{self.rundir.path}: fine-tuning needs the pre-training's best checkpoint {best}, which is missing"
                 )
             source = read_checkpoint(best)
-            agent.transfer_from(source["agent"], reinit_critic=ft.reinit_critic)
+            transfer_from(agent, source["agent"], reinit_critic=ft.reinit_critic)
             agent.set_lr_factor(ft.lr_factor)
         return agent
 
@@ -472,7 +473,7 @@ def load_policy(
     adapters = build_adapters(config)
     alignment = build_alignment(config, adapters) if config.kind == "finetune" else None
     model = PhaseModel(config, phase, adapters, alignment)
-    agent = run_agent_config(config, provenance.resolve_device(device)).build(model.specs, 0)
+    agent = Agent(model.specs, run_agent_config(config, provenance.resolve_device(device)), 0)
     agent.load_state_dict(data["agent"])
     return config, model, agent, data
 

@@ -44,10 +44,10 @@ import numpy as np
 import torch
 
 from seal.errors import SealError
+from seal.learner.sac import Agent
 
 if TYPE_CHECKING:
     from seal.learner.collection import Collector, EpisodeStats
-    from seal.learner.sac import Agent
     from seal.protocols.config import ProtocolConfig
     from seal.protocols.phase import Phase, PhaseModel
     from seal.protocols.rundir import MetricsRow
@@ -231,7 +231,7 @@ def _worker_main(
         model = PhaseModel(config, phase, adapters, alignment)
         # Acting never runs compiled code, so the worker's agent skips compiling its updates.
         agent_config = dataclasses.replace(run_agent_config(config, device), compile=False)
-        agent = agent_config.build(model.specs, 0)
+        agent = Agent(model.specs, agent_config, 0)
         handler = (_Evaluation if role == "evaluation" else _Collection)(config, model, agent, seed)
     except BaseException:  # noqa: BLE001 - reported to the loop, which raises it
         conn.send(("error", traceback.format_exc()))

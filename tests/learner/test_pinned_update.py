@@ -20,6 +20,7 @@ import torch
 
 from seal.envs import make_adapter
 from seal.learner import Agent, AgentConfig, Batch, EnvSpec, MultiTaskReplay
+from seal.learner.transfer import transfer_from
 
 PINS = Path(__file__).with_name("pinned_update.pt")
 SMALL = {
@@ -79,7 +80,7 @@ def _point_run() -> dict[str, object]:
     # pad-and-fine-tune's copies: two more tasks (one-hot columns and heads), a wider action input
     wider = EnvSpec("point", adapter.obs_dim, adapter.act_dim, spec.num_tasks + 2, act_pad_to=4)
     transferred = Agent([wider], AgentConfig(**SMALL), seed=4)
-    transferred.transfer_from(agent.state_dict(), reinit_critic=False)
+    transfer_from(transferred, agent.state_dict(), reinit_critic=False)
     return {
         "losses": losses,
         "state": _flatten(agent.state_dict()),

@@ -3,12 +3,33 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import pytest
 import torch
 
 from seal.errors import SealError
 from seal.learner import Agent, AgentConfig, Batch, EnvSpec
+
+
+class _EnvPolicy:
+    """`Agent.policy` as a callable that also names its agent and env, for a hand-made actor loss."""
+
+    def __init__(self, agent: Agent, name: str, task_ids: torch.Tensor) -> None:
+        self.agent, self.name, self.task_ids = agent, name, task_ids
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        return self.agent.actor(self.agent._keys[self.name], x, self.task_ids)
+
+
+def _patch_actor_loss(monkeypatch: pytest.MonkeyPatch, loss: Callable[..., object]) -> None:
+    """Every actor loss (the update's and the lever's gradient norms) replaced by `loss`."""
+    from seal.learner import lever, update
+
+    monkeypatch.setattr(Agent, "policy", lambda agent, name, ids: _EnvPolicy(agent, name, ids))
+    monkeypatch.setattr(update, "actor_loss", loss)
+    monkeypatch.setattr(lever, "actor_loss", loss)
+
 
 SMALL = {"translator_hidden": (8,), "latent_dim": 4, "trunk_hidden": (3,), "critic_hidden": (8,)}
 SPECS = [EnvSpec("a", 3, 2, 2), EnvSpec("b", 4, 1, 1)]
@@ -66,20 +87,20 @@ def test_expected_lever_by_hand(monkeypatch: pytest.MonkeyPatch) -> None:
     # lets B's opposite-signed draws cancel. Had the agent moved between the draws (no restore),
     # draw 2 would be Adam's third step and the figure would differ.
     def actor_loss(
-        self: Agent,
-        name: str,
+        policy: _EnvPolicy,
+        qf: object,
         obs_in: torch.Tensor,
         task_ids: torch.Tensor,
         alpha: torch.Tensor,
         noise: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        weight = self.actor.trunk.weights[0]
+        weight = policy.agent.actor.trunk.weights[0]
         # (weight * ones): a dense gradient (torch's fused CPU Adam misreads a stride-0 one)
         return obs_in[:, 0].mean() * (weight * torch.ones_like(weight)).sum(), torch.zeros(
             obs_in.shape[0]
         )
 
-    monkeypatch.setattr(Agent, "_actor_loss", actor_loss)
+    _patch_actor_loss(monkeypatch, actor_loss)
     config = AgentConfig(architecture="seal", max_grad_norm=0.0, ratio_lever_interval=0, **SMALL)
     agent = Agent(SPECS, config, seed=0)
     agent.update(_draw(1.0, -2.0, 0))

@@ -12,6 +12,7 @@ import torch
 
 from seal.errors import ConfigError, SealError, UnknownNameError
 from seal.learner import Agent, AgentConfig, Batch, EnvSpec
+from seal.learner.transfer import transfer_from
 from seal.typed_config import field_docs
 
 SMALL = {"hidden": (32, 32), "translator_hidden": (32,), "latent_dim": 16, "trunk_hidden": (32, 32)}
@@ -61,7 +62,7 @@ def test_losses_by_hand_on_a_network_with_known_weights() -> None:
     )
     # The update draws the next-state noise, then the policy noise, from its own generator.
     g = torch.Generator()
-    g.set_state(agent._update_generator.get_state())
+    g.set_state(agent.update_generator.get_state())
     eps_next = torch.randn(3, 1, generator=g)[:, 0].tolist()
     eps_pi = torch.randn(3, 1, generator=g)[:, 0].tolist()
     metrics = agent.update({"toy": batch})
@@ -212,7 +213,7 @@ def test_transfer_mt1_to_mt10_keeps_all_but_the_policy_head_and_zeroes_new_one_h
         source.update({"mt1": _random_batch(source.specs["mt1"], 8)})
     target = Agent([EnvSpec("mt10", 39, 4, 10)], AgentConfig(**SMALL), seed=1)
     fresh_head = target.actor.heads["mt10"].weight.detach().clone()
-    target.transfer_from(source.state_dict())
+    transfer_from(target, source.state_dict())
     for net in ("actor", "critic"):
         old, new = getattr(source, net).trunk, getattr(target, net).trunk
         w_old, w_new = old.weights[0].detach(), new.weights[0].detach()
@@ -269,7 +270,7 @@ def test_transfer_between_padded_pseudo_envs_with_different_action_sizes() -> No
         metaworld.critic.trunk.weights[0].shape[1] == 49
         and metaworld.actor.heads["aligned-metaworld"].weight.shape[-1] == 12 * 8
     )
-    metaworld.transfer_from(kitchen.state_dict())
+    transfer_from(metaworld, kitchen.state_dict())
     for a, b in zip(kitchen.critic.parameters(), metaworld.critic.parameters(), strict=True):
         assert torch.equal(a, b)
     reinit = Agent(
@@ -278,7 +279,7 @@ def test_transfer_between_padded_pseudo_envs_with_different_action_sizes() -> No
         seed=1,
     )
     before = [p.detach().clone() for p in reinit.critic.parameters()]
-    reinit.transfer_from(kitchen.state_dict())
+    transfer_from(reinit, kitchen.state_dict())
     assert all(torch.equal(a, b) for a, b in zip(before, reinit.critic.parameters(), strict=True))
     assert torch.equal(reinit.actor.trunk.weights[1], kitchen.actor.trunk.weights[1])
     m = metaworld.update(
@@ -344,7 +345,7 @@ def test_seal_transfer_keeps_translators_and_trunk_and_redraws_action_heads() ->
     fresh = {
         n: p.detach().clone() for n, p in target.actor.named_parameters() if n.startswith("heads.")
     }
-    target.transfer_from(source.state_dict())
+    transfer_from(target, source.state_dict())
     for name, p in target.actor.named_parameters():
         if name.startswith("heads."):
             assert torch.equal(p, fresh[name])  # each env's action head keeps its fresh init
@@ -355,7 +356,7 @@ def test_seal_transfer_keeps_translators_and_trunk_and_redraws_action_heads() ->
     ):
         assert torch.equal(p, q), name
     with pytest.raises(SealError, match="cannot transfer a 'mtmhsac' agent"):
-        target.transfer_from(Agent([specs[0]], AgentConfig(**SMALL), seed=0).state_dict())
+        transfer_from(target, Agent([specs[0]], AgentConfig(**SMALL), seed=0).state_dict())
 
 
 def test_log_prob_of_given_actions_matches_the_sampling_density() -> None:
@@ -404,7 +405,7 @@ def test_compile_failure_falls_back_to_eager_with_a_warning(
 
 
 def test_compiled_stages_are_cuda_graphs_on_cuda_only(monkeypatch: pytest.MonkeyPatch) -> None:
-    from seal.learner.sac import compile_mode
+    from seal.learner.staging import compile_mode
 
     assert compile_mode(torch.device("cuda")) == compile_mode(torch.device("cuda:1"))
     assert compile_mode(torch.device("cuda")) == "reduce-overhead"
@@ -448,7 +449,7 @@ def test_cuda_mode_compiles_wherever_the_cpu_mode_does_and_agrees(
 ) -> None:
     """The stages compiled as on CUDA (mode "reduce-overhead"). On CPU tensors inductor records no
     CUDA graph, so this checks the tracing and the arithmetic, not the graphs (no GPU here)."""
-    import seal.learner.sac as sac
+    import seal.learner.staging as staging
 
     specs = [EnvSpec("mw", 6, 2, 3), EnvSpec("fk", 8, 3, 1)]
     config = AgentConfig(architecture="seal", device="cpu", **SMALL)
@@ -459,7 +460,7 @@ def test_cuda_mode_compiles_wherever_the_cpu_mode_does_and_agrees(
         probe.update(batches[0])
     if not probe.compiled:  # no C++ compiler here: the fallback test covers this case
         pytest.skip(f"torch.compile unavailable: {[str(w.message) for w in caught]}")
-    monkeypatch.setattr(sac, "compile_mode", lambda device: "reduce-overhead")
+    monkeypatch.setattr(staging, "compile_mode", lambda device: "reduce-overhead")
     eager = Agent(specs, config, seed=0)
     graphed = Agent(specs, replace(config, compile=True), seed=0)
     for batch in batches:
@@ -467,33 +468,3 @@ def test_cuda_mode_compiles_wherever_the_cpu_mode_does_and_agrees(
         losses = sorted(k for k in want if k.startswith("losses"))
         np.testing.assert_allclose([got[k] for k in losses], [want[k] for k in losses], rtol=1e-4)
     assert graphed.compiled and graphed.compile_seconds > 0
-
-
-def test_fused_adam_step_matches_torch_adam_with_a_missing_gradient_and_a_reload() -> None:
-    """`_adam_step` (cached fused calls) gives Adam(fused=True).step()'s parameters, bit for bit:
-    over steps where one parameter has no gradient (left alone, its step count too), after a
-    learning-rate change and after load_state_dict (the cached lists must follow the new states)."""
-    from seal.learner.sac import _adam_step
-
-    gen = torch.Generator().manual_seed(0)
-    ours = [torch.nn.Parameter(torch.randn(3, 2, generator=gen)) for _ in range(2)]
-    ref = [torch.nn.Parameter(p.detach().clone()) for p in ours]
-    opt_ours = torch.optim.Adam(ours, lr=1e-2, fused=True, eps=1e-5)
-    opt_ref = torch.optim.Adam(ref, lr=1e-2, fused=True, eps=1e-5)
-    cache: dict = {}
-    for step in range(6):
-        grads = [torch.randn(3, 2, generator=gen) for _ in range(2)]
-        if step in (2, 3):
-            grads[1] = None  # unused this step
-        if step == 4:
-            for opt in (opt_ours, opt_ref):
-                opt.param_groups[0]["lr"] = 3e-3
-                opt.load_state_dict(opt.state_dict())
-        for p, g in zip(ref, grads, strict=True):
-            p.grad = g
-        opt_ref.step()
-        _adam_step([opt_ours], grads, cache)
-        for a, b in zip(ours, ref, strict=True):
-            assert torch.equal(a, b), step
-    assert [float(opt_ours.state[p]["step"]) for p in ours] == [6.0, 4.0]
-    assert [float(opt_ref.state[p]["step"]) for p in ref] == [6.0, 4.0]

@@ -9,6 +9,7 @@ import math
 import subprocess
 import sys
 import textwrap
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -16,6 +17,27 @@ import torch
 
 from seal.errors import SealError
 from seal.learner import Agent, AgentConfig, Batch, EnvSpec
+from seal.learner.transfer import transfer_from
+
+
+class _EnvPolicy:
+    """`Agent.policy` as a callable that also names its agent and env, for a hand-made actor loss."""
+
+    def __init__(self, agent: Agent, name: str, task_ids: torch.Tensor) -> None:
+        self.agent, self.name, self.task_ids = agent, name, task_ids
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        return self.agent.actor(self.agent._keys[self.name], x, self.task_ids)
+
+
+def _patch_actor_loss(monkeypatch: pytest.MonkeyPatch, loss: Callable[..., object]) -> None:
+    """Every actor loss (the update's and the lever's gradient norms) replaced by `loss`."""
+    from seal.learner import lever, update
+
+    monkeypatch.setattr(Agent, "policy", lambda agent, name, ids: _EnvPolicy(agent, name, ids))
+    monkeypatch.setattr(update, "actor_loss", loss)
+    monkeypatch.setattr(lever, "actor_loss", loss)
+
 
 SMALL = {"translator_hidden": (8,), "latent_dim": 4, "trunk_hidden": (3,), "critic_hidden": (8,)}
 SPECS = [EnvSpec("a", 3, 2, 2), EnvSpec("b", 4, 1, 1)]
@@ -64,20 +86,20 @@ def test_ratio_lever_by_hand(monkeypatch: pytest.MonkeyPatch) -> None:
     coefficient = {"a": 1.0, "b": -2.0}
 
     def actor_loss(
-        self: Agent,
-        name: str,
+        policy: _EnvPolicy,
+        qf: object,
         obs_in: torch.Tensor,
         task_ids: torch.Tensor,
         alpha: torch.Tensor,
         noise: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        weight = self.actor.trunk.weights[0]
+        weight = policy.agent.actor.trunk.weights[0]
         # (weight * ones) gives a dense gradient: the gradient of a bare sum is a stride-0
         # expanded tensor, which torch's fused CPU Adam misreads (only its first element).
-        loss = coefficient[name] * (weight * torch.ones_like(weight)).sum()
+        loss = coefficient[policy.name] * (weight * torch.ones_like(weight)).sum()
         return loss, torch.zeros(obs_in.shape[0])
 
-    monkeypatch.setattr(Agent, "_actor_loss", actor_loss)
+    _patch_actor_loss(monkeypatch, actor_loss)
     config = AgentConfig(architecture="seal", max_grad_norm=0.0, ratio_lever_interval=0, **SMALL)
     agent = Agent(SPECS, config, seed=0)
     batches = {"a": _batch(SPECS[0], 3, 0), "b": _batch(SPECS[1], 1, 1)}
@@ -229,18 +251,18 @@ def test_transfer_from_the_old_critic_layout_is_refused_in_one_line_or_maps_clea
     target = Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=1)
     fresh = [p.detach().clone() for p in target.actor.parameters()]
     with pytest.raises(SealError) as info:
-        target.transfer_from(state)
+        transfer_from(target, state)
     message = str(info.value)
     assert "\n" not in message and "shared critics" in message and "reinit_critic = true" in message
     # refused before anything was copied
     assert all(torch.equal(a, b) for a, b in zip(fresh, target.actor.parameters(), strict=True))
-    target.transfer_from(state, reinit_critic=True)  # fresh per-env critics, policy transferred
+    transfer_from(target, state, reinit_critic=True)  # fresh per-env critics, policy transferred
     assert torch.equal(target.actor.trunk.weights[0], state["actor"]["trunk.weights.0"])
     # into an agent with the old (shared) layout, everything maps
     shared = Agent(
         SPECS, AgentConfig(architecture="seal", critic_sharing="shared", **SMALL), seed=1
     )
-    shared.transfer_from(state)
+    transfer_from(shared, state)
     for name, p in shared.critic.named_parameters():
         assert torch.equal(p, state["critic"][name]), name
     # resuming (load_state_dict) an old state is refused in one line
@@ -252,7 +274,7 @@ def test_transfer_between_per_env_critics_copies_each_envs_critic() -> None:
     source = Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=0)
     source.update({"a": _batch(SPECS[0], 6, 0), "b": _batch(SPECS[1], 2, 1)})
     target = Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=1)
-    target.transfer_from(source.state_dict())
+    transfer_from(target, source.state_dict())
     for (name, p), q in zip(
         target.critic.named_parameters(), source.critic.parameters(), strict=True
     ):

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from seal.cli.main import main
+from seal.learner.sac import Agent
 from seal.protocols import load_protocol
 from seal.protocols import resources as resources_module
 from seal.protocols.phase import PhaseModel
@@ -56,7 +57,7 @@ def test_parameter_count_is_the_real_agents(
     adapters = build_adapters(config)
     (phase,) = plan_phases(config)
     model = PhaseModel(config, phase, adapters, None)
-    agent = dataclasses.replace(config.agent, device="cpu").build(model.specs, 0)
+    agent = Agent(model.specs, dataclasses.replace(config.agent, device="cpu"), 0)
     real = sum(p.numel() for net in (agent.actor, agent.critic) for p in net.parameters())
     estimate = estimate_resources(config, adapters, "cpu")
     assert estimate.peak.parameters == real
