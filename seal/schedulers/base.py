@@ -361,11 +361,8 @@ class SchedulerConfig:
         `episode_lengths` gives SMT's default M and m, `seed` seeds SMT's first pick. Errors are
         ConfigErrors naming `source` (the protocol file) and the `scheduler.key`.
         """
-        from seal.schedulers.registry import build_scheduler
-
         try:
-            return build_scheduler(
-                self,
+            return self.make(
                 env_tasks,
                 seed=seed,
                 adapters=adapters,
@@ -376,6 +373,38 @@ class SchedulerConfig:
             raise
         except (SealError, TypeError, ValueError) as exc:
             raise ConfigError(f"{source}: scheduler: {exc}") from None
+
+    def make(
+        self,
+        env_tasks: Mapping[str, Sequence[str]],
+        *,
+        seed: int = 0,
+        adapters: Mapping[str, str] | None = None,
+        episode_lengths: Mapping[str, int] | None = None,
+        source: str = "",
+    ) -> Scheduler:
+        """`build` without turning other errors into ConfigErrors (`registry.build_scheduler`)."""
+        try:
+            if not env_tasks or not all(env_tasks.values()):
+                raise ConfigError(
+                    f"scheduler: every env needs at least one task, got {dict(env_tasks)}"
+                )
+            return self._build(
+                env_tasks, seed=seed, adapters=adapters, episode_lengths=episode_lengths
+            )
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
+
+    def _build(
+        self,
+        env_tasks: Mapping[str, Sequence[str]],
+        *,
+        seed: int,
+        adapters: Mapping[str, str] | None,
+        episode_lengths: Mapping[str, int] | None,
+    ) -> Scheduler:
+        """The scheduler itself; each kind's config defines it."""
+        raise ValueError(f"no scheduler for config type {type(self).__name__}")
 
     def to_table(self) -> dict[str, Any]:
         """The resolved [scheduler] table (for the run's saved config), `kind` first."""

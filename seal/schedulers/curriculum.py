@@ -155,6 +155,16 @@ class CurriculumV1Config(SchedulerConfig):
             for i, s in enumerate(steps)
         )
 
+    def _build(
+        self,
+        env_tasks: Mapping[str, Sequence[str]],
+        *,
+        seed: int,
+        adapters: Mapping[str, str] | None,
+        episode_lengths: Mapping[str, int] | None,
+    ) -> Scheduler:
+        return build_curriculum(self, env_tasks)
+
 
 @with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
@@ -201,6 +211,16 @@ class CurriculumV2Config(SchedulerConfig):
         return dataclasses.replace(
             self, phases=phases, max_phase_env_steps=scaled(self.max_phase_env_steps)
         )
+
+    def _build(
+        self,
+        env_tasks: Mapping[str, Sequence[str]],
+        *,
+        seed: int,
+        adapters: Mapping[str, str] | None,
+        episode_lengths: Mapping[str, int] | None,
+    ) -> Scheduler:
+        return build_curriculum(self, env_tasks)
 
 
 def resolve_task(name: str, env_tasks: Mapping[str, Sequence[str]], key: str) -> TaskKey:

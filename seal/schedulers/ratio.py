@@ -43,6 +43,16 @@ class UniformConfig(SchedulerConfig):
 
     kind: ClassVar[str] = "uniform"
 
+    def _build(
+        self,
+        env_tasks: Mapping[str, Sequence[str]],
+        *,
+        seed: int,
+        adapters: Mapping[str, str] | None,
+        episode_lengths: Mapping[str, int] | None,
+    ) -> Scheduler:
+        return build_ratio_scheduler(self, env_tasks, adapters)
+
 
 @with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
@@ -56,6 +66,16 @@ class ConstantRatioConfig(SchedulerConfig):
     """"all": every task collects every epoch (issue 4 default); "ratio": envs collect in proportion to their fraction."""
     absent: dict[str, int] = field(default_factory=dict)
     """Envs of a joint run that this run stands in for but does not have, with their task counts: their share of the batch is not drawn, so each task here gets the per-step batch it gets in that joint run (a target-alone arm)."""
+
+    def _build(
+        self,
+        env_tasks: Mapping[str, Sequence[str]],
+        *,
+        seed: int,
+        adapters: Mapping[str, str] | None,
+        episode_lengths: Mapping[str, int] | None,
+    ) -> Scheduler:
+        return build_ratio_scheduler(self, env_tasks, adapters)
 
 
 @with_config(SCHEMA)
@@ -81,6 +101,16 @@ class SteppedRatioConfig(SchedulerConfig):
     """"all": every task collects every epoch (issue 4 default); "ratio": envs collect in proportion to their fraction."""
     absent: dict[str, int] = field(default_factory=dict)
     """Envs of a joint run that this run stands in for but does not have, with their task counts: their share of the batch is not drawn, so each task here gets the per-step batch it gets in that joint run (a target-alone arm)."""
+
+    def _build(
+        self,
+        env_tasks: Mapping[str, Sequence[str]],
+        *,
+        seed: int,
+        adapters: Mapping[str, str] | None,
+        episode_lengths: Mapping[str, int] | None,
+    ) -> Scheduler:
+        return build_ratio_scheduler(self, env_tasks, adapters)
 
 
 def _check_fractions(

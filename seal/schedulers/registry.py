@@ -19,15 +19,13 @@ from seal.schedulers.curriculum import (
     CurriculumV1Config,
     CurriculumV2Config,
     ProgressivePhase,
-    build_curriculum,
 )
 from seal.schedulers.ratio import (
     ConstantRatioConfig,
     SteppedRatioConfig,
     UniformConfig,
-    build_ratio_scheduler,
 )
-from seal.schedulers.smt import SMTConfig, build_smt_scheduler
+from seal.schedulers.smt import SMTConfig
 from seal.typed_config import build
 
 SCHEDULER_CONFIGS: dict[str, type[SchedulerConfig]] = {
@@ -93,23 +91,12 @@ def build_scheduler(
     """
     if config is None or isinstance(config, Mapping):
         config = config_from_table(config, source)
-    try:
-        if not env_tasks or not all(env_tasks.values()):
-            raise ConfigError(
-                f"scheduler: every env needs at least one task, got {dict(env_tasks)}"
-            )
-        if isinstance(config, UniformConfig | ConstantRatioConfig | SteppedRatioConfig):
-            return build_ratio_scheduler(config, env_tasks, adapters)
-        if isinstance(config, SMTConfig):
-            return build_smt_scheduler(
-                config, env_tasks, seed=seed, adapters=adapters, episode_lengths=episode_lengths
-            )
-        if isinstance(config, CurriculumV1Config | CurriculumV2Config):
-            return build_curriculum(config, env_tasks)
-    except ConfigError as exc:
-        raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
-    raise ValueError(
-        f"no scheduler for config type {type(config).__name__}; valid kinds: {', '.join(SCHEDULER_CONFIGS)}"
+    if type(config)._build is SchedulerConfig._build:
+        raise ValueError(
+            f"no scheduler for config type {type(config).__name__}; valid kinds: {', '.join(SCHEDULER_CONFIGS)}"
+        )
+    return config.make(
+        env_tasks, seed=seed, adapters=adapters, episode_lengths=episode_lengths, source=source
     )
 
 

@@ -98,6 +98,18 @@ class SMTConfig(SchedulerConfig):
     grad_steps: int = 0
     """Gradient steps per epoch: 0 = the runner's default, -1 = as many as env steps collected, n > 0 = n."""
 
+    def _build(
+        self,
+        env_tasks: Mapping[str, Sequence[str]],
+        *,
+        seed: int,
+        adapters: Mapping[str, str] | None,
+        episode_lengths: Mapping[str, int] | None,
+    ) -> Scheduler:
+        return build_smt_scheduler(
+            self, env_tasks, seed=seed, adapters=adapters, episode_lengths=episode_lengths
+        )
+
 
 def default_return_thresholds(
     config: SMTConfig, envs: Sequence[str], episode_lengths: Mapping[str, int]
