@@ -50,7 +50,7 @@ from seal.envs.testbed import TESTBED_TABLE, paired_states
 from seal.errors import SealError
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.config import AgentConfig, EnvSpec
-from seal.learner.sac import Agent
+from seal.learner.sac import Agent, AgentState
 
 POINT_VIEW = "point_view"
 """The testbed env that sees the world through `VIEW_MATRIX`."""
@@ -225,7 +225,7 @@ def shared_world_cka(
 # ---------------------------------------------------------------- from checkpoints
 
 
-def agent_from_state(state: Mapping[str, Any], device: str = "cpu") -> Agent:
+def agent_from_state(state: AgentState, device: str = "cpu") -> Agent:
     """An agent with the weights of `Agent.state_dict()` `state`, rebuilt from the specs and config it records.
 
     Built on `device` and eager (compile off): a probe only runs forward passes.

@@ -12,7 +12,7 @@ decides how many transitions each task contributes to an update
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import NotRequired, TypedDict
 
 import numpy as np
 import torch
@@ -62,6 +62,16 @@ def _capacity_of(spec: EnvSpec, capacity: int | Mapping[str, int]) -> int:
             f"replay capacity of {spec.name!r} must be an int >= its number of tasks ({spec.num_tasks}), got {value!r}"
         )
     return int(value)
+
+
+class ReplayState(TypedDict):
+    """`MultiTaskReplay.state_dict()`: tensors and plain values, as checkpoints hold them."""
+
+    capacity_per_task: dict[str, int]
+    generator: NotRequired[torch.Tensor]  # absent in states saved before it was stored
+    envs: dict[
+        str, dict[str, torch.Tensor]
+    ]  # env -> each field's filled rows, size, position, consumed
 
 
 class MultiTaskReplay:
@@ -264,9 +274,9 @@ class MultiTaskReplay:
             self.consumed[env] += env_counts
         return batches
 
-    def state_dict(self) -> dict[str, Any]:
+    def state_dict(self) -> ReplayState:
         """Contents (only the filled rows) and counters, as tensors so torch.load(weights_only=True) reads them."""
-        state: dict[str, Any] = {
+        state: ReplayState = {
             "capacity_per_task": dict(self.capacity_per_task),
             "generator": self.generator.get_state(),
             "envs": {},
@@ -281,7 +291,7 @@ class MultiTaskReplay:
             }
         return state
 
-    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+    def load_state_dict(self, state: ReplayState) -> None:
         """Restore `state_dict` output into buffers of the same envs and capacities."""
         if dict(state["capacity_per_task"]) != self.capacity_per_task:
             raise SealError(

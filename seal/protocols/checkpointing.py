@@ -28,6 +28,8 @@ from seal.protocols.loader import config_to_dict, dumps_toml
 from seal.protocols.phase import LoopCallback, PhaseLoop
 
 if TYPE_CHECKING:
+    from seal.learner.replay import ReplayState
+    from seal.learner.sac import AgentState
     from seal.protocols.rundir import RunDir
     from seal.protocols.runner import Run
 
@@ -81,9 +83,9 @@ class EpochCheckpoint(EpochFields):
     """An epoch checkpoint as `read_checkpoint` returns it: the point a resume continues from."""
 
     seal_checkpoint: int
-    agent: dict[str, Any]
+    agent: AgentState
     """`Agent.state_dict()`."""
-    replay: dict[str, Any] | None
+    replay: ReplayState | None
     """`MultiTaskReplay.state_dict()` (None with checkpoint.save_replay = false)."""
 
 
@@ -91,7 +93,7 @@ class BestCheckpoint(BestFields):
     """best.pt as `read_checkpoint` returns it."""
 
     seal_checkpoint: int
-    agent: dict[str, Any]
+    agent: AgentState
     replay: None
 
 
