@@ -103,10 +103,10 @@ def _trunk_steps(
     noise_seed: int | None = None,
 ) -> dict[str | None, torch.Tensor]:
     """Δ (key None) and Δ₋X for X in `drops`: the shared policy trunk's parameter change of one
-    `sac_update` on a fresh copy of this agent each (clipping and Adam included), flattened.
+    `sac_update` on a fresh copy of the agent each (clipping and Adam included), flattened.
 
-    The copies share this agent's update noise stream, so Δ and every Δ₋X draw the same noise;
-    `noise_seed` reseeds that stream in every copy first. This agent is unchanged.
+    The copies share the agent's update noise stream, so Δ and every Δ₋X draw the same noise;
+    `noise_seed` reseeds that stream in every copy first. The agent is unchanged.
     """
     before = [p.detach().clone() for p in agent.actor.trunk.parameters()]
     steps: dict[str | None, torch.Tensor] = {}
@@ -131,11 +131,11 @@ def ratio_lever(agent: Measured, batches: Mapping[str, Batch]) -> RatioLever:
     """How much of the shared policy trunk's step each env causes, measured on copies of the agent.
 
     Δ = the trunk's parameter change of one full update (clipping and Adam included); Δ₋X =
-    the same with env X's terms dropped (the same update on a copy, without X's batch but with X's samples in N and X's noise drawn). For A the env with the most
-    samples, lever = ||Δ - Δ₋A|| / sum_X ||Δ - Δ₋X|| (two envs: the issue's
+    the same update without env X's batch (X's samples still in N, X's noise still drawn). For
+    A the env with the most samples, lever = ||Δ - Δ₋A|| / sum_X ||Δ - Δ₋X|| (two envs:
     ||Δ - Δ₋A|| / (||Δ - Δ₋A|| + ||Δ - Δ₋B||)); ~n_A / N means the ratio is the lever it
     should be, ~0.5 at 90/10 means it is not. Also returns the trunk gradient norm of each
-    env's own mean actor loss at the current parameters (`grad_norm`). This agent is unchanged.
+    env's own mean actor loss at the current parameters (`grad_norm`). The agent is unchanged.
     """
     sizes, env_a = _lever_envs(agent, batches)
     steps = _trunk_steps(agent, batches, list(sizes))
