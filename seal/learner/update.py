@@ -20,6 +20,14 @@ optimiser's parameters to `max_grad_norm` (0: off); the temperatures' Adam is ne
 Each stage (`critic_stage`, then `actor_stage`) computes its losses and their gradients as one
 function of pre-drawn policy noise (`draw_noise`); with `AgentConfig.compile` that function is
 torch.compiled (`seal.learner.staging`), and the optimiser steps (`seal.learner.optim`) stay eager.
+
+What comes from where: cleanrl's sac_continuous_action.py gives the order (critic, then the actor
+against the critic just updated, then the temperature, then the Polyak target) and the names;
+LeanRL's torchcompile version gives the split into a critic and a policy function, each compiled
+whole (losses, backward) and replayed as a CUDA graph, the target update as one `lerp_` over
+stacked parameters, and no `.item()` inside the update; metaworld-algorithms' mtsac.py gives the
+per-task log temperature, the mean over the twin critics' losses, the gradient clipping as part of
+each network's optimiser and an unclipped temperature optimiser.
 """
 
 from __future__ import annotations
