@@ -159,9 +159,10 @@ class EvaluationConfig:
     mode: Literal["sync", "async"] = "sync"
     """"sync": evaluate with training stopped, as the paper's loop; "async": a worker process evaluates a snapshot while training goes on (the same rows, written when they come back).
 
-    sync is the default because the worker needs cores of its own: on a machine with few
-    (measured on 2 cores, docs/benchmarks.md) it competes with training, and async pays off only
-    where cores are spare. Asynchronous evaluation uses the same deterministic policy, seeded
+    sync is the default because it is the paper's loop and needs no second process (a spawned
+    worker with its own agent and evaluation instances per phase); async wrote the same rows and
+    ran the quickstart faster even on 2 cores (docs/benchmarks.md), so long runs should turn it
+    on. Asynchronous evaluation uses the same deterministic policy, seeded
     episodes and consumed-update counts, so the rows are those of a synchronous evaluation of the
     same snapshot; a scheduler that reads evaluations (the curricula) gets each before its next
     plan. With `stop_when_reached` the phase ends at the first epoch end after the deciding
