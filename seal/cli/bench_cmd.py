@@ -1,4 +1,4 @@
-"""`seal bench [--json] [--quick] [--learn [transfer|kitchen] [--full]]`: learner and collection speed as ratios, learning evidence."""
+"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1] [--full]]`: learner and collection speed as ratios, learning evidence."""
 
 from __future__ import annotations
 
@@ -23,7 +23,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "with steps_saved and transfer_updates_saved, their 95% bootstrap CIs and the steps x "
             "per-step-batch decomposition; "
             "--learn kitchen runs only the kitchen learning protocols (protocols/kitchen_learn: "
-            "slide-cabinet, light-switch and bottom-left-burner, with and without demonstrations)."
+            "slide-cabinet, light-switch and bottom-left-burner, with and without demonstrations); "
+            "--learn table1 runs paper Table 1 at laptop scale (protocols/table1_small: drawer-close-v3 and "
+            "slide-cabinet under Single Env, 50/50, High FK and High MW with batch-matched alone arms) and "
+            "prints `seal report`'s table of it with 95% CIs and its wall time."
         ),
     )
     parser.add_argument(
@@ -37,8 +40,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs="?",
         const="evidence",
         default=None,
-        metavar="transfer|kitchen",
-        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs",
+        metavar="transfer|kitchen|table1",
+        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs; --learn table1: only paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md)",
     )
     parser.add_argument(
         "--full",
@@ -49,31 +52,31 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--seeds",
         type=int,
         default=None,
-        help="with --learn transfer|kitchen: seeds per arm (default 5 for transfer, 2 for kitchen)",
+        help="with --learn transfer|kitchen|table1: seeds per arm (default 5 for transfer, 2 for kitchen, 3 for table1)",
     )
     parser.add_argument(
         "--arms",
         nargs="+",
         metavar="ARM",
         default=None,
-        help="with --learn transfer|kitchen: only these arms (protocols/testbed/<ARM>.toml and the alone arms they are set against; protocols/kitchen_learn/<ARM>.toml)",
+        help="with --learn transfer|kitchen|table1: only these arms (protocols/testbed/<ARM>.toml and the alone arms they are set against; protocols/kitchen_learn/<ARM>.toml; protocols/table1_small/<ARM>.toml and its references)",
     )
     parser.add_argument(
         "--reuse",
         action="store_true",
-        help="with --learn transfer|kitchen: take finished runs under --out whose resolved config is today's instead of running them again",
+        help="with --learn transfer|kitchen|table1: take finished runs under --out whose resolved config is today's instead of running them again",
     )
     parser.add_argument(
         "--jobs",
         type=int,
         default=2,
-        help="with --learn transfer|kitchen: `seal run` processes at a time (default 2)",
+        help="with --learn transfer|kitchen|table1: `seal run` processes at a time (default 2)",
     )
     parser.add_argument(
         "--out",
         default=None,
         metavar="DIR",
-        help="with --learn transfer|kitchen: reports root of the runs (default reports/bench_transfer or reports/bench_kitchen)",
+        help="with --learn transfer|kitchen|table1: reports root of the runs (default reports/bench_transfer, reports/bench_kitchen or reports/bench_table1)",
     )
     parser.add_argument(
         "--only", nargs="+", metavar="KEY", help="run only these keys, e.g. --only sac_vs_sb3"
@@ -123,7 +126,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="TABLE.KEY=VALUE",
-        help="with --protocol: override a protocol value (e.g. protocol.device=cuda)",
+        help='with --protocol or --learn table1: override a protocol value (e.g. protocol.device=cuda, agent.preset="seal_prototype")',
     )
     parser.set_defaults(func=run)
 
@@ -140,14 +143,32 @@ def run(args: argparse.Namespace) -> int:
     def log(msg: str) -> None:
         print(f"[bench] {msg}", file=sys.stderr, flush=True)
 
-    if args.learn not in (None, "evidence", "transfer", "kitchen"):
+    if args.learn not in (None, "evidence", "transfer", "kitchen", "table1"):
         raise SealError(
-            f"--learn {args.learn!r}: unknown; valid: --learn, --learn transfer, --learn kitchen"
+            f"--learn {args.learn!r}: unknown; valid: --learn, --learn transfer, --learn kitchen, "
+            "--learn table1"
         )
     if args.full and args.learn != "transfer":
         raise SealError("--full only applies to --learn transfer")
-    if args.arms and args.learn not in ("transfer", "kitchen"):
-        raise SealError("--arms only applies to --learn transfer and --learn kitchen")
+    if args.arms and args.learn not in ("transfer", "kitchen", "table1"):
+        raise SealError("--arms only applies to --learn transfer, kitchen and table1")
+    if args.overrides and args.protocol is None and args.learn != "table1":
+        raise SealError("--set only applies to --protocol and --learn table1")
+    if args.learn == "table1":
+        from seal.bench.table1 import MIN_SEEDS, run_table1_bench
+        from seal.bench.table1 import format_result as format_table1
+
+        result = run_table1_bench(
+            seeds=MIN_SEEDS if args.seeds is None else args.seeds,
+            out=args.out or "reports/bench_table1",
+            parallel=args.jobs,
+            overrides=args.overrides,
+            log=log,
+            only=args.arms,
+            reuse=args.reuse,
+        )
+        print(json.dumps(result, indent=2, default=float) if args.json else format_table1(result))
+        return 0
     if args.learn == "kitchen":
         from seal.bench.kitchen import format_result, run_kitchen_bench
 

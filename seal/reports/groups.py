@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,7 +59,9 @@ def _ratio_label(scheduler: dict[str, Any], envs: Sequence[str]) -> str | None:
     return "/".join(format_number(100.0 * w / total) for w in weights)
 
 
-def column_label(run: RunData, phase: str, env: str) -> str:
+def column_label(
+    run: RunData, phase: str, env: str, others: Mapping[str, str] | None = None
+) -> str:
     """The report column of one run's phase and environment, as the paper names them.
 
     baseline -> "Single Env"; joint with a constant ratio -> "50/50" (or its ratio); joint with the
@@ -67,7 +69,8 @@ def column_label(run: RunData, phase: str, env: str) -> str:
     pretrain phase and "Fine-tune on Y" for its finetune phase (Tables 6-7); a baseline whose
     scheduler has a non-empty `absent` table (a batch-matched alone arm) -> "Single Env (<the joint
     column> batch)", e.g. "Single Env (High FK batch)"; anything else, such as a baseline under an
-    SMT or curriculum scheduler, -> its protocol name.
+    SMT or curriculum scheduler, -> its protocol name. `others` labels envs this run lacks (a
+    matched arm's absent env) by the [envs.<env>] adapters of the other runs in the report.
     """
     scheduler = run.scheduler()
     sched_kind = str(scheduler.get("kind", "") or "").lower()
@@ -83,10 +86,10 @@ def column_label(run: RunData, phase: str, env: str) -> str:
     absent = scheduler.get("absent")
     if run.kind == "baseline" and isinstance(absent, dict) and absent:
         # Batch-matched alone: the joint run's schedule with the absent envs' share not drawn.
-        joint = _joint_label(run, scheduler, sched_kind, [*envs, *absent])
+        joint = _joint_label(run, scheduler, sched_kind, [*envs, *absent], others or {})
         return matched_label(joint or run.protocol)
     if run.kind == "joint":
-        label = _joint_label(run, scheduler, sched_kind, envs)
+        label = _joint_label(run, scheduler, sched_kind, envs, others or {})
         if label:
             return label
     return run.protocol
@@ -98,7 +101,11 @@ def matched_label(joint: str) -> str:
 
 
 def _joint_label(
-    run: RunData, scheduler: dict[str, Any], sched_kind: str, envs: Sequence[str]
+    run: RunData,
+    scheduler: dict[str, Any],
+    sched_kind: str,
+    envs: Sequence[str],
+    others: Mapping[str, str],
 ) -> str | None:
     """The column a joint schedule over `envs` gets ("High FK", "50/50"), or None."""
     # `kind = "high_fk"` is seal.schedulers' shorthand for `kind = "stepped", preset = "high_fk"`.
@@ -108,7 +115,9 @@ def _joint_label(
     start = scheduler.get("start")
     if sched_kind == "stepped" and isinstance(start, dict) and start:
         # A stepped schedule without a preset is named for the env it starts high on.
-        return f"High {run.env_label(max(start, key=lambda e: float(start[e])))}"
+        high = max(start, key=lambda e: float(start[e]))
+        own = high in run.config.get("envs", {})
+        return f"High {run.env_label(high) if own else others.get(high, run.env_label(high))}"
     if sched_kind == "constant":
         label = _ratio_label(scheduler, envs)
         if label:
@@ -213,6 +222,13 @@ def _gather(paths: Iterable[str | os.PathLike[str]]) -> list[_Group]:
 
 def _labelled(groups: Sequence[_Group], frame_of: str) -> pd.DataFrame:
     """All runs' metrics (or train) rows with `column`, `env_label` and `source` (group) added."""
+    # Each env name's label from the runs that have it, for matched arms whose joint env is absent.
+    env_labels = {
+        env: run.env_label(env)
+        for group in groups
+        for run in group.runs
+        for env in run.config.get("envs", {})
+    }
     frames = []
     for group in groups:
         for run in group.runs:
@@ -222,7 +238,7 @@ def _labelled(groups: Sequence[_Group], frame_of: str) -> pd.DataFrame:
             frame = frame.copy()
             frame["seed"] = run.seed  # the run's identity within the group, whatever the CSV says
             labels = {
-                (phase, env): column_label(run, phase, env)
+                (phase, env): column_label(run, phase, env, env_labels)
                 for phase, env in frame[["phase", "env"]].drop_duplicates().itertuples(index=False)
             }
             frame["column"] = [

@@ -1,0 +1,162 @@
+"""`seal bench --learn table1`: paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md).
+
+Meta-World drawer-close-v3 and the kitchen's slide-cabinet under the paper's four columns
+(Single Env, 50/50, High FK, High MW), each ratio column with its batch-matched alone arms. Every
+arm is an ordinary protocol run by `seal run` in its own process (the transfer bench's launcher,
+two at a time); the table is `seal report`'s on their run directories, so its cells, changes,
+bootstrap CIs and [reached/seeds] are the ones a user gets from `seal report` on the same runs.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from seal.bench.transfer import Arm, code_versions, run_or_reuse
+from seal.errors import SealError, UnknownNameError
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+TABLE1 = Path(__file__).resolve().parents[2] / "protocols" / "table1_small"
+"""The arms' protocol files."""
+BUDGET_S = 90 * 60
+"""Wall time the default set (3 seeds of every arm) must fit on 2 CPU cores (issue 23)."""
+MIN_SEEDS = 3
+
+
+def _arm(name: str, label: str) -> Arm:
+    return Arm(name, label, None, directory=TABLE1)
+
+
+ARMS: tuple[Arm, ...] = (
+    _arm("single_mw", "Single Env (MW)"),
+    _arm("single_fk", "Single Env (FK)"),
+    _arm("joint_50_50", "50/50"),
+    _arm("high_fk", "High FK"),
+    _arm("high_mw", "High MW"),
+    _arm("high_fk_mw_alone", "Single Env (High FK batch), MW"),
+    _arm("high_fk_fk_alone", "Single Env (High FK batch), FK"),
+    _arm("high_mw_mw_alone", "Single Env (High MW batch), MW"),
+    _arm("high_mw_fk_alone", "Single Env (High MW batch), FK"),
+)
+"""Every arm. 50/50 has no alone arm of its own: with one task per env, 50/50 gives each task
+128 per step, Single Env's batch, so Single Env is its batch-matched alone arm too."""
+
+REFERENCES: dict[str, tuple[str, ...]] = {
+    "joint_50_50": ("single_mw", "single_fk"),
+    "high_fk": ("single_mw", "single_fk", "high_fk_mw_alone", "high_fk_fk_alone"),
+    "high_mw": ("single_mw", "single_fk", "high_mw_mw_alone", "high_mw_fk_alone"),
+}
+"""The arms each joint arm's cells are set against."""
+
+
+def arms(only: Sequence[str] | None = None) -> list[Arm]:
+    """All arms, or the named ones with the arms they are set against."""
+    if not only:
+        return list(ARMS)
+    by_name = {a.name: a for a in ARMS}
+    for name in only:
+        if name not in by_name:
+            raise UnknownNameError("table1 arm", name, list(by_name))
+    wanted = set(only).union(*(REFERENCES.get(n, ()) for n in only))
+    return [a for a in ARMS if a.name in wanted]
+
+
+def _cells(counts: pd.DataFrame) -> list[dict[str, Any]]:
+    """The report's update-count rows (one per column, env and task) as JSON records; NaN as None."""
+    records = counts.astype(object).where(counts.notna(), None).to_dict(orient="records")
+    return [
+        {str(k): (v.item() if hasattr(v, "item") else v) for k, v in r.items()} for r in records
+    ]
+
+
+def run_table1_bench(
+    seeds: int = MIN_SEEDS,
+    out: str | os.PathLike[str] = "reports/bench_table1",
+    parallel: int = 2,
+    overrides: Sequence[str] = (),
+    log: Callable[[str], None] = lambda _: None,
+    only: Sequence[str] | None = None,
+    reuse: bool = False,
+) -> dict[str, Any]:
+    """Run every arm's seeds with `seal run`, then `seal report` on their run directories; a JSON-able dict.
+
+    `overrides` go to every run (`--set agent.preset=...`, or the tiny sizes of the CI test);
+    `reuse` takes finished runs under `out` whose resolved config is today's.
+    """
+    from seal import load_run
+    from seal.bench.timing import machine_load
+    from seal.reports import report
+
+    if seeds < 1:
+        raise SealError(f"--seeds must be >= 1, got {seeds}")
+    if parallel < 1:
+        raise SealError(f"--jobs must be >= 1, got {parallel}")
+    chosen = arms(only)
+    load_before = machine_load()
+    started = time.monotonic()
+    # Joint arms first (the longest), so the last process does not run alone while a core idles.
+    jobs = sorted(
+        ((arm, seed) for seed in range(seeds) for arm in chosen),
+        key=lambda job: job[0].name not in REFERENCES,
+    )
+    run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
+    wall = time.monotonic() - started
+    ordered = [run_dirs[(a.name, s)] for a in chosen for s in range(seeds)]
+    result = report(ordered, out=Path(out) / "table1")
+    table = (result.out_dir / "tables" / "update_counts.md").read_text()
+    loaded = {key: load_run(path) for key, path in run_dirs.items()}
+    versions = code_versions({k: r.provenance.get("git_sha") for k, r in loaded.items()})
+    fresh = not reused
+    return {
+        "table": table,
+        "cells": _cells(result.update_counts),
+        "report_dir": str(result.out_dir),
+        "seeds": seeds,
+        "arms": [a.name for a in chosen],
+        "overrides": list(overrides),
+        "run_dirs": {f"{a}/seed-{s}": str(p) for (a, s), p in run_dirs.items()},
+        "reused": sorted(f"{a}/seed-{s}" for a, s in reused),
+        "code_versions": versions,
+        "warnings": list(result.warnings),
+        "wall_s": wall,
+        "budget": {
+            "wall_s_le": BUDGET_S,
+            "seeds_ge": MIN_SEEDS,
+            # Only a run that made every run itself says whether the set fits the budget.
+            "met": (wall <= BUDGET_S and seeds >= MIN_SEEDS) if fresh else None,
+        },
+        "parallel": parallel,
+        "load_before": load_before,
+        "load_after": machine_load(),
+    }
+
+
+def format_result(result: Mapping[str, Any]) -> str:
+    """The human-readable output of `run_table1_bench`: the report's table, then cost and budget."""
+    load = result["load_before"]
+    budget = result["budget"]
+    verdict = {None: "not judged (runs reused)", True: "met", False: "not met"}[budget["met"]]
+    lines = [
+        result["table"].rstrip(),
+        "",
+        "50/50's batch-matched alone arm is Single Env: with one task per env, 50/50 draws 128 per "
+        "task per step, Single Env's batch.",
+        f"Report (tables, plots): {result['report_dir']}",
+    ]
+    versions = result["code_versions"]
+    if len(versions) > 1:
+        listed = "; ".join(f"{sha}: {', '.join(runs)}" for sha, runs in versions.items())
+        lines.append(f"WARNING, runs made with {len(versions)} code versions: {listed}")
+    reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
+    lines.append(
+        f"{result['seeds']} seeds of {len(result['arms'])} arms, {result['parallel']} runs at a time, "
+        f"{result['wall_s']:.0f} s wall{reused} (budget {budget['wall_s_le']} s with >= "
+        f"{budget['seeds_ge']} seeds: {verdict}); load before {load['loadavg_1m']} (1 min) on "
+        f"{load['cpus']} CPUs, after {result['load_after']['loadavg_1m']}"
+    )
+    return "\n".join(lines)
