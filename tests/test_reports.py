@@ -290,7 +290,10 @@ def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path
         "0.128 (1/2 tasks) (-33.3% vs Single Env on 1 shared task)",
     ]
     assert "Fewer than 3 seeds in" in md and "no change against or of them is resolved" in md
-    assert "Paired by seed (the same seeds in both): High FK vs Single Env (MW)" in md
+    assert (
+        "Paired by seed (both columns reached the task in the same seeds): High FK vs Single Env (MW)"
+        in md
+    )
     assert "— = never reached 90% in any seed" in md
 
     tex = (out / "tables" / "update_counts.tex").read_text()
@@ -641,3 +644,19 @@ def test_reward_versions_are_compared_only_for_adapters_the_runs_have(
     record(groups["high_fk"], "v2")
     result = report([groups["baseline_fk"], groups["high_fk"]], out=tmp_path / "o2")
     assert any("reward version of franka_kitchen_dense" in w for w in result.warnings)
+
+
+def test_a_cells_ci_is_of_the_change_it_shows_when_a_seed_never_reached() -> None:
+    from seal.reports.changes import _cell_change
+
+    # Seed 2 of the arm never reached the task. The cell shows mean(1.0, 1.2) / mean(1, 1, 2) - 1
+    # = 1.1 / 1.333 - 1 = -17.5%; pairing seeds 0 and 1 alone would give a CI of [0%, +20%],
+    # which excludes it (seal bench --learn table1 printed "+19.8% [+0.0, +10.2]" so).
+    arm = pd.DataFrame({"t": [1.0, 1.2, float("nan")]}, index=[0, 1, 2])
+    base = pd.DataFrame({"t": [1.0, 1.0, 2.0]}, index=[0, 1, 2])
+    low, high, paired, enough = _cell_change(arm, base, "t")
+    assert not paired and not enough  # 2 seeds reached in the arm: nothing resolved
+    assert low <= 100 * (1.1 / (4 / 3) - 1) <= high
+    assert -50.0 <= low < high <= 20.0  # the extreme resamples: 1.0 against 2.0, 1.2 against 1.0
+    # Both reached in the same seeds: paired, as before.
+    assert _cell_change(arm.fillna(1.1), base, "t")[2]

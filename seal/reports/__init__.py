@@ -210,9 +210,17 @@ def _uncertainty_notes(
     ]
     pairs = pairing(counts, labels)
     if pairs["paired"]:
-        notes.append("Paired by seed (the same seeds in both): " + ", ".join(pairs["paired"]) + ".")
+        notes.append(
+            "Paired by seed (both columns reached the task in the same seeds): "
+            + ", ".join(pairs["paired"])
+            + "."
+        )
     if pairs["unpaired"]:
-        notes.append("Unpaired (different seeds): " + ", ".join(pairs["unpaired"]) + ".")
+        notes.append(
+            "Unpaired (different seeds, or seeds that reached the task in one column only): "
+            + ", ".join(pairs["unpaired"])
+            + "."
+        )
     if (counts["matched_reference"] != "").any():
         notes.append(
             "vs matched = against the column's batch-matched alone arm, Single Env (<column> "

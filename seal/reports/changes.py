@@ -66,16 +66,19 @@ def _task_values(table: pd.DataFrame, task: str, seeds: list[int]) -> list[float
 def _cell_change(
     arm: pd.DataFrame, base: pd.DataFrame, task: str
 ) -> tuple[float, float, bool, bool]:
-    """(ci_low %, ci_high %, paired, enough seeds) of one task's change."""
-    paired = _pair(arm, base)
-    if paired:
-        seeds = sorted(arm.index)
-        a, b = _task_values(arm, task, seeds), _task_values(base, task, seeds)
-    else:
-        a = _task_values(arm, task, sorted(arm.index))
-        b = _task_values(base, task, sorted(base.index))
+    """(ci_low %, ci_high %, paired, enough seeds) of one task's change.
+
+    The CI is of the change the cell shows (mean over each column's seeds that reached the task),
+    so it pairs by seed only when both columns reached the task in exactly the same seeds: pairs
+    dropped for a seed that one column never reached would make it a CI of another change.
+    """
+    a = _task_values(arm, task, sorted(arm.index))
+    b = _task_values(base, task, sorted(base.index))
+    reached_a = {s for s, v in zip(sorted(arm.index), a, strict=True) if math.isfinite(v)}
+    reached_b = {s for s, v in zip(sorted(base.index), b, strict=True) if math.isfinite(v)}
+    paired = _pair(arm, base) and reached_a == reached_b
     low, high = change_ci(a, b, paired=paired)
-    enough = min(len(arm.index), len(base.index)) >= MIN_SEEDS_RESOLVED
+    enough = min(len(reached_a), len(reached_b)) >= MIN_SEEDS_RESOLVED
     return 100 * low, 100 * high, paired, enough
 
 
@@ -201,10 +204,14 @@ def few_seeds(per_seed: pd.DataFrame, counts: pd.DataFrame) -> dict[str, int]:
 
 
 def pairing(counts: pd.DataFrame, labels: Mapping[str, str]) -> dict[str, list[str]]:
-    """ "paired" / "unpaired" -> the comparisons ("High FK vs Single Env (MW)") of each kind."""
+    """ "paired" / "unpaired" -> the comparisons ("High FK vs Single Env (MW)") of each kind.
+
+    Only cells with a CI count; a comparison is paired when every such cell was.
+    """
     out: dict[str, list[str]] = {"paired": [], "unpaired": []}
     for prefix in _REFERENCES:
-        rows = counts[counts[f"{prefix}reference"] != ""]
+        with_ci = counts[f"{prefix}pct_ci_low"].notna()
+        rows = counts[(counts[f"{prefix}reference"] != "") & with_ci]
         keys = ["column", f"{prefix}reference", "env"]
         for (column, ref, env), paired in (
             rows.groupby(keys, sort=False)[f"{prefix}paired"].all().items()
