@@ -1,11 +1,12 @@
 """Changes with their uncertainty: each column against Single Env and its batch-matched alone arm.
 
 A cell's change is mean(column) / mean(reference) - 1 over the seeds that reached 90%; its 95% CI
-is `seal.stats.change_ci` over those seeds, paired by seed when both columns ran the same seeds
-(a seed's two runs then share the seed's environment draws), else unpaired. An environment's total
-changes over the tasks both columns reached, with `seal.stats.stratified_change_ci` (seeds
-resampled within each task). A change is resolved when its CI excludes 0 and both columns have at
-least `seal.stats.MIN_SEEDS_RESOLVED` seeds; only a resolved decrease is bold.
+is `seal.stats.change_ci` over those seeds, paired by seed when both columns reached it in the
+same seeds (a seed's two runs then share the seed's environment draws), else unpaired. An
+environment's total changes over the tasks both columns reached, with
+`seal.stats.stratified_change_ci` (seeds resampled within each task). A change is resolved when
+its CI excludes 0 and both columns reached it in at least `seal.stats.MIN_SEEDS_RESOLVED` seeds;
+only a resolved decrease is bold.
 
 The references of a column C are Single Env and, when the report has it, the batch-matched alone
 arm "Single Env (C batch)" (`seal.reports.groups.matched_label`): the same per-task batch as C
@@ -63,22 +64,34 @@ def _task_values(table: pd.DataFrame, task: str, seeds: list[int]) -> list[float
     return [float(column.get(seed, math.nan)) for seed in seeds]
 
 
+def _reached(table: pd.DataFrame, task: str) -> set[int]:
+    """The seeds of a seeds x tasks table that reached `task` (a finite count)."""
+    values = _task_values(table, task, sorted(table.index))
+    return {seed for seed, v in zip(sorted(table.index), values, strict=True) if math.isfinite(v)}
+
+
+def _pairing(arm: pd.DataFrame, base: pd.DataFrame, tasks: list[str]) -> tuple[bool, bool]:
+    """(paired, enough seeds) of a change over `tasks`.
+
+    A change is shown over each column's seeds that reached the task, so its CI pairs by seed only
+    when both columns reached every task in exactly the same seeds: pairs dropped for a seed that
+    one column never reached would make it the CI of another change. Enough: every task reached
+    in >= MIN_SEEDS_RESOLVED seeds on both sides.
+    """
+    reached = [(_reached(arm, t), _reached(base, t)) for t in tasks]
+    paired = _pair(arm, base) and all(a == b for a, b in reached)
+    enough = all(min(len(a), len(b)) >= MIN_SEEDS_RESOLVED for a, b in reached)
+    return paired, enough
+
+
 def _cell_change(
     arm: pd.DataFrame, base: pd.DataFrame, task: str
 ) -> tuple[float, float, bool, bool]:
-    """(ci_low %, ci_high %, paired, enough seeds) of one task's change.
-
-    The CI is of the change the cell shows (mean over each column's seeds that reached the task),
-    so it pairs by seed only when both columns reached the task in exactly the same seeds: pairs
-    dropped for a seed that one column never reached would make it a CI of another change.
-    """
+    """(ci_low %, ci_high %, paired, enough seeds) of one task's change (`_pairing`)."""
+    paired, enough = _pairing(arm, base, [task])
     a = _task_values(arm, task, sorted(arm.index))
     b = _task_values(base, task, sorted(base.index))
-    reached_a = {s for s, v in zip(sorted(arm.index), a, strict=True) if math.isfinite(v)}
-    reached_b = {s for s, v in zip(sorted(base.index), b, strict=True) if math.isfinite(v)}
-    paired = _pair(arm, base) and reached_a == reached_b
     low, high = change_ci(a, b, paired=paired)
-    enough = min(len(reached_a), len(reached_b)) >= MIN_SEEDS_RESOLVED
     return 100 * low, 100 * high, paired, enough
 
 
@@ -165,15 +178,13 @@ def _totals_with_uncertainty(
                     and reached.get((ref, env, task), (False, 0.0))[0]
                 ]
                 if shared:
-                    paired = _pair(arm, base)
-                    seeds_a = sorted(arm.index)
-                    seeds_b = seeds_a if paired else sorted(base.index)
+                    paired, enough = _pairing(arm, base, shared)
+                    seeds_a, seeds_b = sorted(arm.index), sorted(base.index)
                     arm_values = {t: _task_values(arm, t, seeds_a) for t in shared}
                     base_values = {t: _task_values(base, t, seeds_b) for t in shared}
                     low, high = stratified_change_ci(arm_values, base_values, paired=paired)
                     arm_total = sum(reached[(row.column, row.env, t)][1] for t in shared)
                     base_total = sum(reached[(ref, row.env, t)][1] for t in shared)
-                    enough = min(len(arm.index), len(base.index)) >= MIN_SEEDS_RESOLVED
                     record.update(
                         pct_change=100 * (arm_total / base_total - 1)
                         if base_total > 0
