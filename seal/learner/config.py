@@ -69,11 +69,15 @@ class AgentConfig:
     hidden: tuple[int, ...] = (400, 400, 400)
     """MTMHSAC hidden layer widths of the actor and of each critic (Meta-World MTMHSAC: 3 x 400, ReLU)."""
     translator_hidden: tuple[int, ...] = (400,)
-    """SEAL state translator hidden widths; with latent_dim it makes the prototype's "2 x 400" translator (two layers: 400 hidden, then the 400-wide latent)."""
+    """SEAL state translator hidden widths, then latent_dim: [400] makes two layers (400 hidden, then the 400-wide latent); the prototype's three are [400, 400]."""
     latent_dim: int = 400
     """SEAL shared latent width: output of every env's translator and input of the shared trunk."""
     trunk_hidden: tuple[int, ...] = (400, 400, 400)
-    """SEAL shared latent policy (and critic) trunk widths (SEAL §3.3: 3 x 400)."""
+    """SEAL shared latent policy (and critic) trunk widths; the paper gives no size, the prototype has 6 x 400."""
+    head_hidden: tuple[int, ...] = ()
+    """SEAL action heads: hidden widths of each env's head between the trunk and its outputs; empty = one linear output layer (the default). The prototype: 3 x 400."""
+    head_per_task: bool = False
+    """With head_hidden: the head's last hidden layer is per task (one block of its width per task, the sample's task's block taken) and the output layer is shared by the env's tasks, as the prototype's actor."""
     actor_lr: float = 3e-4
     """Adam learning rate of the policy (before lr_factor)."""
     critic_lr: float = 3e-4
@@ -104,6 +108,10 @@ class AgentConfig:
     """How the envs of one update step the shared parameters (policy trunk; critic trunk when critic_sharing = "shared"): "weighted" = one step of one Adam on sum_i (n_i / N) L_i, so an env's share of the batch is its share of the trunk's signal; "sequential" = one step per env on its own mean loss through one shared Adam (the authors' prototype); "per_env" = one Adam per env over its translator, the trunk and its head, stepped in turn (SEAL §3.3 read literally; the ratio then changes only gradient noise, since Adam ignores a loss's scale)."""
     max_grad_norm: float = 1.0
     """Clip the global gradient norm of every actor and critic optimiser step to this (metaworld-algorithms' MT10 MTMHSAC and the prototype: 1.0); 0 turns clipping off. Temperatures are never clipped."""
+    clip_per: Literal["optimizer", "component"] = "optimizer"
+    """What max_grad_norm bounds: "optimizer" = the global norm of each optimiser slot; "component" = the norm of each env's translator, each env's head, the shared trunk and each env's critic apart (the prototype's per-TrainState clipping)."""
+    preset: str = ""
+    """A named set of agent keys filling those the protocol leaves out (seal.learner.presets: "seal_prototype" = the SEAL authors' network); explicit keys win, and `seal protocol explain` says which."""
     # Default "metaworld_algorithms": on `point` (protocols/learn/point.toml before it was a protocol, seeds 0-2) it reached 100% on
     # every task in 8,000 / 11,000 / 8,000 env steps against 12,000 / 11,000 / 10,000 with "torch".
     init: Literal["torch", "metaworld_algorithms"] = "metaworld_algorithms"
@@ -126,6 +134,22 @@ class AgentConfig:
     """torch.compile each update stage (the critic's, then the actor's losses with their gradients, forward and backward in one graph; on CUDA replayed as a CUDA graph); optimiser steps stay eager. Eager fallback, with one warning, if compilation fails; `Agent.compile_seconds` says what it cost."""
 
     def __post_init__(self) -> None:
+        head = self.head_hidden
+        if not isinstance(head, list | tuple) or any(
+            not isinstance(w, int) or isinstance(w, bool) or w < 1 for w in head
+        ):
+            raise ConfigError(
+                f"agent.head_hidden: expected a list of positive ints (empty = a linear head), got {head!r}"
+            )
+        object.__setattr__(self, "head_hidden", tuple(head))
+        if self.head_per_task and not self.head_hidden:
+            raise ConfigError(
+                "agent.head_per_task = true needs a hidden layer to split by task; set agent.head_hidden (e.g. [400, 400, 400])"
+            )
+        if self.head_hidden and self.architecture != "seal":
+            raise ConfigError(
+                f"agent.head_hidden is for the SEAL policy's action heads; architecture is {self.architecture!r}"
+            )
         for key in ("hidden", "translator_hidden", "trunk_hidden", "critic_hidden"):
             value = getattr(self, key)
             try:
@@ -149,6 +173,7 @@ class AgentConfig:
             ("shared_update", SHARED_UPDATES),
             ("critic_sharing", CRITIC_SHARINGS),
             ("init", INITS),
+            ("clip_per", ("optimizer", "component")),
         ):
             if getattr(self, key) not in valid:
                 raise ConfigError(

@@ -159,6 +159,48 @@ class MultiHeadLinear(nn.Module):
         return torch.gather(y, -2, index).squeeze(-2)
 
 
+class MLPHead(nn.Module):
+    """An env's action head with hidden layers (`AgentConfig.head_hidden`), for one member.
+
+    ReLU hidden layers, then the outputs. With `per_task` (the SEAL prototype's actor) the last
+    hidden layer has one block of its width per task, the sample's task's block taken, and the
+    output layer is shared by the env's tasks; otherwise the output layer has the per-task heads.
+    """
+
+    def __init__(
+        self, in_dim: int, hidden: Sequence[int], out_dim: int, num_heads: int, per_task: bool
+    ) -> None:
+        super().__init__()
+        shared = tuple(hidden[:-1]) if per_task else tuple(hidden)
+        self.body = StackedMLP(in_dim, shared) if shared else None
+        width = shared[-1] if shared else in_dim
+        self.task_layer = MultiHeadLinear(width, hidden[-1], num_heads) if per_task else None
+        last = hidden[-1]
+        self.out = MultiHeadLinear(last, out_dim, 1 if per_task else num_heads)
+
+    def reset_parameters(self, generator: torch.Generator, init: str, bound: float | None) -> None:
+        """Hidden layers as the trunk's (`StackedMLP`), the output layer as a linear head's."""
+        if self.body is not None:
+            self.body.reset_parameters(generator, init)
+        if self.task_layer is not None:
+            layer = self.task_layer
+            if init == "metaworld_algorithms":
+                _bounded_(layer.weight, math.sqrt(6.0 / layer.in_dim), generator)
+                with torch.no_grad():
+                    layer.bias.zero_()
+            else:
+                layer.reset_parameters(generator)
+        self.out.reset_parameters(generator, bound)
+
+    def forward(self, x: torch.Tensor, task_ids: torch.Tensor) -> torch.Tensor:
+        """(B, in) -> (B, out_dim) of each sample's task."""
+        if self.body is not None:
+            x = self.body(x)
+        if self.task_layer is not None:
+            x = F.relu(self.task_layer(x, task_ids))
+        return self.out(x, task_ids)
+
+
 class TaskNetwork(nn.Module):
     """Per environment i: head_i(trunk(translator_i(x)), task_id); see the module docstring.
 
@@ -175,8 +217,12 @@ class TaskNetwork(nn.Module):
         trunk_hidden: Sequence[int],
         translator: tuple[tuple[int, ...], int] | None,
         ensemble: int = 1,
+        head_hidden: Sequence[int] = (),
+        head_per_task: bool = False,
     ) -> None:
         super().__init__()
+        if head_hidden and ensemble != 1:
+            raise ValueError("heads with hidden layers serve one member (the policy)")
         self.segments = dict(segments)
         self.ensemble = ensemble
         self.translators = nn.ModuleDict()
@@ -195,7 +241,11 @@ class TaskNetwork(nn.Module):
         self.trunk = StackedMLP(trunk_in, trunk_hidden, ensemble)
         self.heads = nn.ModuleDict(
             {
-                key: MultiHeadLinear(self.trunk.out_dim, out_dims[key], num_heads[key], ensemble)
+                key: MLPHead(
+                    self.trunk.out_dim, head_hidden, out_dims[key], num_heads[key], head_per_task
+                )
+                if head_hidden
+                else MultiHeadLinear(self.trunk.out_dim, out_dims[key], num_heads[key], ensemble)
                 for key in segments
             }
         )
@@ -206,8 +256,19 @@ class TaskNetwork(nn.Module):
         """Re-draw every parameter, in a fixed order (translators, trunk, heads); see HEAD_BOUND."""
         for module in (*self.translators.values(), self.trunk):
             module.reset_parameters(generator, init)
+        bound = head_bound if init == "metaworld_algorithms" else None
         for head in self.heads.values():
-            head.reset_parameters(generator, head_bound if init == "metaworld_algorithms" else None)
+            if isinstance(head, MLPHead):
+                head.reset_parameters(generator, init, bound)
+            else:
+                head.reset_parameters(generator, bound)
+
+    def components(self) -> dict[str, list[nn.Parameter]]:
+        """The parameters by component: "translator.<env>", "trunk", "head.<env>"."""
+        out = {f"translator.{k}": list(m.parameters()) for k, m in self.translators.items()}
+        out["trunk"] = list(self.trunk.parameters())
+        out.update({f"head.{k}": list(m.parameters()) for k, m in self.heads.items()})
+        return out
 
     def env_parameters(self, key: str) -> list[nn.Parameter]:
         """Parameters used by env `key`: its translator, the shared trunk and its heads."""
@@ -273,6 +334,10 @@ class PerEnvCritic(nn.Module):
         """Re-draw every env's critic, in env order."""
         for net in self.nets.values():
             net.reset_parameters(generator, init, head_bound)
+
+    def components(self) -> dict[str, list[nn.Parameter]]:
+        """The parameters by component: "critic.<env>" (each env's whole critic)."""
+        return {f"critic.{k}": list(net.parameters()) for k, net in self.nets.items()}
 
     def env_parameters(self, key: str) -> list[nn.Parameter]:
         """Parameters of env `key`'s critic (all of them: nothing is shared)."""

@@ -11,6 +11,7 @@ copies `seal.learner.transfer`.
 from __future__ import annotations
 
 import copy
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict
@@ -175,6 +176,8 @@ class Agent:
             trunk,
             translator,
             ensemble=1,
+            head_hidden=config.head_hidden,
+            head_per_task=config.head_per_task,
         )
         critic_heads = {keys[s.name]: s.num_tasks if config.critic_multi_head else 1 for s in specs}
         self.critic: TaskNetwork | PerEnvCritic
@@ -217,22 +220,33 @@ class Agent:
         self.adam_cache: AdamCache = {}
         # New parameters or states may fail the compiled stages' guards: trace again.
         self.stages.forget_keys()
-        self.actor_slots, self.critic_slots = (
-            Slots(
+
+        def slots(net: TaskNetwork | PerEnvCritic, members: list[list[str]], lr: float) -> Slots:
+            params = [
+                unique_parameters(p for n in names for p in net.env_parameters(self._keys[n]))
+                for names in members
+            ]
+            groups = None
+            if config.clip_per == "component":
+                component = {id(p): c for c, ps in net.components().items() for p in ps}
+                groups = [
+                    [
+                        len(list(run))
+                        for _, run in itertools.groupby(slot, lambda p: component[id(p)])
+                    ]
+                    for slot in params
+                ]
+            return Slots(
                 members,
-                [
-                    unique_parameters(p for n in names for p in net.env_parameters(self._keys[n]))
-                    for names in members
-                ],
+                params,
                 lr=lr * self._lr_factor,
                 eps=config.adam_eps,
                 max_grad_norm=config.max_grad_norm,
+                groups=groups,
             )
-            for net, members, lr in (
-                (self.actor, self._actor_members, config.actor_lr),
-                (self.critic, self._critic_members, config.critic_lr),
-            )
-        )
+
+        self.actor_slots = slots(self.actor, self._actor_members, config.actor_lr)
+        self.critic_slots = slots(self.critic, self._critic_members, config.critic_lr)
         self.alpha_optimizer = torch.optim.Adam(
             list(self.log_alpha.values()), lr=config.alpha_lr, fused=True, eps=config.adam_eps
         )

@@ -241,6 +241,7 @@ def default_architecture(kind: str) -> str:
 
 def _build_agent(raw: Mapping[str, Any] | None, kind: str, device: str, file: str) -> AgentConfig:
     from seal.learner.config import RENAMED_KEYS, AgentConfig
+    from seal.learner.presets import preset_values
 
     table = dict(raw or {})
     renamed = sorted(set(table) & set(RENAMED_KEYS))
@@ -253,6 +254,8 @@ def _build_agent(raw: Mapping[str, Any] | None, kind: str, device: str, file: st
         # The aligned observation already carries the aligned one-hot id at a fixed index
         # (Appendix D), so by default the agent appends no second one.
         defaults["one_hot"] = False
+    # A preset's keys fill what the table leaves out; the table's own keys win (seal.learner.presets).
+    defaults.update(preset_values(table.get("preset", ""), file))
     return typed_config.build(AgentConfig, table, f"{file}: agent", defaults)
 
 
@@ -469,6 +472,21 @@ def explain(config: ProtocolConfig) -> str:
         section(f"envs.{name}", env, EnvConfig)
     agent = config.agent
     section("agent", agent, type(agent))
+    if agent.preset:
+        from seal.learner.presets import PRESETS
+
+        out.pop()  # the section's blank line: the preset's lines belong to [agent]
+        out.append(f"# agent.preset = {agent.preset!r} sets:")
+        for key, value in PRESETS[agent.preset].items():
+            shown = toml_value(value)
+            if toml_value(getattr(agent, key)) == shown:
+                out.append(f"#   {key} = {shown}")
+            else:
+                out.append(
+                    f"#   {key} = {shown}, overridden: the explicit {key} = "
+                    f"{toml_value(getattr(agent, key))} wins"
+                )
+        out.append("")
     for name in ("replay", "training", "evaluation"):
         obj = getattr(config, name)
         section(name, obj, type(obj))
