@@ -238,3 +238,14 @@ def test_every_arm_has_the_jsons_keys() -> None:
     # transitions = steps x 8 per step: the same saving, and a per-step batch of 8.
     assert summary["high_source"]["transfer_updates_saved"] == pytest.approx(-0.125)
     assert summary["high_source"]["per_step_batch_mean"] == 8.0
+
+
+def test_a_run_predating_an_agent_key_is_reused_only_at_that_keys_default() -> None:
+    from seal.bench.transfer import _same_tables
+
+    today = {"agent": {"latent_dim": 8, "head_hidden": [], "clip_per": "optimizer"}, "epochs": 2}
+    old = {"agent": {"latent_dim": 8}, "epochs": 2}  # saved before head_hidden and clip_per existed
+    assert _same_tables(old, today)
+    assert not _same_tables(old, {**today, "agent": {**today["agent"], "head_hidden": [400]}})
+    assert not _same_tables({**old, "epochs": 3}, today)
+    assert not _same_tables({"agent": {"latent_dim": 16}, "epochs": 2}, today)

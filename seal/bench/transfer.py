@@ -321,6 +321,28 @@ def _tables(resolved: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _same_tables(saved: Mapping[str, Any], want: Mapping[str, Any]) -> bool:
+    """Whether a run's saved tables are today's: an agent key the run predates counts as the same
+    when today's value is that key's default (a key added since, which keeps the old behaviour)."""
+    import dataclasses
+
+    from seal.learner.config import AgentConfig
+
+    defaults = {
+        f.name: f.default
+        for f in dataclasses.fields(AgentConfig)
+        if f.default is not f.default_factory
+    }
+    agent = dict(saved.get("agent", {}))
+    for key, value in want.get("agent", {}).items():
+        if key not in agent and key in defaults:
+            default = defaults[key]
+            agent[key] = list(default) if isinstance(default, tuple) else default
+            if agent[key] != value:
+                return False
+    return {**saved, "agent": agent} == want
+
+
 def resolved_tables(arm: Arm, overrides: Sequence[str] = ()) -> tuple[str, dict[str, Any]]:
     """(protocol name, the tables a run of `arm` saves in its config.toml), as the code resolves them now."""
     from seal.protocols import load_protocol
@@ -344,7 +366,7 @@ def finished_run(arm: Arm, seed: int, out: Path, overrides: Sequence[str] = ()) 
     for run in sorted(out.glob(f"{name}/*/seed-{seed}"), reverse=True):
         if not (run / "metrics.csv").is_file() or not (run / "config.toml").is_file():
             continue
-        if _tables(tomllib.loads((run / "config.toml").read_text())) != want:
+        if not _same_tables(_tables(tomllib.loads((run / "config.toml").read_text())), want):
             continue
         loaded = load_run(run)
         epochs = loaded.metrics["epoch"]
