@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
-from seal.bench.transfer import Arm, code_versions, run_or_reuse
+from seal.bench.transfer import Arm, code_versions, run_or_reuse, versions_note
 from seal.errors import SealError, UnknownNameError
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
@@ -175,10 +175,9 @@ def format_result(result: Mapping[str, Any]) -> str:
         lines.append(f"{a['label']:<24} {a['reached']:>7}  {cells:<38} {success}")
     goal = result["goal"]
     load = result["load_before"]
-    versions = result["code_versions"]
-    if len(versions) > 1:
-        listed = "; ".join(f"{sha}: {', '.join(runs)}" for sha, runs in versions.items())
-        lines.append(f"note, runs made with {len(versions)} code versions: {listed}")
+    note = versions_note(result["code_versions"])
+    if note:
+        lines.append(f"note, {note}")
     rewards = {
         str(v): [a["label"] for a in result["arms"].values() if v in a.get("reward_versions", [])]
         for a in result["arms"].values()

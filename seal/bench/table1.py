@@ -15,7 +15,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from seal.bench.transfer import Arm, code_versions, run_or_reuse
+from seal.bench.transfer import Arm, code_versions, run_or_reuse, versions_note
 from seal.errors import SealError, UnknownNameError
 
 if TYPE_CHECKING:
@@ -148,10 +148,9 @@ def format_result(result: Mapping[str, Any]) -> str:
         "task per step, Single Env's batch.",
         f"Report (tables, plots): {result['report_dir']}",
     ]
-    versions = result["code_versions"]
-    if len(versions) > 1:
-        listed = "; ".join(f"{sha}: {', '.join(runs)}" for sha, runs in versions.items())
-        lines.append(f"WARNING, runs made with {len(versions)} code versions: {listed}")
+    note = versions_note(result["code_versions"])
+    if note:
+        lines.append(f"WARNING, {note}")
     reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
     lines.append(
         f"{result['seeds']} seeds of {len(result['arms'])} arms, {result['parallel']} runs at a time, "

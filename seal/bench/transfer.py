@@ -413,6 +413,14 @@ def code_versions(shas: Mapping[tuple[str, int], str | None]) -> dict[str, list[
     return out
 
 
+def versions_note(versions: Mapping[str, Sequence[str]]) -> str | None:
+    """ "runs made with N code versions: <sha>: <runs>; ..." when `code_versions` found several, else None."""
+    if len(versions) <= 1:
+        return None
+    listed = "; ".join(f"{sha}: {', '.join(runs)}" for sha, runs in versions.items())
+    return f"runs made with {len(versions)} code versions: {listed}"
+
+
 # ---------------------------------------------------------------- the table
 
 
@@ -852,10 +860,9 @@ def format_result(result: Mapping[str, Any]) -> str:
     if result["seeds"] < 3:
         lines.append(f"{result['seeds']} seeds: fewer than 3, so no change is resolved.")
     lines += [f"WARNING, arms not comparable: {m}" for m in result["agent_mismatches"]]
-    versions = result["code_versions"]
-    if len(versions) > 1:
-        listed = "; ".join(f"{sha}: {', '.join(runs)}" for sha, runs in versions.items())
-        lines.append(f"WARNING, runs made with {len(versions)} code versions: {listed}")
+    note = versions_note(result["code_versions"])
+    if note:
+        lines.append(f"WARNING, {note}")
     reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
     lines.append(
         f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s wall{reused}; "

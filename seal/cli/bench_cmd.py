@@ -131,6 +131,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+LEARN_SETS: dict[str, tuple[str, int, str]] = {
+    "transfer": ("seal.bench.transfer", 5, "reports/bench_transfer"),
+    "kitchen": ("seal.bench.kitchen", 2, "reports/bench_kitchen"),
+    "table1": ("seal.bench.table1", 3, "reports/bench_table1"),
+}
+"""`--learn <set>`: the module (with run_<set>_bench and format_result), default seeds and reports root."""
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark and print the result."""
     import dataclasses
@@ -143,44 +151,41 @@ def run(args: argparse.Namespace) -> int:
     def log(msg: str) -> None:
         print(f"[bench] {msg}", file=sys.stderr, flush=True)
 
-    if args.learn not in (None, "evidence", "transfer", "kitchen", "table1"):
+    if args.learn not in (None, "evidence", *LEARN_SETS):
         raise SealError(
             f"--learn {args.learn!r}: unknown; valid: --learn, --learn transfer, --learn kitchen, "
             "--learn table1"
         )
     if args.full and args.learn != "transfer":
         raise SealError("--full only applies to --learn transfer")
-    if args.arms and args.learn not in ("transfer", "kitchen", "table1"):
+    if args.arms and args.learn not in LEARN_SETS:
         raise SealError("--arms only applies to --learn transfer, kitchen and table1")
     if args.overrides and args.protocol is None and args.learn != "table1":
         raise SealError("--set only applies to --protocol and --learn table1")
-    if args.learn == "table1":
-        from seal.bench.table1 import MIN_SEEDS, run_table1_bench
-        from seal.bench.table1 import format_result as format_table1
+    if args.learn in LEARN_SETS:
+        import importlib
 
-        result = run_table1_bench(
-            seeds=MIN_SEEDS if args.seeds is None else args.seeds,
-            out=args.out or "reports/bench_table1",
-            parallel=args.jobs,
-            overrides=args.overrides,
-            log=log,
-            only=args.arms,
-            reuse=args.reuse,
-        )
-        print(json.dumps(result, indent=2, default=float) if args.json else format_table1(result))
-        return 0
-    if args.learn == "kitchen":
-        from seal.bench.kitchen import format_result, run_kitchen_bench
-
-        result = run_kitchen_bench(
-            seeds=2 if args.seeds is None else args.seeds,
-            out=args.out or "reports/bench_kitchen",
+        module, default_seeds, default_out = LEARN_SETS[args.learn]
+        bench = importlib.import_module(module)
+        extra: dict[str, object] = {}
+        if args.learn == "transfer":
+            extra["full"] = args.full
+        if args.learn == "table1":
+            extra["overrides"] = args.overrides
+        result = getattr(bench, f"run_{args.learn}_bench")(
+            seeds=default_seeds if args.seeds is None else args.seeds,
+            out=args.out or default_out,
             parallel=args.jobs,
             log=log,
             only=args.arms,
             reuse=args.reuse,
+            **extra,
         )
-        print(json.dumps(result, indent=2, default=float) if args.json else format_result(result))
+        print(
+            json.dumps(result, indent=2, default=float)
+            if args.json
+            else bench.format_result(result)
+        )
         return 0
     if args.protocol is not None:
         from seal.bench.protocol import bench_protocol, format_protocol_bench
@@ -197,20 +202,6 @@ def run(args: argparse.Namespace) -> int:
             floor_only=args.floor_only,
         )
         print(json.dumps(result, indent=2) if args.json else format_protocol_bench(result))
-        return 0
-    if args.learn == "transfer":
-        from seal.bench.transfer import format_result, run_transfer_bench
-
-        result = run_transfer_bench(
-            full=args.full,
-            seeds=5 if args.seeds is None else args.seeds,
-            out=args.out or "reports/bench_transfer",
-            parallel=args.jobs,
-            log=log,
-            only=args.arms,
-            reuse=args.reuse,
-        )
-        print(json.dumps(result, indent=2, default=float) if args.json else format_result(result))
         return 0
 
     if args.threads is not None:
