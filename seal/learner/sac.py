@@ -229,13 +229,16 @@ class Agent:
             groups = None
             if config.clip_per == "component":
                 component = {id(p): c for c, ps in net.components().items() for p in ps}
-                groups = [
-                    [
-                        len(list(run))
-                        for _, run in itertools.groupby(slot, lambda p: component[id(p)])
+                groups = []
+                for slot in params:
+                    runs = [
+                        (c, len(list(run)))
+                        for c, run in itertools.groupby(slot, lambda p: component[id(p)])
                     ]
-                    for slot in params
-                ]
+                    names = [c for c, _ in runs]
+                    if len(set(names)) != len(names):  # a split component would be clipped twice
+                        raise ValueError(f"clip_per: a component is split in a slot: {names}")
+                    groups.append([n for _, n in runs])
             return Slots(
                 members,
                 params,

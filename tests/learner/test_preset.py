@@ -158,3 +158,70 @@ def test_component_clipping_bounds_each_component_apart() -> None:
     grads = [g for g in agent.actor_slots.grads(loss, ["mw", "fk"]) if g is not None]
     total = float(torch.linalg.vector_norm(torch.stack([g.norm() for g in grads])))
     assert total == pytest.approx(0.5, rel=1e-4)
+
+
+class _Crash(Exception):
+    pass
+
+
+def test_a_preset_run_saves_its_keys_and_resumes_to_the_same_rows(tmp_path) -> None:
+    """config.toml holds the preset's keys and loads back equal; a run killed after its epoch-2
+    checkpoint resumes (the per-task head layer and component clipping restored) to the rows of
+    the uninterrupted run."""
+    import json
+    import tomllib
+
+    import pandas as pd
+
+    from seal.protocols import run_seed
+    from seal.protocols.loader import config_from_dict
+    from seal.protocols.phase import LoopCallback, PhaseLoop
+    from seal.protocols.runner import load_policy
+    from tests.protocols.test_runner import JOINT_ENVS, protocol
+
+    small = [f"agent.{k}={list(v) if isinstance(v, tuple) else v}" for k, v in SMALL.items()]
+    path = protocol(tmp_path, JOINT_ENVS, kind="joint", epochs=4, warmup=16)
+    config = load_protocol(path, [PRESET, "logging.tensorboard=false", *small])
+    assert (config.agent.head_per_task, config.agent.clip_per) == (True, "component")
+
+    reference = run_seed(config, 0, tmp_path / "ref").run_dir
+    saved = config_from_dict(tomllib.loads((reference / "config.toml").read_text()), "saved")
+    assert saved.agent == config.agent
+    _, _, agent, _ = load_policy(reference / "checkpoints" / "best.pt", device="cpu")
+    assert agent.actor.heads["b"].task_layer.weight.shape == (1, 16, 2 * 16)
+
+    class Crash(LoopCallback):
+        def on_epoch_end(self, loop: PhaseLoop) -> None:
+            if loop.state.epoch == 3:
+                raise _Crash
+
+    with pytest.raises(_Crash):
+        run_seed(config, 0, tmp_path / "g", callbacks=[Crash()])
+    resumed = run_seed(config, 0, tmp_path / "g", resume=True).run_dir
+    resumes = json.loads((resumed / "provenance.json").read_text())["resumes"]
+    assert [r["from"] for r in resumes] == ["ckpt-0000002.pt"]
+    got, want = (
+        pd.read_csv(run / "metrics.csv").drop(columns="wall_s") for run in (resumed, reference)
+    )
+    assert got["epoch"].tolist() == want["epoch"].tolist() == [1, 1, 1, 2, 2, 2, 3, 3, 3, 4, 4, 4]
+    pd.testing.assert_frame_equal(got, want)
+
+
+@pytest.mark.parametrize("shared_update", ["weighted", "sequential", "per_env"])
+@pytest.mark.parametrize("critic_sharing", ["per_env", "shared"])
+def test_component_groups_under_every_update_mode(shared_update: str, critic_sharing: str) -> None:
+    """Every slot's clipping groups are its components, each once, in the slot's order."""
+    config = _prototype(**SMALL, shared_update=shared_update, critic_sharing=critic_sharing)
+    agent = Agent([EnvSpec("mw", 6, 2, 3), EnvSpec("fk", 8, 3, 2)], config, seed=0)
+    for net, slots in ((agent.actor, agent.actor_slots), (agent.critic, agent.critic_slots)):
+        owner = {id(p): c for c, ps in net.components().items() for p in ps}
+        for params, groups in zip(slots.params, slots.groups, strict=True):
+            names, start = [], 0
+            for size in groups:
+                run = {owner[id(p)] for p in params[start : start + size]}
+                assert len(run) == 1
+                names.append(run.pop())
+                start += size
+            assert start == len(params) and len(set(names)) == len(names)
+            members = {n.split(".")[-1] for n in names if "." in n}
+            assert all(f"head.{m}" in names or f"critic.{m}" in names for m in members)
