@@ -7,16 +7,19 @@ Two architectures share one building block, `TaskNetwork`, which for environment
 - **mtmhsac** (Yu et al. 2019; SEAL §3.1): one environment, no translator, the trunk is the
   3 x 400 ReLU MLP over [obs, one-hot], and the head holds one output per task.
 - **seal** (SEAL §3.3, Fig. 1c): the policy is g_phi_i(pi_eta(f_theta_i(s))) with a per-env state
-  translator f_theta_i (input: obs_i and the one-hot over env i's tasks; 400 hidden, then the
-  400-wide latent, ReLU after both: the prototype's "2 x 400"), the shared latent trunk pi_eta
-  (3 x 400, ReLU) and a per-env action head g_phi_i with one linear output per task of env i,
-  each 2 * act_dim_i wide (tanh-Gaussian mean and log std). The critics (`critic_sharing`): by
-  default ("per_env", the authors' prototype) each env has its own twin critic, a plain MLP over
-  (obs_i, one-hot, action_i) with one Q output per task of env i (`PerEnvCritic`); "shared" follows
-  the policy's pattern instead (per-env critic translators, a shared critic trunk, per-env per-task
-  Q heads). The twin Qs are two independent copies, and the target critics are deep copies that
-  share no tensor with the online ones. Which Adam owns which parameters follows
-  `shared_update` (see `seal.learner.update`); the per-task log temperatures have their own Adam.
+  translator f_theta_i (input: obs_i and the one-hot over env i's tasks; by default 400 hidden,
+  then the 400-wide latent, ReLU after both; the prototype has three layers), the shared latent
+  trunk pi_eta (by default 3 x 400, ReLU; the prototype's is 6 x 400) and a per-env action head
+  g_phi_i, by default one linear output per task of env i, each 2 * act_dim_i wide (tanh-Gaussian
+  mean and log std); `head_hidden` gives it hidden layers (`MLPHead`, the prototype's 3 x 400 with
+  a per-task last one; `agent.preset = "seal_prototype"` sets all three). The critics
+  (`critic_sharing`): by default ("per_env", the authors' prototype) each env has its own twin
+  critic, a plain MLP over (obs_i, one-hot, action_i) with one Q output per task of env i
+  (`PerEnvCritic`); "shared" follows the policy's pattern instead (per-env critic translators, a
+  shared critic trunk, per-env per-task Q heads). The twin Qs are two independent copies, and the
+  target critics are deep copies that share no tensor with the online ones. Which Adam owns which
+  parameters follows `shared_update` (see `seal.learner.update`); the per-task log temperatures
+  have their own Adam.
 
 Speed: an ensemble of G identical MLPs (the twin Q, G=2) is one `baddbmm` per layer over stacked
 weights of shape (G, in, out); all heads of a layer are one matmul whose output is reshaped to

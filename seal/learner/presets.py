@@ -37,6 +37,9 @@ PRESETS: dict[str, dict[str, object]] = {
         # (R:283) is not taken: ours keeps the per-task Q output (docs/hyperparameters.md).
         "critic_sharing": "per_env",
         "critic_hidden": (400, 400, 400),
+        # Not set: shared_update stays "weighted" (the ratio lever's trunk step); the prototype
+        # steps the trunk once per env (R:900-924), which is shared_update = "sequential".
+        # init stays "metaworld_algorithms" (the prototype's 0.1 biases are not taken).
     },
 }
 """Every preset: name -> the agent keys it sets."""
