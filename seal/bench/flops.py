@@ -303,7 +303,7 @@ def quickstart_setup(
     when an env's adapter is not installed."""
     from seal.learner import EnvSpec
     from seal.protocols import load_protocol
-    from seal.protocols.runner import build_adapters
+    from seal.protocols.phase_model import build_adapters
 
     config = load_protocol(str(protocol))
     try:

@@ -42,7 +42,7 @@ from typing import Any
 from seal.errors import SealError
 from seal.protocols import load_protocol, run_seed
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.runner import build_adapters, plan_phases
+from seal.protocols.phase_model import build_adapters, plan_phases
 
 PARTS = ("collect", "update", "evaluate", "checkpoint")
 PARALLEL_EFFICIENCY = 0.8

@@ -33,8 +33,8 @@ def run_explain(args: argparse.Namespace) -> int:
     config = load_protocol(args.file, args.overrides, args.scale)
     print(dumps_toml(config_to_dict(config)) if args.toml else explain(config), end="")
     if not args.toml:
+        from seal.protocols.phase_model import build_adapters
         from seal.protocols.resources import estimate_resources
-        from seal.protocols.runner import build_adapters
         from seal.provenance import resolve_device
 
         device = resolve_device(config.protocol.device)

@@ -12,99 +12,31 @@ The `PhaseLoop` decides when a checkpoint is due and the `Checkpointer` writes i
   the fields below, keeping the last `checkpoint.keep_last`; then the loop re-seeds its env
   instances (see `seal.protocols.runner`). All of it counts as the loop's "checkpoint" time.
 
-The file format is `seal.learner.checkpoint`'s: an atomic, data-only `torch.save`.
+The file format is `seal.learner.checkpoint`'s: an atomic, data-only `torch.save`; the fields
+are the TypedDicts of `seal.protocols.checkpoint_fields`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import random
-from typing import TYPE_CHECKING, Any, TypedDict
+from typing import TYPE_CHECKING
 
 import torch
 
 from seal.learner.checkpoint import save_checkpoint
+from seal.protocols.checkpoint_fields import BestFields, CheckpointFields, EpochFields
 from seal.protocols.loader import config_to_dict, dumps_toml
-from seal.protocols.phase import LoopCallback, PhaseLoop
+from seal.protocols.phase import LoopCallback, PhaseLoop, PhaseOwner
 
 if TYPE_CHECKING:
-    from seal.learner.replay import ReplayState
-    from seal.learner.sac import AgentState
     from seal.protocols.rundir import RunDir
-    from seal.protocols.runner import Run
-
-
-class RunnerFields(TypedDict):
-    """An epoch checkpoint's "runner" field: what resume needs besides the agent, replay and scheduler."""
-
-    phase_index: int
-    state: dict[str, Any]
-    """`dataclasses.asdict` of the phase's `PhaseState`."""
-    rows: dict[str, int]
-    """CSV file -> its rows when the checkpoint was taken (`RunDir.row_counts`)."""
-    torch_rng: torch.Tensor
-    py_rng: tuple[Any, ...]
-    """random.getstate() (lists instead of tuples once read back)."""
-    finished_phases: dict[str, dict[str, Any]]
-    """Phase name -> `dataclasses.asdict` of its final `PhaseState`."""
-    pending_evaluations: list[dict[str, Any]]
-    """`PendingEvaluation.fields` of the asynchronous evaluations not yet written (resume re-runs them)."""
-
-
-class CheckpointFields(TypedDict):
-    """The fields `seal run` adds to every checkpoint, beside `seal.learner.checkpoint`'s own."""
-
-    config_toml: str
-    seed: int
-    phase: str
-    phase_envs: list[str]
-    epoch: int
-    best: bool
-    mean_success: float
-    """The phase's best mean success so far."""
-
-
-class EpochFields(CheckpointFields):
-    """An epoch checkpoint's (ckpt-*.pt) fields."""
-
-    scheduler: dict[str, Any]
-    """`Scheduler.state_dict()`."""
-    runner: RunnerFields
-
-
-class BestFields(CheckpointFields):
-    """best.pt's fields (no scheduler, no runner, no replay: it is a policy, not a resume point)."""
-
-    scheduler: None
-    runner: None
-
-
-class EpochCheckpoint(EpochFields):
-    """An epoch checkpoint as `read_checkpoint` returns it: the point a resume continues from."""
-
-    seal_checkpoint: int
-    agent: AgentState
-    """`Agent.state_dict()`."""
-    replay: ReplayState | None
-    """`MultiTaskReplay.state_dict()` (None with checkpoint.save_replay = false)."""
-
-
-class BestCheckpoint(BestFields):
-    """best.pt as `read_checkpoint` returns it."""
-
-    seal_checkpoint: int
-    agent: AgentState
-    replay: None
-
-
-RunCheckpoint = EpochCheckpoint | BestCheckpoint
-"""A checkpoint `seal run` writes, either kind (`seal eval` takes both)."""
 
 
 class Checkpointer(LoopCallback):
     """Writes the run's checkpoints when the loop says one is due (see the module docstring)."""
 
-    def __init__(self, run: Run) -> None:
+    def __init__(self, run: PhaseOwner) -> None:
         self.run = run
         self.config_toml = dumps_toml(config_to_dict(run.config))
         """The run's config, saved in every checkpoint (it loads back with `seal eval`)."""

@@ -1,11 +1,12 @@
-"""One phase of a run: the phase plan, how its agent meets the envs, its counters and its loop.
+"""One phase of a run: its counters and its loop.
 
-`PhaseLoop` runs a phase's epochs in steps (plan, collect, train, evaluate, end of epoch,
+The phase plan and how its agent meets the envs are `seal.protocols.phase_model`'s. `PhaseLoop` runs a phase's epochs in steps (plan, collect, train, evaluate, end of epoch,
 checkpoint) over typed parts (agent, replay, scheduler, collector) and calls its
 `LoopCallback`s: the progress bar, the TensorBoard and wandb loggers (`seal.protocols.loggers`),
 a sweep's Ray Tune reporting and the `Checkpointer` (`seal.protocols.checkpointing`), which writes
 the checkpoints the loop calls for. The `Run` that owns it (`seal.protocols.runner`) keeps the run
-directory and registers the callbacks.
+directory and registers the callbacks; the loop and its callbacks see it as a `PhaseOwner`, so
+this module and the callbacks' need not import the runner.
 """
 
 from __future__ import annotations
@@ -14,10 +15,9 @@ import dataclasses
 import random
 import sys
 import time
-import zlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import torch
@@ -25,9 +25,16 @@ import torch
 from seal.device import torch_threads
 from seal.envs.base import EnvAdapter
 from seal.errors import SealError, TrainingDivergedError
-from seal.evaluation import AgentPolicy, evaluate, mean_success, reaches
+from seal.evaluation import evaluate, mean_success, reaches
 from seal.learner.sac import Agent
 from seal.protocols.config import ProtocolConfig
+from seal.protocols.phase_model import (
+    ACTING_THREADS,
+    Phase,
+    PhaseModel,
+    build_eval_collector,
+    derive_seed,
+)
 from seal.protocols.workers import (
     ActorWorker,
     EvaluationWorker,
@@ -41,120 +48,11 @@ if TYPE_CHECKING:
 
     from seal.envs.alignment import Alignment
     from seal.learner.collection import Collector, EpisodeStats
+    from seal.learner.config import AgentConfig
     from seal.learner.replay import MultiTaskReplay
-    from seal.protocols.checkpointing import EpochCheckpoint
-    from seal.protocols.rundir import MetricsRow, TrainRow
-    from seal.protocols.runner import Run
+    from seal.protocols.checkpoint_fields import EpochCheckpoint
+    from seal.protocols.rundir import MetricsRow, RunDir, TrainRow
     from seal.schedulers.base import Plan, Scheduler, ScoreRequest
-
-ALIGNED_ENV = "aligned"
-"""The agent's name for the single padded pseudo-environment of pad-and-fine-tune."""
-# Acting (collection, evaluation, scheduler scoring) runs on this many torch threads, whatever
-# protocol.threads gives the updates: its policy calls are a row per env instance, which a second
-# thread only slows, and the idle thread's spinning takes CPU from the collection workers
-# (quickstart evaluation: 2.3 s with one thread, 4.6 s with two; scripts/evaluation_seconds.py).
-ACTING_THREADS = 1
-
-
-@dataclass(frozen=True)
-class Phase:
-    """One training phase of a run: which envs it trains on, for how long, and how the agent sees them."""
-
-    name: str
-    index: int
-    envs: tuple[str, ...]
-    epochs: int
-    aligned: bool = False
-
-
-def derive_seed(*parts: int | str) -> int:
-    """A 32-bit seed from a run seed and labels, stable across processes (crc32, not hash())."""
-    ints = [p if isinstance(p, int) else zlib.crc32(p.encode()) for p in parts]
-    return int(np.random.SeedSequence(ints).generate_state(1, np.uint32)[0])
-
-
-class PhaseModel:
-    """How the agent of one phase meets the envs: its specs, names, and the obs/id transforms."""
-
-    def __init__(
-        self,
-        config: ProtocolConfig,
-        phase: Phase,
-        adapters: Mapping[str, EnvAdapter],
-        alignment: Alignment | None,
-    ) -> None:
-        from seal.learner import EnvSpec
-
-        self.phase = phase
-        self.adapters = {e: adapters[e] for e in phase.envs}
-        self.alignment = alignment if phase.aligned else None
-        if self.alignment is None:
-            self.agent_env = {e: e for e in phase.envs}
-            self.specs = [
-                EnvSpec(e, a.obs_dim, a.act_dim, len(a.tasks)) for e, a in self.adapters.items()
-            ]
-        else:
-            (env,) = phase.envs
-            a = self.adapters[env]
-            self.agent_env = {env: ALIGNED_ENV}
-            # The policy outputs the env's own action size (its last layer is per env and is
-            # re-initialised at transfer); the critic's action input is padded to the widest env.
-            self.specs = [
-                EnvSpec(
-                    ALIGNED_ENV,
-                    self.alignment.obs_dim,
-                    a.act_dim,
-                    self.alignment.num_ids,
-                    act_pad_to=self.alignment.act_dim,
-                )
-            ]
-        # The replay keeps one buffer per task of the env even where tasks share an aligned id
-        # (the three kitchen doors), so the per-task update counts stay separate; sampled task
-        # ids are mapped to aligned ids before the update.
-        self.replay_specs = [
-            dataclasses.replace(s, num_tasks=len(self.env_tasks_of(s.name))) for s in self.specs
-        ]
-        self.env_of_agent = {v: k for k, v in self.agent_env.items()}
-        self.env_tasks = {e: tuple(a.tasks) for e, a in self.adapters.items()}
-
-    def env_tasks_of(self, agent_env: str) -> tuple[str, ...]:
-        """The tasks of the env the agent calls `agent_env`."""
-        env = {v: k for k, v in self.agent_env.items()}[agent_env]
-        return tuple(self.adapters[env].tasks)
-
-    def aligned_names(self) -> dict[str, str]:
-        """protocol env -> alignment env name (the adapter's name)."""
-        return {e: a.name for e, a in self.adapters.items()}
-
-    def policy(self, agent: Agent, deterministic: bool) -> AgentPolicy:
-        """The agent as a collector policy over this phase's raw envs."""
-        return AgentPolicy(
-            agent,
-            deterministic=deterministic,
-            alignment=self.alignment,
-            agent_env=self.agent_env,
-            alignment_names=self.aligned_names(),
-        )
-
-    def aligned_ids(self, env: str) -> np.ndarray:
-        """Local task index -> the id the agent's heads use."""
-        if self.alignment is None:
-            return np.arange(len(self.env_tasks[env]))
-        return self.alignment.task_ids(self.adapters[env].name)
-
-
-def build_eval_collector(config: ProtocolConfig, model: PhaseModel, seed: int) -> Collector:
-    """Evaluation's instances of a phase, several per task, seeded from (run seed, phase) only:
-    every evaluation episode resets with a seed of its own (from its draw), so they need no
-    re-seeding at checkpoints and a resumed run evaluates exactly as the original did."""
-    from seal.learner.collection import evaluation_replicas
-
-    count = sum(len(ts) for ts in model.env_tasks.values())
-    return config.training.build_collector(
-        model.adapters,
-        derive_seed(seed, "eval", model.phase.index),
-        replicas=evaluation_replicas(config.evaluation.episodes, count),
-    )
 
 
 class Evaluated:
@@ -276,6 +174,37 @@ class ProgressBar(LoopCallback):
             self.bar.close()
 
 
+class PhaseOwner(Protocol):
+    """What a `PhaseLoop` and its callbacks use of the run that owns them (`seal.protocols.runner.Run`)."""
+
+    @property
+    def config(self) -> ProtocolConfig: ...
+    @property
+    def seed(self) -> int: ...
+    @property
+    def device(self) -> str: ...
+    @property
+    def quiet(self) -> bool: ...
+    @property
+    def rundir(self) -> RunDir: ...
+    @property
+    def adapters(self) -> Mapping[str, EnvAdapter]: ...
+    @property
+    def alignment(self) -> Alignment | None: ...
+    @property
+    def agent_cfg(self) -> AgentConfig: ...
+    @property
+    def phases(self) -> Sequence[Phase]: ...
+    @property
+    def results(self) -> Mapping[str, PhaseState]:
+        """Phase name -> the final counters of each phase finished so far."""
+        ...
+
+    def initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Agent:
+        """The phase's agent before its first update (transferred or fine-tuned where the protocol says)."""
+        ...
+
+
 class PhaseLoop:
     """One phase's epochs: plan, collect, update, evaluate, checkpoint, then the callbacks.
 
@@ -287,7 +216,7 @@ class PhaseLoop:
 
     def __init__(
         self,
-        run: Run,
+        run: PhaseOwner,
         phase: Phase,
         payload: EpochCheckpoint | None,
         callbacks: Sequence[LoopCallback] = (),
@@ -297,7 +226,7 @@ class PhaseLoop:
         cfg = self.cfg = run.config
         self.owner, self.phase = run, phase
         model = self.model = PhaseModel(cfg, phase, run.adapters, run.alignment)
-        self.agent: Agent = run._initial_agent(phase, model, resuming=payload is not None)
+        self.agent: Agent = run.initial_agent(phase, model, resuming=payload is not None)
         self.replay: MultiTaskReplay = cfg.replay.build(
             model.replay_specs,
             device=run.device,

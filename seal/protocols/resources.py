@@ -31,7 +31,7 @@ from seal.learner.config import AgentConfig, EnvSpec
 from seal.learner.replay import available_memory_bytes, replay_bytes
 from seal.learner.sac import Agent
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.phase import Phase, PhaseModel
+from seal.protocols.phase_model import Phase, PhaseModel, build_alignment, plan_phases
 
 FLOAT = 4
 """Bytes of a float32: the dtype of every network, optimiser state, activation and replay field."""
@@ -86,8 +86,6 @@ def estimate_resources(
     config: ProtocolConfig, adapters: Mapping[str, EnvAdapter], device: str
 ) -> ResourceEstimate:
     """The run's estimated memory on `device` (see the module docstring); allocates nothing."""
-    from seal.protocols.runner import build_alignment, plan_phases
-
     alignment = build_alignment(config, adapters) if config.kind == "finetune" else None
     phases = [
         _phase_estimate(config, phase, PhaseModel(config, phase, adapters, alignment))

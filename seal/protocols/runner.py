@@ -36,45 +36,40 @@ full disk (ENOSPC, EDQUOT) while it writes stops it with one line naming the fil
 
 from __future__ import annotations
 
-import dataclasses
 import errno
 import json
 import math
 import shutil
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypedDict, cast
+from typing import Any, TypedDict, cast
 
 import torch
 
 from seal import provenance
-from seal.envs import make_adapter
-from seal.envs.base import EnvAdapter
 from seal.errors import ConfigError, SealError
 from seal.learner.checkpoint import read_checkpoint
-from seal.learner.config import AgentConfig
 from seal.learner.sac import Agent
 from seal.learner.transfer import transfer_from
-from seal.protocols.checkpointing import Checkpointer, EpochCheckpoint, RunCheckpoint
+from seal.protocols.checkpoint_fields import EpochCheckpoint, RunCheckpoint
+from seal.protocols.checkpointing import Checkpointer
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
 from seal.protocols.loggers import ScalarLogger, open_loggers
-from seal.protocols.phase import (
-    LoopCallback,
+from seal.protocols.phase import LoopCallback, PhaseLoop, PhaseState, ProgressBar
+from seal.protocols.phase_model import (
     Phase,
-    PhaseLoop,
     PhaseModel,
-    PhaseState,
-    ProgressBar,
+    build_adapters,
+    build_alignment,
     derive_seed,
+    plan_phases,
+    run_agent_config,
 )
 from seal.protocols.resources import check_resources
 from seal.protocols.rundir import DirLock, RunDir, new_group_id, parse_seed_dir, seed_dir
-
-if TYPE_CHECKING:
-    from seal.envs.alignment import Alignment
 
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 """OSError numbers a run reports in one line: the user frees space and resumes."""
@@ -104,52 +99,6 @@ class RunResult:
     """env -> task -> success rate at the last evaluation of the phase that trained on env."""
     timing: dict[str, PhaseTiming] = field(default_factory=dict)
     """phase -> {"seconds", "calls"} of its collect/update/evaluate/checkpoint parts, "epochs", "grad_steps" (`seal bench --protocol`)."""
-
-
-def plan_phases(config: ProtocolConfig) -> list[Phase]:
-    """The phases of a protocol, by kind."""
-    if config.kind == "finetune":
-        ft = config.finetune
-        assert ft is not None
-        return [
-            Phase("pretrain", 0, (ft.source,), ft.pretrain_epochs, aligned=True),
-            Phase("finetune", 1, (ft.target,), ft.finetune_epochs, aligned=True),
-        ]
-    return [Phase("train", 0, tuple(config.envs), config.protocol.epochs)]
-
-
-def build_adapters(
-    config: ProtocolConfig, envs: Sequence[str] | None = None
-) -> dict[str, EnvAdapter]:
-    """The adapters of the protocol's envs (all, or the named ones), with their resolved tasks."""
-    names = list(config.envs) if envs is None else list(envs)
-    return {
-        n: make_adapter(
-            config.envs[n].adapter,
-            tasks=list(config.envs[n].tasks),
-            episode_length=config.envs[n].episode_length,
-            **config.envs[n].options,
-        )
-        for n in names
-    }
-
-
-def build_alignment(config: ProtocolConfig, adapters: Mapping[str, EnvAdapter]) -> Alignment:
-    """The pad-and-fine-tune alignment over source then target adapters (Table 3 unless overridden)."""
-    from seal.envs.alignment import Alignment
-
-    ft = config.finetune
-    assert ft is not None
-    table = dict(ft.alignment) or None
-    try:
-        return Alignment.build([adapters[ft.source], adapters[ft.target]], table)
-    except SealError as exc:
-        raise SealError(f"{config.path}: finetune.alignment: {exc}") from None
-
-
-def run_agent_config(config: ProtocolConfig, device: str) -> AgentConfig:
-    """The AgentConfig a run trains with on `device`."""
-    return dataclasses.replace(config.agent, device=device)
 
 
 # ---------------------------------------------------------------- checkpoint files
@@ -368,7 +317,8 @@ class Run:
         return RunResult(self.rundir.path, counts, final, timing)
 
     # ------------------------------------------------------------ building blocks
-    def _initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Agent:
+    def initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Agent:
+        """The phase's agent before its first update: transferred ([transfer]) or fine-tuned from pre-training's best."""
         agent = Agent(model.specs, self.agent_cfg, derive_seed(self.seed, "agent", phase.index))
         if resuming:
             return agent  # the checkpoint's agent state replaces everything (lr factor included)

@@ -9,7 +9,7 @@ whole `state_dict`, copied to the CPU) and the metrics rows as they stand then (
 steps, env steps, consumed updates, batch: `PendingEvaluation`), hands the snapshot to the
 `EvaluationWorker` and goes on training. The worker evaluates it as a synchronous evaluation
 would: the same deterministic policy on the same device and thread count, the same evaluation
-instances (`phase.build_eval_collector`, seeded from (seed, phase)) and the same episode seeds
+instances (`phase_model.build_eval_collector`, seeded from (seed, phase)) and the same episode seeds
 (the draw is the snapshot's gradient-step count), so its numbers are those of a synchronous
 evaluation of the same snapshot. The loop writes the rows, in the order the snapshots were
 taken, when the results come back; best.pt is the snapshot's agent.
@@ -45,11 +45,20 @@ import torch
 
 from seal.errors import SealError
 from seal.learner.sac import Agent
+from seal.protocols.phase_model import (
+    ACTING_THREADS,
+    Phase,
+    PhaseModel,
+    build_adapters,
+    build_alignment,
+    build_eval_collector,
+    derive_seed,
+    run_agent_config,
+)
 
 if TYPE_CHECKING:
     from seal.learner.collection import Collector, EpisodeStats
     from seal.protocols.config import ProtocolConfig
-    from seal.protocols.phase import Phase, PhaseModel
     from seal.protocols.rundir import MetricsRow
 
 Results = dict[str, dict[str, dict[str, float]]]
@@ -221,8 +230,6 @@ def _worker_main(
 ) -> None:
     """The worker: build the phase's side of `role`, then answer ("request", payload) messages."""
     _exit_with_parent(parent)
-    from seal.protocols.phase import ACTING_THREADS, PhaseModel
-    from seal.protocols.runner import build_adapters, build_alignment, run_agent_config
 
     try:
         torch.set_num_threads(ACTING_THREADS)
@@ -257,8 +264,6 @@ class _Evaluation:
     """The evaluation worker's side: the phase's evaluation instances and a deterministic policy."""
 
     def __init__(self, config: ProtocolConfig, model: PhaseModel, agent: Agent, seed: int) -> None:
-        from seal.protocols.phase import build_eval_collector
-
         self.config, self.model, self.agent = config, model, agent
         self.policy = model.policy(agent, deterministic=True)
         self.collector = build_eval_collector(config, model, seed)
@@ -292,8 +297,6 @@ class _Collection:
         self.backend: str | None = None
 
     def __call__(self, request: Mapping[str, Any]) -> list[tuple[list[Transition], EpisodeStats]]:
-        from seal.protocols.phase import derive_seed
-
         anchor = int(request["anchor"])
         if self.collector is None or anchor != self.anchor:
             # As the loop re-seeds its own instances after every checkpoint (exact resume).

@@ -11,9 +11,8 @@ from seal.cli.main import main
 from seal.learner.sac import Agent
 from seal.protocols import load_protocol
 from seal.protocols import resources as resources_module
-from seal.protocols.phase import PhaseModel
+from seal.protocols.phase_model import PhaseModel, build_adapters, plan_phases
 from seal.protocols.resources import estimate_resources
-from seal.protocols.runner import build_adapters, plan_phases
 
 POINT = Path(__file__).parents[2] / "protocols" / "learn" / "point.toml"
 TWO_ENVS = """
