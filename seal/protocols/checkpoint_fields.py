@@ -8,29 +8,53 @@ the loop (`seal.protocols.phase`) restores from an epoch checkpoint, and the run
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, TypedDict
+from typing import TYPE_CHECKING, Any, NotRequired, TypedDict
 
 import torch
 
 if TYPE_CHECKING:
     from seal.learner.replay import ReplayState
     from seal.learner.sac import AgentState
+    from seal.protocols.workers import PendingFields
+
+
+class PhaseStateFields(TypedDict):
+    """`PhaseState.fields()`: a phase's counters as a checkpoint holds them (see `PhaseState` for
+    each key; tests/protocols/test_checkpointing.py holds the keys to its fields). A checkpoint
+    written before a key was kept lacks it, and `PhaseState(**fields)` gives it its default."""
+
+    epoch: int
+    grad_steps: int
+    env_steps: dict[str, list[int]]
+    best_mean_success: float
+    wall_s: float
+    anchor_epoch: int
+    last_success: dict[str, dict[str, float]]
+    reached: dict[str, dict[str, float]]
+    timeline_rows: int
+    log_sums: NotRequired[dict[str, float]]
+    log_updates: NotRequired[int]
+    seconds: NotRequired[dict[str, float]]
+    calls: NotRequired[dict[str, int]]
+    demos: NotRequired[dict[str, dict[str, float]]]
+    collected_lengths: NotRequired[dict[str, int]]
+    evaluated_at: NotRequired[int]
 
 
 class RunnerFields(TypedDict):
     """An epoch checkpoint's "runner" field: what resume needs besides the agent, replay and scheduler."""
 
     phase_index: int
-    state: dict[str, Any]
-    """`dataclasses.asdict` of the phase's `PhaseState`."""
+    state: PhaseStateFields
+    """The phase's `PhaseState`."""
     rows: dict[str, int]
     """CSV file -> its rows when the checkpoint was taken (`RunDir.row_counts`)."""
     torch_rng: torch.Tensor
     py_rng: tuple[Any, ...]
-    """random.getstate() (lists instead of tuples once read back)."""
-    finished_phases: dict[str, dict[str, Any]]
-    """Phase name -> `dataclasses.asdict` of its final `PhaseState`."""
-    pending_evaluations: list[dict[str, Any]]
+    """random.getstate(), typed as the standard library types it (lists instead of tuples once read back)."""
+    finished_phases: dict[str, PhaseStateFields]
+    """Phase name -> its final `PhaseState`."""
+    pending_evaluations: list[PendingFields]
     """`PendingEvaluation.fields` of the asynchronous evaluations not yet written (resume re-runs them)."""
 
 
@@ -51,7 +75,7 @@ class EpochFields(CheckpointFields):
     """An epoch checkpoint's (ckpt-*.pt) fields."""
 
     scheduler: dict[str, Any]
-    """`Scheduler.state_dict()`."""
+    """`Scheduler.state_dict()`: each scheduler's own keys."""
     runner: RunnerFields
 
 

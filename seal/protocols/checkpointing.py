@@ -18,7 +18,6 @@ are the TypedDicts of `seal.protocols.checkpoint_fields`.
 
 from __future__ import annotations
 
-import dataclasses
 import random
 from typing import TYPE_CHECKING
 
@@ -60,11 +59,11 @@ class Checkpointer(LoopCallback):
             "scheduler": loop.scheduler.state_dict(),
             "runner": {
                 "phase_index": loop.phase.index,
-                "state": dataclasses.asdict(state),
+                "state": state.fields(),
                 "rows": self.rundir.row_counts(),
                 "torch_rng": torch.get_rng_state(),
                 "py_rng": random.getstate(),
-                "finished_phases": {k: dataclasses.asdict(v) for k, v in self.run.results.items()},
+                "finished_phases": {k: v.fields() for k, v in self.run.results.items()},
                 "pending_evaluations": [p.fields() for p in loop.pending],
             },
         }

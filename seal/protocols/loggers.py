@@ -25,7 +25,7 @@ import secrets
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,6 +34,8 @@ from seal.protocols.phase import LoopCallback
 from seal.protocols.rundir import atomic_write_text
 
 if TYPE_CHECKING:
+    from torch.utils.tensorboard import SummaryWriter
+
     from seal.protocols.config import ProtocolConfig
     from seal.protocols.phase import PhaseLoop
     from seal.protocols.rundir import TrainRow
@@ -170,7 +172,7 @@ class TensorBoardLogger(ScalarLogger):
         self.purge = dict(purge or {})
         self.writers: dict[str, SummaryWriter] = {}
 
-    def _writer(self, phase: str) -> Any:
+    def _writer(self, phase: str) -> SummaryWriter:
         """The phase's writer, opened at its first event (with the purge when it is the phase's)."""
         if phase not in self.writers:
             self.writers[phase] = self._summary_writer(

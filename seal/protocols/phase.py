@@ -17,7 +17,7 @@ import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import numpy as np
 import torch
@@ -50,7 +50,7 @@ if TYPE_CHECKING:
     from seal.learner.collection import Collector, EpisodeStats
     from seal.learner.config import AgentConfig
     from seal.learner.replay import MultiTaskReplay
-    from seal.protocols.checkpoint_fields import EpochCheckpoint
+    from seal.protocols.checkpoint_fields import EpochCheckpoint, PhaseStateFields
     from seal.protocols.rundir import MetricsRow, RunDir, TrainRow
     from seal.schedulers.base import Plan, Scheduler, ScoreRequest
 
@@ -108,6 +108,10 @@ class PhaseState:
     evaluated_at: int = -1
     """Gradient steps at the last evaluation (an evaluation every K steps that falls on the last
     update of the run is not repeated at its end)."""
+
+    def fields(self) -> PhaseStateFields:
+        """The counters as a checkpoint holds them (`dataclasses.asdict`)."""
+        return cast("PhaseStateFields", dataclasses.asdict(self))
 
     def add_time(self, part: str, since: float) -> None:
         """Count one run of `part` that started at time.perf_counter() `since`."""

@@ -51,7 +51,7 @@ import torch
 from seal import provenance
 from seal.errors import ConfigError, SealError
 from seal.learner.checkpoint import read_checkpoint
-from seal.learner.sac import Agent
+from seal.learner.sac import Agent, AgentState
 from seal.learner.transfer import transfer_from
 from seal.protocols.checkpoint_fields import EpochCheckpoint, RunCheckpoint
 from seal.protocols.checkpointing import Checkpointer
@@ -104,7 +104,7 @@ class RunResult:
 # ---------------------------------------------------------------- checkpoint files
 
 
-def transfer_source(config: ProtocolConfig) -> dict[str, Any] | None:
+def transfer_source(config: ProtocolConfig) -> AgentState | None:
     """The agent state named by [transfer] checkpoint (None without [transfer]).
 
     ConfigError naming `transfer.checkpoint` and the path if it is empty, missing or not a
@@ -327,6 +327,7 @@ class Run:
             state = self.transfer_state
             if state is None:
                 state = transfer_source(self.config)
+                assert state is not None  # None only without [transfer]
             try:
                 transfer_from(agent, state, reinit_critic=transfer.reinit_critic)
             except SealError as exc:

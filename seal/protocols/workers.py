@@ -35,16 +35,15 @@ import multiprocessing as mp
 import os
 import signal
 import traceback
-from collections.abc import Mapping
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Generic, TypedDict, TypeVar, cast
 
 import numpy as np
 import torch
 
 from seal.errors import SealError
-from seal.learner.sac import Agent
+from seal.learner.sac import Agent, AgentState
 from seal.protocols.phase_model import (
     ACTING_THREADS,
     Phase,
@@ -65,15 +64,28 @@ Results = dict[str, dict[str, dict[str, float]]]
 """`seal.evaluation.evaluate`'s result: {env: {task: {"success", "return"}}}."""
 
 
-def cpu_copy(obj: Any) -> Any:
+T = TypeVar("T")
+
+
+def cpu_copy(obj: T) -> T:
     """A copy of a (nested) state dict whose tensors are detached copies on the CPU."""
     if isinstance(obj, torch.Tensor):
-        return obj.detach().to("cpu", copy=True)
+        return cast("T", obj.detach().to("cpu", copy=True))
     if isinstance(obj, dict):
-        return {k: cpu_copy(v) for k, v in obj.items()}
+        return cast("T", {k: cpu_copy(v) for k, v in obj.items()})
     if isinstance(obj, list | tuple):
-        return type(obj)(cpu_copy(v) for v in obj)
+        return cast("T", type(obj)(cpu_copy(v) for v in obj))
     return obj
+
+
+class PendingFields(TypedDict):
+    """`PendingEvaluation.fields`: what an epoch checkpoint stores of an evaluation still pending."""
+
+    draw: int
+    epoch: int
+    grad_steps: int
+    rows: list[MetricsRow]
+    agent: AgentState
 
 
 @dataclass
@@ -86,27 +98,31 @@ class PendingEvaluation:
     grad_steps: int
     rows: list[MetricsRow]
     """metrics.csv rows as they stood at the snapshot; success and return are filled in later."""
-    agent: dict[str, Any]
+    agent: AgentState
     """The agent's `state_dict` at the snapshot, on the CPU."""
 
-    def fields(self) -> dict[str, Any]:
+    def fields(self) -> PendingFields:
         """What an epoch checkpoint stores of it (tensors and plain values only)."""
-        return dataclasses.asdict(self)
+        return cast("PendingFields", dataclasses.asdict(self))
 
     @classmethod
-    def from_fields(cls, fields: Mapping[str, Any]) -> PendingEvaluation:
+    def from_fields(cls, fields: PendingFields) -> PendingEvaluation:
         """The pending evaluation a checkpoint stored (`fields`)."""
         return cls(
             draw=int(fields["draw"]),
             epoch=int(fields["epoch"]),
             grad_steps=int(fields["grad_steps"]),
             rows=[dict(r) for r in fields["rows"]],  # type: ignore[misc]
-            agent=dict(fields["agent"]),
+            agent=cast("AgentState", dict(fields["agent"])),
         )
 
 
-class PolicyWorker:
-    """A spawned process that answers one phase's requests, one after another (module docstring)."""
+Answer = TypeVar("Answer")
+
+
+class PolicyWorker(Generic[Answer]):
+    """A spawned process that answers one phase's requests, one after another (module docstring);
+    `result` returns its answers (`Answer`: the subclass's)."""
 
     role = ""
 
@@ -124,7 +140,7 @@ class PolicyWorker:
         self._ready = False
         self.in_flight = 0
 
-    def _submit(self, request: Mapping[str, Any]) -> None:
+    def _submit(self, request: EvaluationRequest | CollectionRequest) -> None:
         buffer = io.BytesIO()
         torch.save(dict(request), buffer)  # tensors and plain values: read back weights_only
         self._conn.send(("request", buffer.getvalue()))
@@ -138,7 +154,7 @@ class PolicyWorker:
             self._receive()  # the start-up message
         return False
 
-    def result(self) -> Any:
+    def result(self) -> Answer:
         """The oldest request's answer, waiting for it."""
         if not self.in_flight:
             raise RuntimeError("no request in flight")
@@ -146,9 +162,9 @@ class PolicyWorker:
             kind, answer = self._receive()
             if kind == "ok":
                 self.in_flight -= 1
-                return answer
+                return cast("Answer", answer)
 
-    def _receive(self) -> tuple[str, Any]:
+    def _receive(self) -> tuple[str, Any]:  # Any: whatever the pipe unpickles
         try:
             kind, answer = self._conn.recv()
         except (EOFError, OSError):
@@ -172,12 +188,19 @@ class PolicyWorker:
         self._conn.close()
 
 
-class EvaluationWorker(PolicyWorker):
+class EvaluationRequest(TypedDict):
+    """What the evaluation worker is sent: the episode set and the snapshot to evaluate."""
+
+    draw: int
+    agent: AgentState
+
+
+class EvaluationWorker(PolicyWorker[Results]):
     """Evaluates agent snapshots (`evaluation.mode = "async"`)."""
 
     role = "evaluation"
 
-    def submit(self, draw: int, agent_state: Mapping[str, Any]) -> None:
+    def submit(self, draw: int, agent_state: AgentState) -> None:
         """Evaluate `agent_state` with the episodes of `draw`; `result` returns `Results`, in order."""
         self._submit({"draw": draw, "agent": agent_state})
 
@@ -186,9 +209,20 @@ Pass = tuple[bool, dict[str, list[bool]]]
 """One `Collector.collect_episodes` call: (random actions, env -> which tasks collect)."""
 Transition = tuple[str, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 """One step of one env's running instances, as a `TransitionSink` receives it."""
+Collected = tuple[list[Transition], "EpisodeStats"]
+"""One pass's transitions, in the order they were made, and its episode statistics."""
 
 
-class ActorWorker(PolicyWorker):
+class CollectionRequest(TypedDict):
+    """What the actor is sent: the passes to collect, the instances' and the noise's seeds, the policy."""
+
+    passes: list[Pass]
+    anchor: int
+    act_seed: int
+    agent: AgentState | None
+
+
+class ActorWorker(PolicyWorker[list[Collected]]):
     """Collects epochs' episodes beside the updates (`training.overlap`)."""
 
     role = "collection"
@@ -198,7 +232,7 @@ class ActorWorker(PolicyWorker):
         passes: list[Pass],
         anchor: int,
         act_seed: int,
-        agent_state: Mapping[str, Any] | None,
+        agent_state: AgentState | None,
     ) -> None:
         """Collect `passes` on the instances seeded from checkpoint epoch `anchor`, acting with
         `agent_state` (None: every pass acts at random) and noise from `act_seed`; `result` returns
@@ -268,7 +302,7 @@ class _Evaluation:
         self.policy = model.policy(agent, deterministic=True)
         self.collector = build_eval_collector(config, model, seed)
 
-    def __call__(self, request: Mapping[str, Any]) -> Results:
+    def __call__(self, request: EvaluationRequest) -> Results:
         from seal.evaluation import evaluate
 
         self.agent.load_state_dict(request["agent"])
@@ -296,7 +330,7 @@ class _Collection:
         self.anchor = -1
         self.backend: str | None = None
 
-    def __call__(self, request: Mapping[str, Any]) -> list[tuple[list[Transition], EpisodeStats]]:
+    def __call__(self, request: CollectionRequest) -> list[Collected]:
         anchor = int(request["anchor"])
         if self.collector is None or anchor != self.anchor:
             # As the loop re-seeds its own instances after every checkpoint (exact resume).

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from seal.learner.checkpoint import read_checkpoint
 from seal.protocols import load_protocol, run_seed
+from seal.protocols.checkpoint_fields import PhaseStateFields
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.phase import LoopCallback, PhaseLoop
+from seal.protocols.phase import LoopCallback, PhaseLoop, PhaseState
+from seal.protocols.workers import PendingEvaluation, PendingFields
 from tests.protocols.test_runner import BASELINE_ENVS, protocol
 
 
@@ -86,11 +89,23 @@ def test_checkpoint_fields(tmp_path: Path) -> None:
     }
     assert epoch["runner"]["pending_evaluations"] == []  # synchronous evaluation leaves none
     assert epoch["runner"]["state"]["anchor_epoch"] == 2
+    assert set(epoch["runner"]["state"]) == set(PhaseStateFields.__annotations__)
     assert epoch["runner"]["rows"]["metrics.csv"] == 2 * 2  # two evaluations of two tasks
     best = read_checkpoint(run / "checkpoints" / "best.pt")
     assert set(best) == common | reserved and best["best"] is True
     assert best["replay"] is None and best["scheduler"] is None and best["runner"] is None
     assert best["mean_success"] == epoch["mean_success"]
+
+
+def test_the_checkpoint_typeddicts_name_the_dataclasses_fields() -> None:
+    """The TypedDicts that type a checkpoint's counters and pending evaluations keep their
+    dataclasses' keys (a field added to one and not the other fails here)."""
+    names = {f.name for f in dataclasses.fields(PhaseState)}
+    assert set(PhaseStateFields.__annotations__) == names
+    assert set(PhaseState().fields()) == names
+    assert set(PendingFields.__annotations__) == {
+        f.name for f in dataclasses.fields(PendingEvaluation)
+    }
 
 
 def test_resume_deletes_torn_checkpoint_files(tmp_path: Path) -> None:
