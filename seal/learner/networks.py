@@ -178,8 +178,7 @@ class MLPHead(nn.Module):
         self.body = StackedMLP(in_dim, shared) if shared else None
         width = shared[-1] if shared else in_dim
         self.task_layer = MultiHeadLinear(width, hidden[-1], num_heads) if per_task else None
-        last = hidden[-1]
-        self.out = MultiHeadLinear(last, out_dim, 1 if per_task else num_heads)
+        self.out = MultiHeadLinear(hidden[-1], out_dim, 1 if per_task else num_heads)
 
     def reset_parameters(self, generator: torch.Generator, init: str, bound: float | None) -> None:
         """Hidden layers as the trunk's (`StackedMLP`), the output layer as a linear head's."""
