@@ -24,7 +24,8 @@ def trace(checkpoint: str, episodes: int = 3) -> None:
     config, _, agent, _ = load_policy(checkpoint, "cpu")
     (env_name,) = list(config.envs)
     env_config = config.envs[env_name]
-    adapter = make_adapter(env_config.adapter, tasks=list(env_config.tasks))
+    # the run's own options (its reward version, episode length), not today's defaults
+    adapter = make_adapter(env_config.adapter, tasks=list(env_config.tasks), **env_config.options)
     (task,) = adapter.tasks
     policy = AgentPolicy(agent, deterministic=True)
     for episode in range(episodes):
