@@ -33,7 +33,7 @@ def trace(checkpoint: str, episodes: int = 3) -> None:
         obs, info = env.reset(seed=12345 + episode)
         inner = env.unwrapped
         start = float(inner.task_joint()[0])
-        effort, grasp, in_place, rewards, gap = [], [], [], [], []
+        effort, grasp, in_place, rewards, gap, success = [], [], [], [], [], []
         for _ in range(adapter.episode_length):
             action = policy(env_name, obs[None], np.array([0]))[0]
             obs, reward, terminated, truncated, info = env.step(action)
@@ -43,10 +43,14 @@ def trace(checkpoint: str, episodes: int = 3) -> None:
             in_place.append(info["in_place_reward"])
             rewards.append(reward)
             gap.append(float(np.linalg.norm(reading.tcp - reading.obj)))
+            success.append(bool(info["success"]))
             if terminated or truncated:
                 break
         print(
-            f"episode {episode}: return {sum(rewards):.1f}, success {info['success']}, "
+            f"episode {episode}: return {sum(rewards):.1f}, success at the end {info['success']}, "
+            # an evaluation counts an episode successful if any step is (Meta-World's rule)
+            f"first success at step {success.index(True) + 1 if any(success) else None} "
+            f"(successful steps {sum(success)}), "
             f"joint {start:.3f} -> {float(inner.task_joint()[0]):.3f} (goal {inner.task.goal[0]}), "
             f"gripper-handle last 100 steps {np.mean(gap[-100:]) * 100:.1f} cm, "
             f"closing effort share {np.mean(np.array(effort) > 0):.2f}, "
