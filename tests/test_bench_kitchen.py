@@ -7,7 +7,14 @@ import dataclasses
 import pandas as pd
 import pytest
 
-from seal.bench.kitchen import ARMS, arms, format_result, run_figures, run_kitchen_bench
+from seal.bench.kitchen import (
+    ARMS,
+    arms,
+    format_result,
+    rewards_alone_goal,
+    run_figures,
+    run_kitchen_bench,
+)
 from seal.errors import SealError
 from seal.protocols import load_protocol
 
@@ -94,9 +101,33 @@ def test_tiny_end_to_end(tmp_path) -> None:
     assert figures["updates_m"] == pytest.approx(8e-6)
     assert arm["demos"] == [{"episodes": 1, "env_steps": 5, "expert_success": 0.0}]
     assert not arm["learned_within_budget"] and result["goal"]["met"] is False
+    assert result["goal"]["rewards_alone"]["met"] is None  # one arm of five run
     assert "slide-cabinet + demos" in format_result(result)
     # A second call takes the finished run instead of running it again.
     again = run_kitchen_bench(
         seeds=1, out=tmp_path, overrides=tiny, only=["slide_cabinet_demos"], reuse=True
     )
     assert again["reused"] == ["slide_cabinet_demos/seed-0"]
+
+
+def test_rewards_alone_goal_counts_arms_reached_in_any_seed_within_budget() -> None:
+    def arm(label: str, *seeds: tuple[bool, int]) -> dict:
+        return {"label": label, "per_seed": [{"reached": r, "env_steps": n} for r, n in seeds]}
+
+    five = {
+        "slide_cabinet": arm("slide-cabinet", (False, 149_800), (True, 100_800)),
+        "light_switch": arm("light-switch", (True, 84_000), (False, 149_800)),
+        "bottom_left_burner": arm("bottom-left-burner", (False, 149_800), (False, 149_800)),
+        "microwave": arm("microwave", (False, 149_800), (True, 150_200)),  # past the budget
+        "bottom_right_burner": arm("bottom-right-burner", (True, 140_000), (True, 120_000)),
+        "slide_cabinet_demos": arm("slide-cabinet + demos", (True, 5_600), (True, 5_600)),
+    }
+    goal = rewards_alone_goal(five)
+    # The demonstrations arm does not count; microwave crossed only after 150,000 env steps.
+    assert goal["reached"] == ["slide-cabinet", "light-switch", "bottom-right-burner"]
+    assert (goal["of"], goal["ran"], goal["met"]) == (5, 5, False)
+    five["microwave"] = arm("microwave", (True, 149_800), (False, 149_800))
+    assert rewards_alone_goal(five)["met"] is True
+    # With an arm missing the goal is not judged.
+    del five["bottom_left_burner"]
+    assert rewards_alone_goal(five)["met"] is None

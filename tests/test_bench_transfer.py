@@ -240,12 +240,26 @@ def test_every_arm_has_the_jsons_keys() -> None:
     assert summary["high_source"]["per_step_batch_mean"] == 8.0
 
 
-def test_a_run_predating_an_agent_key_is_reused_only_at_that_keys_default() -> None:
+def test_a_run_predating_a_key_is_reused_only_at_that_keys_default() -> None:
     from seal.bench.transfer import _same_tables
 
-    today = {"agent": {"latent_dim": 8, "head_hidden": [], "clip_per": "optimizer"}, "epochs": 2}
-    old = {"agent": {"latent_dim": 8}, "epochs": 2}  # saved before head_hidden and clip_per existed
+    today = {
+        "agent": {"latent_dim": 8, "head_hidden": [], "clip_per": "optimizer"},
+        "training": {"batch_per_task": 64, "overlap": False},
+        "evaluation": {"episodes": 5, "mode": "sync"},
+        "epochs": 2,
+    }
+    # Saved before head_hidden, clip_per, training.overlap and evaluation.mode existed.
+    old = {
+        "agent": {"latent_dim": 8},
+        "training": {"batch_per_task": 64},
+        "evaluation": {"episodes": 5},
+        "epochs": 2,
+    }
     assert _same_tables(old, today)
     assert not _same_tables(old, {**today, "agent": {**today["agent"], "head_hidden": [400]}})
+    assert not _same_tables(old, {**today, "training": {"batch_per_task": 64, "overlap": True}})
+    assert not _same_tables(old, {**today, "evaluation": {"episodes": 5, "mode": "async"}})
+    assert not _same_tables({**old, "training": {"batch_per_task": 32}}, today)
     assert not _same_tables({**old, "epochs": 3}, today)
     assert not _same_tables({"agent": {"latent_dim": 16}, "epochs": 2}, today)

@@ -322,25 +322,46 @@ def _tables(resolved: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _same_tables(saved: Mapping[str, Any], want: Mapping[str, Any]) -> bool:
-    """Whether a run's saved tables are today's: an agent key the run predates counts as the same
-    when today's value is that key's default (a key added since, which keeps the old behaviour)."""
+    """Whether a run's saved tables are today's: a key of [agent], [replay], [training] or
+    [evaluation] that the run predates counts as the same when today's value is that key's default
+    (a key added since, which keeps the old behaviour)."""
+    from seal.learner.config import AgentConfig
+    from seal.protocols.config import EvaluationConfig, ReplayConfig, TrainingConfig
+
+    filled = dict(saved)
+    for table, cls in (
+        ("agent", AgentConfig),
+        ("replay", ReplayConfig),
+        ("training", TrainingConfig),
+        ("evaluation", EvaluationConfig),
+    ):
+        if table not in saved:
+            continue
+        defaults = _defaults(cls)
+        old = dict(saved[table])
+        for key, value in want.get(table, {}).items():
+            if key not in old and key in defaults:
+                old[key] = defaults[key]
+                if old[key] != value:
+                    return False
+        filled[table] = old
+    return filled == want
+
+
+def _defaults(cls: type) -> dict[str, Any]:
+    """A config dataclass's field defaults as config.toml holds them (tuples as lists)."""
     import dataclasses
 
-    from seal.learner.config import AgentConfig
-
-    defaults = {
-        f.name: f.default
-        for f in dataclasses.fields(AgentConfig)
-        if f.default is not f.default_factory
-    }
-    agent = dict(saved.get("agent", {}))
-    for key, value in want.get("agent", {}).items():
-        if key not in agent and key in defaults:
-            default = defaults[key]
-            agent[key] = list(default) if isinstance(default, tuple) else default
-            if agent[key] != value:
-                return False
-    return {**saved, "agent": agent} == want
+    out = {}
+    for f in dataclasses.fields(cls):
+        if f.default is not dataclasses.MISSING:
+            value = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            value = f.default_factory()
+        else:
+            continue
+        out[f.name] = list(value) if isinstance(value, tuple) else value
+    return out
 
 
 def resolved_tables(arm: Arm, overrides: Sequence[str] = ()) -> tuple[str, dict[str, Any]]:
