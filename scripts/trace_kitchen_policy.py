@@ -8,8 +8,8 @@ policy on its one dense-kitchen task and prints, per episode: return, success, t
 the start and end, the gripper-to-handle distance over the last 100 steps, the share of steps
 with a closing finger effort, the reward's grasp/reach term over the last 100 steps and the
 largest in-place term, the arm joints that end the episode at a limit and the arm's joint angles
-at reset and at the first successful step. The kitchen README's
-traces of the learned and failed policies read these.
+at reset and at the first successful step. The kitchen README's traces of the learned and failed
+policies read these.
 """
 
 from __future__ import annotations
@@ -95,7 +95,8 @@ def main(argv: list[str]) -> None:
     if argv[0] == "--expert":
         adapter = make_adapter("franka_kitchen_dense", tasks=[argv[1]])
         act = adapter.expert(argv[1])
-        assert act is not None, f"no scripted expert for {argv[1]}"
+        if act is None:
+            sys.exit(f"no scripted expert for kitchen task {argv[1]!r}")
         trace(adapter, act)
         return
     config, _, agent, _ = load_policy(argv[0], "cpu")
