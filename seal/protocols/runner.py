@@ -64,12 +64,12 @@ from seal.protocols.phase_model import (
     PhaseModel,
     build_adapters,
     build_alignment,
-    derive_seed,
     plan_phases,
     run_agent_config,
 )
 from seal.protocols.resources import check_resources
 from seal.protocols.rundir import DirLock, RunDir, new_group_id, parse_seed_dir, seed_dir
+from seal.seeding import derive_seed
 
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 """OSError numbers a run reports in one line: the user frees space and resumes."""
