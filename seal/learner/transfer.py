@@ -197,6 +197,9 @@ def _copy_heads(param: torch.Tensor, old: torch.Tensor, name: str) -> torch.Tens
 
 # ---------------------------------------------------------------- mapping one env onto another
 
+# The log std at which a zero-mean tanh-Gaussian entry has expected log-density 0 (differential
+# entropy 0): solved numerically from tanh_gaussian's log-prob, E over 4e6 normal draws.
+UNMAPPED_ZERO_LOG_DENSITY = -1.354
 MAP_MODULES = ("all", "translator")
 """What `map_env` starts: "all" = the env's policy translator, action heads, critics (online and
 target) and per-task temperatures; "translator" = its policy translator only."""
@@ -212,6 +215,7 @@ def map_env(
     task_order: Sequence[int],
     actions: Sequence[tuple[int, float]],
     modules: str = "all",
+    unmapped_log_std: float = LOG_STD_MIN,
 ) -> None:
     """Start env `target`'s modules from the saved agent's env `source` through known linear maps.
 
@@ -222,7 +226,9 @@ def map_env(
     the target's [obs, one-hot, action] columns to the source's; an output layer's become W Bᵀ,
     where B gives each target task's head its source task's head: the mapped entries' mean rows
     with their signs and their log-std rows, and for the entries the source has no counterpart
-    of, weight 0, mean 0 and log std LOG_STD_MIN. The per-task temperatures are permuted; the
+    of, weight 0, mean 0 and log std `unmapped_log_std` (default the lower clamp, LOG_STD_MIN:
+    no noise; UNMAPPED_ZERO_LOG_DENSITY: expected log-density 0, so that they add nothing to the
+    soft Bellman target of the mapped critic). The per-task temperatures are permuted; the
     env's target critics become copies of its mapped critics. Parameters are written in
     place (the optimiser slots keep them); other envs and the shared trunk are left as they are
     (`transfer_from` copies the trunk). Linear action heads only (agent.head_hidden = []).
@@ -256,7 +262,9 @@ def map_env(
         if modules == "translator":
             return
         _check_critic_layout(agent, state)
-        head, fill = _policy_head_map(blocks["action"], int(saved["act_dim"]), spec.act_dim)
+        head, fill = _policy_head_map(
+            blocks["action"], int(saved["act_dim"]), spec.act_dim, unmapped_log_std
+        )
         _map_head(
             agent.actor.heads[key_t], state["actor"], f"heads.{key_s}.", head, fill, task_order
         )
@@ -359,7 +367,7 @@ def _input_map(
 
 
 def _policy_head_map(
-    action: torch.Tensor, source_act: int, act_dim: int
+    action: torch.Tensor, source_act: int, act_dim: int, unmapped_log_std: float
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """One policy head's B (2 * act_dim, 2 * source_act) and bias fill, from the action map (source_act, act_dim)."""
     head = torch.zeros(2 * act_dim, 2 * source_act, dtype=torch.float64)
@@ -367,7 +375,7 @@ def _policy_head_map(
     head[act_dim:, source_act:] = action.T.abs()  # log stds: the spread of x and -x is the same
     fill = torch.zeros(2 * act_dim, dtype=torch.float64)
     mapped = action.abs().sum(0) > 0
-    fill[act_dim:][~mapped] = LOG_STD_MIN  # entries no source entry drives: (almost) no noise
+    fill[act_dim:][~mapped] = unmapped_log_std  # entries no source entry drives
     return head, fill
 
 

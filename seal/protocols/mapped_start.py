@@ -32,6 +32,8 @@ class MappedStart:
     """For each of the target's tasks, the index of its task among the source's."""
     modules: str
     """`transfer.map_modules`."""
+    unmapped_log_std: float
+    """`transfer.map_unmapped_log_std`."""
 
     def apply(self, agent: Agent, state: AgentState) -> None:
         """Rewrite `agent`'s target env from `state`'s source env (after `transfer_from`)."""
@@ -44,6 +46,7 @@ class MappedStart:
             task_order=self.task_order,
             actions=self.known.actions,
             modules=self.modules,
+            unmapped_log_std=self.unmapped_log_std,
         )
 
 
@@ -84,4 +87,6 @@ def mapped_start(
         order = known.task_order(adapter.tasks, adapters[target].tasks)
     except SealError as exc:
         raise ConfigError(f"{where}: {exc}") from None
-    return MappedStart(source, target, known, tuple(order), transfer.map_modules)
+    return MappedStart(
+        source, target, known, tuple(order), transfer.map_modules, transfer.map_unmapped_log_std
+    )

@@ -218,3 +218,36 @@ def test_a_map_that_is_not_its_own_inverse() -> None:
             torch.tensor(a_source),
         )
     torch.testing.assert_close(q, q_source, rtol=1e-4, atol=1e-4)
+
+
+def test_distractors_at_zero_log_density_add_nothing_to_the_soft_target() -> None:
+    from seal.learner.networks import tanh_gaussian
+    from seal.learner.transfer import UNMAPPED_ZERO_LOG_DENSITY
+    from seal.protocols.config import TransferConfig
+
+    # The protocol's default is the lower clamp; the other choice has expected log-density 0.
+    assert TransferConfig().map_unmapped_log_std == LOG_STD_MIN
+    config = _config()
+    state = _source_state(config)
+    joint = Agent([SOURCE, TARGET], config, seed=2)
+    transfer_from(joint, state)
+    map_env(
+        joint,
+        state,
+        "source",
+        "target",
+        obs_map=ORACLE_MAP.obs,
+        task_order=ORDER,
+        actions=ORACLE_MAP.actions,
+        unmapped_log_std=UNMAPPED_ZERO_LOG_DENSITY,
+    )
+    _, x_target, ids, _ = _inputs(8)
+    with torch.no_grad():
+        _, log_std = joint.policy("target", ids)(x_target).chunk(2, -1)
+    assert torch.allclose(log_std[:, [0, 2, 4]], torch.tensor(UNMAPPED_ZERO_LOG_DENSITY))
+    # One distractor entry alone: mean 0 at that log std, E[log pi] over 2e5 draws is 0.
+    g = torch.Generator().manual_seed(0)
+    noise = torch.randn(200_000, 1, generator=g, dtype=torch.float64)
+    head = torch.tensor([[0.0, UNMAPPED_ZERO_LOG_DENSITY]], dtype=torch.float64)
+    _, log_prob = tanh_gaussian(head.expand(len(noise), 2), noise)
+    assert abs(float(log_prob.mean())) < 0.01

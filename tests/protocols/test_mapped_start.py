@@ -69,6 +69,22 @@ def test_oracle_policy_starts_the_target_as_the_pretrained_source(
     )
 
 
+def test_the_distractors_log_std_is_the_protocols(pretrained: Path, tmp_path: Path) -> None:
+    for value in (-20.0, -1.354):
+        checkpoint = _start(
+            "oracle_policy",
+            pretrained,
+            tmp_path / str(value),
+            (f"transfer.map_unmapped_log_std={value}",),
+        )
+        joint = agent_from_state(read_checkpoint(checkpoint)["agent"])
+        _, view_obs = paired_states(8, seed=2)
+        x = torch.cat((torch.tensor(view_obs).float(), torch.eye(4)[torch.arange(8) % 4]), -1)
+        with torch.no_grad():
+            _, log_std = joint.policy("target", torch.arange(8) % 4)(x).chunk(2, -1)
+        assert torch.allclose(log_std[:, [0, 2, 4]], torch.tensor(value)), value
+
+
 def test_oracle_translator_maps_the_translator_only(pretrained: Path, tmp_path: Path) -> None:
     source = agent_from_state(read_checkpoint(pretrained)["agent"])
     joint = agent_from_state(
