@@ -72,6 +72,7 @@ def test_every_arm_is_a_loadable_protocol_with_the_same_network_and_batch() -> N
         "pretrained_trunk",
         "oracle_translator",
         "oracle_policy",
+        "oracle_policy_clamp",
         "alone_sparse",
         "positive_sparse_target",
     ]
@@ -102,9 +103,16 @@ def test_every_arm_is_a_loadable_protocol_with_the_same_network_and_batch() -> N
             for k, v in config_to_dict(configs[name]).items()
             if k not in ("protocol", "transfer")
         }
-        for name in ("high_source", "pretrained_trunk", "oracle_translator", "oracle_policy")
+        for name in (
+            "high_source",
+            "pretrained_trunk",
+            "oracle_translator",
+            "oracle_policy",
+            "oracle_policy_clamp",
+        )
     }
     assert plain["pretrained_trunk"] == plain["oracle_translator"] == plain["oracle_policy"]
+    assert plain["oracle_policy"] == plain["oracle_policy_clamp"]
     assert plain["pretrained_trunk"] == plain["high_source"]
     maps = {
         name: (configs[name].transfer.map, configs[name].transfer.map_modules)
@@ -115,6 +123,10 @@ def test_every_arm_is_a_loadable_protocol_with_the_same_network_and_batch() -> N
         "oracle_translator": ("testbed_oracle", "translator"),
         "oracle_policy": ("testbed_oracle", "all"),
     }
+    # The distractors' log std: zero expected log-density in the rung, the clamp beside it.
+    assert configs["oracle_policy"].transfer.map_unmapped_log_std == -1.354
+    assert configs["oracle_policy_clamp"].transfer.map_unmapped_log_std == -20.0
+    assert configs["oracle_policy_clamp"].transfer.map == "testbed_oracle"
     assert configs["pretrain_source"].envs["source"] == configs["oracle_policy"].envs["source"]
     # Every alone arm draws the target's share of its joint arm's batch.
     for arm in ARMS:
@@ -135,7 +147,7 @@ def test_arms_adds_the_alone_arms_they_are_set_against() -> None:
         "alone_sparse",
         "positive_sparse_target",
     ]
-    assert len(arms(full=True)) == len(ARMS) == 17
+    assert len(arms(full=True)) == len(ARMS) == 18
     with pytest.raises(SealError, match="unknown testbed arm 'nope'"):
         arms(only=["nope"])
     # Round 4's name of the first rung still selects it.

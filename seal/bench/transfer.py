@@ -78,6 +78,7 @@ ARMS: tuple[Arm, ...] = (
     Arm("pretrained_trunk", "Pretrained trunk", "alone", pretrain="pretrain_source"),
     Arm("oracle_translator", "Oracle translator", "alone", pretrain="pretrain_source"),
     Arm("oracle_policy", "Oracle policy", "alone", pretrain="pretrain_source"),
+    Arm("oracle_policy_clamp", "Oracle policy, clamp", "alone", pretrain="pretrain_source"),
     Arm("alone_sparse", "Single Env (sparse tgt)", None),
     Arm("positive_sparse_target", "Pos: sparse tgt", "alone_sparse", pretrain="pretrain_source"),
     Arm("high_source_per_env", "High Src per_env", "alone", full=True),
