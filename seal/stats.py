@@ -19,6 +19,7 @@ and the false-positive rate of a CI method on two halves of one arm (`split_fals
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -344,24 +345,23 @@ def bootstrap_band(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pointwise percentile bootstrap CI of the mean of a seeds x points table of curves.
 
-    Seeds are resampled whole (a curve stays one seed's); NaNs (a point a seed lacks) are left out
-    of that point's mean. One seed: the curve itself, at both ends.
+    Seeds are resampled whole (a curve stays one seed's), in numpy, since scipy.stats.bootstrap
+    takes a NaN for a degenerate sample; NaNs (a point a seed lacks) are left out of that point's
+    mean. One seed: the curve itself, at both ends.
     """
     _check(confidence, n_resamples)
     table = np.atleast_2d(np.asarray(curves, dtype=float))
     if table.shape[0] < 2:
         return table[0].copy(), table[0].copy()
-    result = scipy_stats.bootstrap(
-        (np.arange(table.shape[0]),),
-        # Indices arrive as (resamples, seeds); scipy wants one statistic per point, resamples last.
-        lambda index, axis=-1: np.nanmean(table[index], axis=-2).T,
-        n_resamples=n_resamples,
-        vectorized=True,
-        confidence_level=confidence,
-        method="percentile",
-        rng=np.random.default_rng(seed),
-    )
-    return np.asarray(result.confidence_interval.low), np.asarray(result.confidence_interval.high)
+    rng = np.random.default_rng(seed)
+    index = rng.integers(0, table.shape[0], size=(n_resamples, table.shape[0]))
+    with warnings.catch_warnings():
+        # A resample of only seeds that lack a point has no mean there: NaN, left out below.
+        warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
+        means = np.nanmean(table[index], axis=1)  # (resamples, points)
+    tail = 100.0 * (1.0 - confidence) / 2.0
+    low, high = np.nanpercentile(means, [tail, 100.0 - tail], axis=0)
+    return low, high
 
 
 # ---------------------------------------------------------------- false positives
