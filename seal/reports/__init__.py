@@ -48,10 +48,10 @@ from seal.reports.groups import (
 from seal.reports.load import RunData, _is_run_dir, load_run, run_dirs
 from seal.reports.plots import (
     XAxis,
-    _colours,
     _plot_critic_loss,
     _plot_schedulers,
     _safe,
+    column_colours,
     plot_changes,
     plot_success,
 )
@@ -345,7 +345,7 @@ def report(
         tables_dir, metrics, (per_seed, counts, totals), changes, layout, title, notes
     )
 
-    colours = _colours(layout.columns)
+    colours = column_colours(layout.columns)
     skipped: list[str] = []
     plots = plot_success(metrics, x, colours, layout.labels, plots_dir, threshold)
     plots.extend(plot_changes(changes, layout.labels, plots_dir))

@@ -50,7 +50,8 @@ _OTHER_COLOURS = (
 XAxis = Literal["grad_steps", "epoch"]
 
 
-def _colours(columns: Sequence[str]) -> dict[str, str]:
+def column_colours(columns: Sequence[str]) -> dict[str, str]:
+    """Each column's colour: Fig. 4's for the paper's columns, the others from a cycle."""
     others = iter(_OTHER_COLOURS * (1 + len(columns) // len(_OTHER_COLOURS)))
     return {c: _COLUMN_COLOURS.get(c) or next(others) for c in columns}
 

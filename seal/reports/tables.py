@@ -457,14 +457,21 @@ def _latex_caption(text: str) -> str:
     )
 
 
+def markdown_document(title: str, sections: Sequence[Section], notes: Sequence[str]) -> str:
+    """The title, each section's table under its heading (`fit_markdown`), then the notes."""
+    parts = [f"# {title}"]
+    for heading, display, _ in sections:
+        parts.append((f"**{heading}**\n\n" if heading else "") + fit_markdown(display))
+    return "\n\n".join(parts) + "\n\n" + wrap_notes(notes)
+
+
 def write_document(
     stem: Path, title: str, sections: Sequence[Section], notes: Sequence[str]
 ) -> dict[str, Path]:
     """Markdown (the sections under their headings, then the notes) and LaTeX (one table per
     section and column chunk; the title and notes in the first caption) of display tables."""
-    md_parts, tex_parts = [f"# {title}"], []
+    tex_parts: list[str] = []
     for heading, display, latex in sections:
-        md_parts.append((f"**{heading}**\n\n" if heading else "") + fit_markdown(display))
         latex_frame = (
             latex if latex is not None else display.map(_escape_latex).rename(columns=_escape_latex)
         )
@@ -484,7 +491,7 @@ def write_document(
                 )
             )
     md = stem.with_suffix(".md")
-    md.write_text("\n\n".join(md_parts) + "\n\n" + wrap_notes(notes))
+    md.write_text(markdown_document(title, sections, notes))
     tex = stem.with_suffix(".tex")
     tex.write_text("\n".join(tex_parts))
     return {md.name: md, tex.name: tex}
