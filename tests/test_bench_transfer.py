@@ -27,6 +27,7 @@ from seal.bench.transfer import (
 )
 from seal.errors import SealError
 from seal.protocols import load_protocol
+from seal.protocols.loader import config_to_dict
 
 
 def _metrics(rows: list[tuple[int, str, str, float, int, float]]) -> pd.DataFrame:
@@ -74,7 +75,9 @@ def test_every_arm_is_a_loadable_protocol_with_the_same_network_and_batch() -> N
         "high_source",
         "no_correspondence",
         "pretrain_source",
-        "positive_pretrained",
+        "pretrained_trunk",
+        "oracle_translator",
+        "oracle_policy",
         "alone_sparse",
         "positive_sparse_target",
     ]
@@ -97,6 +100,28 @@ def test_every_arm_is_a_loadable_protocol_with_the_same_network_and_batch() -> N
     # The hard target is rewarded only on success, in its control and in its alone arm alike.
     for name in ("positive_sparse_target", "alone_sparse"):
         assert configs[name].envs["target"].options == {"reward": "success"}, name
+    # The ladder's rungs are high_source from the pre-training, and differ from each other only in
+    # what [transfer] maps of the target; the map reads the pre-training's own [envs.source].
+    plain = {
+        name: {
+            k: v
+            for k, v in config_to_dict(configs[name]).items()
+            if k not in ("protocol", "transfer")
+        }
+        for name in ("high_source", "pretrained_trunk", "oracle_translator", "oracle_policy")
+    }
+    assert plain["pretrained_trunk"] == plain["oracle_translator"] == plain["oracle_policy"]
+    assert plain["pretrained_trunk"] == plain["high_source"]
+    maps = {
+        name: (configs[name].transfer.map, configs[name].transfer.map_modules)
+        for name in ("pretrained_trunk", "oracle_translator", "oracle_policy")
+    }
+    assert maps == {
+        "pretrained_trunk": ("", "all"),
+        "oracle_translator": ("testbed_oracle", "translator"),
+        "oracle_policy": ("testbed_oracle", "all"),
+    }
+    assert configs["pretrain_source"].envs["source"] == configs["oracle_policy"].envs["source"]
     # Every alone arm draws the target's share of its joint arm's batch.
     for arm in ARMS:
         if arm.alone is not None:
@@ -116,9 +141,15 @@ def test_arms_adds_the_alone_arms_they_are_set_against() -> None:
         "alone_sparse",
         "positive_sparse_target",
     ]
-    assert len(arms(full=True)) == len(ARMS) == 15
+    assert len(arms(full=True)) == len(ARMS) == 17
     with pytest.raises(SealError, match="unknown testbed arm 'nope'"):
         arms(only=["nope"])
+    # Round 4's name of the first rung still selects it.
+    assert [a.name for a in arms(only=["positive_pretrained"])] == [
+        "alone",
+        "pretrain_source",
+        "pretrained_trunk",
+    ]
 
 
 TINY = [
@@ -149,14 +180,17 @@ def test_tiny_end_to_end(tmp_path) -> None:
     # One seed has no spread: no CI, and the output says that nothing is resolved.
     assert all(math.isnan(v) for v in high["ci95"])
     assert "fewer than 3, so no change is resolved" in format_result(result)
-    # The positive control started from its seed's pre-training, whose cost is reported beside it.
-    positive = result["arms"]["positive_pretrained"]
-    assert positive["pretrain"]["grad_steps_per_seed"] == [4]
-    assert "transfer.checkpoint=" in str(result["commands"]["positive_pretrained/seed-0"])
-    for name in ("high_source", "alone", "positive_pretrained"):
+    # The ladder's rungs started from their seed's pre-training, whose cost is reported beside them.
+    for rung in ("pretrained_trunk", "oracle_translator", "oracle_policy"):
+        assert result["arms"][rung]["pretrain"]["grad_steps_per_seed"] == [4], rung
+        assert "transfer.checkpoint=" in str(result["commands"][f"{rung}/seed-0"]), rung
+        # Every key of the other joint arms, and the pre-training's cost beside them.
+        assert set(result["arms"][rung]) == {*result["arms"]["high_source"], "pretrain"}, rung
+    assert set(result["goal"]["positive"]) == {"pretrained_trunk", "positive_sparse_target"}
+    for name in ("high_source", "alone", "pretrained_trunk", "oracle_policy"):
         cka = result["arms"][name]["alignment_cka"]
         assert 0.0 <= cka["translator"] <= 1.0 and 0.0 <= cka["trunk"] <= 1.0, name
-    assert "Single Env" in result["table"] and "Pos: pre-trained src" in result["table"]
+    assert "Single Env" in result["table"] and "Oracle policy" in result["table"]
     assert result["target_curve_distance"] is None  # one seed: no seed-to-seed scale to read it by
     # Every statistic's power keys (NaN at one seed), the tables and the plots beside them.
     for stat in ("steps", "robust_steps", "auc"):

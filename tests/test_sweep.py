@@ -2,9 +2,12 @@
 
 The Ray tests share one local Ray session (module fixture) and train the `point` env for a few
 seconds per trial: one task ("east"), 15-step episodes, 32-unit networks, 20 epochs. With
-init_alpha = 0.01 and gamma = 0.9 this config reaches success 1.0 by epoch 15 for seeds 0 and 1
-(measured with `seal run`), while lr_factor = 1e-9 (a learning rate of ~0; 0 itself is not a
-valid Adam rate) stays at success 0 and return ~ -16 (the point barely moves).
+init_alpha = 0.01 and gamma = 0.9 this config learns, while lr_factor = 1e-9 (a learning rate of
+~0; 0 itself is not a valid Adam rate) stays at success 0 and return ~ -16 (the point barely
+moves). Measured after common random numbers (`seal run` of `write_protocol`'s file, seeds 0-9,
+one thread): at 20 epochs 8 of 10 seeds have success > 0 at the last evaluation (seeds 0 and 8 do
+not), at 40 epochs 10 of 10 at both epoch 30 and epoch 40; a test that needs a seed to learn runs
+40 epochs.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ TINY = """
 name = "{name}"
 kind = "baseline"
 seeds = 2
-epochs = 20
+epochs = {epochs}
 device = "cpu"
 
 [envs.point]
@@ -44,7 +47,7 @@ actor_lr = 3e-3
 critic_lr = 3e-3
 init_alpha = {init_alpha}
 gamma = 0.9
-# The learner settings the module docstring's "success 1.0 by epoch 15" was measured with (before
+# The learner settings the module docstring's learning was measured with (before
 # issue 10's reference defaults); these tests are about sweep plumbing, not about the learner.
 init = "torch"
 max_grad_norm = 0.0
@@ -73,11 +76,12 @@ tensorboard = false
 
 
 def write_protocol(
-    tmp_path: Path, name: str = "tiny", init_alpha: float = 0.01, extra: str = ""
+    tmp_path: Path, name: str = "tiny", init_alpha: float = 0.01, extra: str = "", epochs: int = 20
 ) -> Path:
     """A tiny point protocol (a few seconds per seed) written to tmp_path/<name>.toml."""
     path = tmp_path / f"{name}.toml"
-    path.write_text(TINY.format(name=name, init_alpha=init_alpha) + textwrap.dedent(extra))
+    text = TINY.format(name=name, init_alpha=init_alpha, epochs=epochs)
+    path.write_text(text + textwrap.dedent(extra))
     return path
 
 
@@ -412,10 +416,10 @@ def test_search_ranks_the_config_that_cannot_learn_last(ray_session, tmp_path: P
     "agent.lr_factor" = {dist = "grid", values = [1.0, 1e-9]}
     "agent.tau" = {dist = "uniform", low = 0.004, high = 0.01}
     """
-    result = search(write_protocol(tmp_path, extra=extra), out=tmp_path / "reports")
+    result = search(write_protocol(tmp_path, extra=extra, epochs=40), out=tmp_path / "reports")
     assert len(result.trials) == 4
     assert all(t.status == "finished" for t in result.trials)
-    # Ranked: the two learning configs (success 1.0 by epoch 15, see the module docstring) first,
+    # Ranked: the two learning configs (success > 0 at 40 epochs, see the module docstring) first,
     # the two with a learning rate of ~0 (success 0) last.
     assert [t.sample["agent.lr_factor"] for t in result.trials] == [1.0, 1.0, 1e-9, 1e-9]
     assert result.trials[1].mean_success > 0.0

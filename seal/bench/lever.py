@@ -67,7 +67,7 @@ def bench_ratio_lever(
             **(agent or {}),
         )
         learner = Agent(specs, config, seed)
-        replay.generator.manual_seed(seed)  # every mode sees the same batches
+        replay.reseed(seed)  # every mode sees the same batches
         for _ in range(warmup_updates):
             learner.update(replay.sample(counts))
         batch_draws = [replay.sample(counts) for _ in range(draws)]

@@ -82,7 +82,12 @@ ARMS: tuple[Arm, ...] = (
     Arm("high_source", "High Src", "alone"),
     Arm("no_correspondence", "No corr.", "alone"),
     Arm("pretrain_source", "Source pre-training", None, has_target=False),
-    Arm("positive_pretrained", "Pos: pre-trained src", "alone", pretrain="pretrain_source"),
+    # The ladder of positive controls (docs/transfer_testbed.md, round 5), each from the seed's
+    # pre-training: only the trunk pre-trained; the target's translator mapped too; its whole
+    # policy, critic and temperatures mapped (transfer by construction).
+    Arm("pretrained_trunk", "Pretrained trunk", "alone", pretrain="pretrain_source"),
+    Arm("oracle_translator", "Oracle translator", "alone", pretrain="pretrain_source"),
+    Arm("oracle_policy", "Oracle policy", "alone", pretrain="pretrain_source"),
     Arm("alone_sparse", "Single Env (sparse tgt)", None),
     Arm("positive_sparse_target", "Pos: sparse tgt", "alone_sparse", pretrain="pretrain_source"),
     Arm("high_source_per_env", "High Src per_env", "alone", full=True),
@@ -108,8 +113,13 @@ ARMS: tuple[Arm, ...] = (
         pretrain="pretrain_source_shared_critic",
     ),
 )
-"""The minimum set (docs/transfer_testbed.md, round 4), then the --full arms; the default-mode
-high-source arm gives the round-3 headline, the `positive_` arms are the positive controls."""
+"""The minimum set (docs/transfer_testbed.md, rounds 4 and 5), then the --full arms; the default-mode
+high-source arm gives the round-3 headline, `POSITIVE_CONTROLS` round 4's positive controls."""
+
+ARM_ALIASES: dict[str, str] = {"positive_pretrained": "pretrained_trunk"}
+"""Old arm names `--arms` still takes (round 4's results keep theirs)."""
+POSITIVE_CONTROLS = ("pretrained_trunk", "positive_sparse_target")
+"""Round 4's positive controls, whose goal is POSITIVE_GOAL (SEAL's own mechanism must carry them)."""
 
 
 def arms(full: bool = False, only: Sequence[str] | None = None) -> list[Arm]:
@@ -117,9 +127,10 @@ def arms(full: bool = False, only: Sequence[str] | None = None) -> list[Arm]:
     if not only:
         return [a for a in ARMS if full or not a.full]
     by_name = {a.name: a for a in ARMS}
+    only = [ARM_ALIASES.get(name, name) for name in only]
     for name in only:
         if name not in by_name:
-            raise UnknownNameError("testbed arm", name, list(by_name))
+            raise UnknownNameError("testbed arm", name, [*by_name, *ARM_ALIASES])
     needed = {by_name[n].alone for n in only} | {by_name[n].pretrain for n in only}
     wanted = set(only) | (needed - {None})
     return [a for a in ARMS if a.name in wanted]
@@ -1100,7 +1111,7 @@ def run_transfer_bench(
     positives = {
         name: {key: s[key] for key in ("steps_saved", "ci95")}
         for name, s in summary.items()
-        if name.startswith("positive_")
+        if name in POSITIVE_CONTROLS
     }
     # Issue 22: a positive control saves >= 30% of the target's steps with a CI above 0, and the
     # no-correspondence control's CI includes 0 or lies below it.

@@ -65,7 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs="+",
         metavar="ARM",
         default=None,
-        help="with --learn transfer|kitchen|table1: only these arms (protocols/testbed/<ARM>.toml and the alone arms they are set against; protocols/kitchen_learn/<ARM>.toml; protocols/table1_small/<ARM>.toml and its references)",
+        help="with --learn transfer|kitchen|table1: only these arms (protocols/testbed/<ARM>.toml and the alone arms and pre-trainings they need, positive_pretrained being round 4's name of pretrained_trunk; protocols/kitchen_learn/<ARM>.toml; protocols/table1_small/<ARM>.toml and its references)",
     )
     parser.add_argument(
         "--reuse",

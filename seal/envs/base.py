@@ -9,7 +9,7 @@ requires editing seal: write a subclass and name it by import path, "package.mod
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -44,6 +44,40 @@ class ObsLayout:
             return tuple(i for s in slices for i in range(s.start, s.stop))
 
         return cls(idx(robot), idx(objects), idx(goal))
+
+
+@dataclass(frozen=True)
+class EnvMap:
+    """A correspondence between two environments known by construction: a positive control's oracle.
+
+    It says how a source env's observations, tasks and actions are read off a target env's, so
+    that a policy and critic learnt on the source can be rewritten to compute the same on the
+    target (`seal.learner.transfer.map_env`); `seal.envs.registry.env_map` finds one by name.
+    """
+
+    source: str
+    """The adapter name (`EnvAdapter.name`) of the env the mapped modules were learnt on."""
+    target: str
+    """The adapter name of the env whose modules are started from them."""
+    obs: np.ndarray
+    """(source obs_dim, target obs_dim): the source's observation of a state is `obs @` the target's."""
+    tasks: Mapping[str, str]
+    """Target task -> the source task it is (same goal, same reward)."""
+    actions: tuple[tuple[int, float], ...]
+    """Per source action entry k, (index, sign): entry k is sign * the target's entry `index`;
+    the target's other entries are ignored by its env."""
+
+    def task_order(self, source_tasks: Sequence[str], target_tasks: Sequence[str]) -> list[int]:
+        """For each of `target_tasks`, the index in `source_tasks` of the task it is."""
+        from seal.errors import SealError
+
+        missing = [t for t in target_tasks if self.tasks.get(t) not in source_tasks]
+        if missing:
+            raise SealError(
+                f"env map {self.source} -> {self.target}: target task(s) {missing} have no source "
+                f"task among {list(source_tasks)}; the map pairs {dict(self.tasks)}"
+            )
+        return [list(source_tasks).index(self.tasks[t]) for t in target_tasks]
 
 
 class EnvAdapter(abc.ABC):

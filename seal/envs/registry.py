@@ -1,4 +1,5 @@
-"""Adapters by name (built-ins) or by import path ("package.module:Class", third-party)."""
+"""Adapters by name (built-ins) or by import path ("package.module:Class", third-party), and the
+env maps that positive controls start from (`env_map`)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import importlib
 from collections.abc import Sequence
 from typing import Any
 
-from seal.envs.base import EnvAdapter
+from seal.envs.base import EnvAdapter, EnvMap
 from seal.errors import SealError, UnknownNameError
 
 BUILTIN_ADAPTERS: dict[str, str] = {
@@ -46,3 +47,31 @@ def make_adapter(
 ) -> EnvAdapter:
     """Build an adapter by name or import path, with its task list and options."""
     return adapter_class(name_or_path)(tasks=tasks, **options)
+
+
+BUILTIN_ENV_MAPS: dict[str, str] = {
+    # The transfer testbed's oracle (docs/transfer_testbed.md, round 5): point -> point_view.
+    "testbed_oracle": "seal.envs.testbed:ORACLE_MAP",
+}
+
+
+def env_map(name_or_path: str) -> EnvMap:
+    """The `EnvMap` of a built-in name or an import path "package.module:NAME"."""
+    path = BUILTIN_ENV_MAPS.get(name_or_path, name_or_path)
+    if ":" not in path:
+        raise UnknownNameError("env map", name_or_path, [*BUILTIN_ENV_MAPS, "package.module:NAME"])
+    module_name, _, attr = path.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise SealError(
+            f"env map {name_or_path!r}: cannot import module {module_name!r} ({exc}); "
+            f"valid: {', '.join(BUILTIN_ENV_MAPS)} or an importable package.module:NAME"
+        ) from None
+    found = getattr(module, attr, None)
+    if not isinstance(found, EnvMap):
+        raise SealError(
+            f"env map {name_or_path!r}: {module_name}.{attr} is not a seal.envs.base.EnvMap; "
+            f"built-in env maps: {', '.join(BUILTIN_ENV_MAPS)}"
+        )
+    return found

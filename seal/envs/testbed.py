@@ -25,7 +25,7 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
-from seal.envs.base import EnvAdapter, ObsLayout
+from seal.envs.base import EnvAdapter, EnvMap, ObsLayout
 from seal.envs.point import ARENA, GOAL_RADIUS, GOALS, MAX_STEP, PointAdapter, PointEnv
 from seal.errors import SealError, UnknownNameError
 
@@ -63,6 +63,18 @@ TESTBED_TABLE: dict[str, str] = {
 
 The order differs from `point`'s on purpose: corresponding tasks do not share a local index.
 """
+
+ORACLE_MAP = EnvMap(
+    source=PointAdapter.name,
+    target="point_view",
+    # The pseudo-inverse, not the transpose: VIEW_MATRIX has full column rank, so this recovers
+    # [x, y, vx, vy] exactly, where the transpose is exact only to its 3-decimal rounding.
+    obs=np.linalg.pinv(VIEW_MATRIX),
+    tasks={key.split(":", 1)[1]: point_task for key, point_task in TESTBED_TABLE.items()},
+    actions=ACTION_MAP,
+)
+"""`point` -> `point_view` by construction (`[transfer] map = "testbed_oracle"`): the testbed's
+positive controls start the target from the pre-trained source through it (docs/transfer_testbed.md)."""
 
 _DIAGONAL = GOAL_RADIUS / math.sqrt(2.0)
 DIAGONAL_GOALS: dict[str, tuple[float, float]] = {

@@ -27,6 +27,7 @@ from seal.learner.update import (
     policy_noise,
     sac_update,
 )
+from seal.seeding import derive_seed
 
 
 class Measured(Learner, Protocol):
@@ -74,11 +75,6 @@ def _lever(effect: Mapping[str, float], env_a: str) -> float:
     return effect[env_a] / total if total > 0 else float("nan")
 
 
-def _lever_effects(steps: Mapping[str | None, torch.Tensor]) -> dict[str, float]:
-    """||Δ - Δ₋X|| for every X of `_trunk_steps`' steps (Δ under the key None)."""
-    return {n: float((steps[None] - step).norm()) for n, step in steps.items() if n is not None}
-
-
 def _lever(effect: Mapping[str, float], env_a: str) -> float:
     """||Δ - Δ₋A|| / sum_X ||Δ - Δ₋X|| (NaN when no env moves the trunk)."""
     total = sum(effect.values())
@@ -113,7 +109,8 @@ def _trunk_steps(
     for drop in (None, *drops):
         clone = agent.clone()
         if noise_seed is not None:
-            clone.update_generator.manual_seed(noise_seed)
+            for name, generator in clone.update_generators.items():
+                generator.manual_seed(derive_seed(noise_seed, name))
         inputs = clone.inputs(batches)
         weights = batch_shares(inputs)  # X's samples stay in N
         noise = draw_noise(clone, inputs)  # X's draws too: every other env's noise is Δ's

@@ -30,7 +30,7 @@ torch ops of a forward pass does not depend on the number of tasks.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -46,6 +46,8 @@ _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 # Input layer segments: (name, width) pairs in the order they are concatenated. Transfer maps
 # columns segment by segment, so a one-hot that grows (MT1 -> MT10) keeps the old columns in place.
 Segments = tuple[tuple[str, int], ...]
+GeneratorOf = Callable[[str], torch.Generator]
+"""A component's name ("translator.<env>", "trunk", "head.<env>", "critic.<env>") -> its init stream."""
 
 
 def _uniform_(tensor: torch.Tensor, fan_in: int, generator: torch.Generator) -> None:
@@ -253,17 +255,19 @@ class TaskNetwork(nn.Module):
         )
 
     def reset_parameters(
-        self, generator: torch.Generator, init: str = "torch", head_bound: float = 0.0
+        self, generators: GeneratorOf, init: str = "torch", head_bound: float = 0.0
     ) -> None:
-        """Re-draw every parameter, in a fixed order (translators, trunk, heads); see HEAD_BOUND."""
-        for module in (*self.translators.values(), self.trunk):
-            module.reset_parameters(generator, init)
+        """Re-draw every parameter, each component from `generators(<component name>)` (the
+        names of `components`), so one env's draws do not depend on the others; see HEAD_BOUND."""
+        for key, translator in self.translators.items():
+            translator.reset_parameters(generators(f"translator.{key}"), init)
+        self.trunk.reset_parameters(generators("trunk"), init)
         bound = head_bound if init == "metaworld_algorithms" else None
-        for head in self.heads.values():
+        for key, head in self.heads.items():
             if isinstance(head, MLPHead):
-                head.reset_parameters(generator, init, bound)
+                head.reset_parameters(generators(f"head.{key}"), init, bound)
             else:
-                head.reset_parameters(generator, bound)
+                head.reset_parameters(generators(f"head.{key}"), bound)
 
     def components(self) -> dict[str, list[nn.Parameter]]:
         """The parameters by component: "translator.<env>", "trunk", "head.<env>"."""
@@ -331,11 +335,12 @@ class PerEnvCritic(nn.Module):
         )
 
     def reset_parameters(
-        self, generator: torch.Generator, init: str = "torch", head_bound: float = 0.0
+        self, generators: GeneratorOf, init: str = "torch", head_bound: float = 0.0
     ) -> None:
-        """Re-draw every env's critic, in env order."""
-        for net in self.nets.values():
-            net.reset_parameters(generator, init, head_bound)
+        """Re-draw every env's critic, each from its own `generators("critic.<env>")`."""
+        for key, net in self.nets.items():
+            generator = generators(f"critic.{key}")
+            net.reset_parameters(lambda _component, g=generator: g, init, head_bound)
 
     def components(self) -> dict[str, list[nn.Parameter]]:
         """The parameters by component: "critic.<env>" (each env's whole critic)."""

@@ -19,6 +19,7 @@ import torch
 
 from seal.errors import SealError, UnknownNameError
 from seal.learner.config import Batch, EnvSpec
+from seal.seeding import stream
 
 DEFAULT_CAPACITY = (
     1_000_000  # transitions per environment (Meta-World), split evenly over its tasks
@@ -68,7 +69,7 @@ class ReplayState(TypedDict):
     """`MultiTaskReplay.state_dict()`: tensors and plain values, as checkpoints hold them."""
 
     capacity_per_task: dict[str, int]
-    generator: NotRequired[torch.Tensor]  # absent in states saved before it was stored
+    generators: NotRequired[dict[str, torch.Tensor]]  # each env's row stream (absent: older)
     envs: dict[
         str, dict[str, torch.Tensor]
     ]  # env -> each field's filled rows, size, position, consumed
@@ -94,9 +95,9 @@ class MultiTaskReplay:
     ) -> None:
         self.specs = {s.name: s for s in specs}
         self.device = torch.device(device)
-        self.generator = torch.Generator(device=self.device)
-        """Draws every sampled row (saved in `state_dict`, so a resumed run draws the same rows)."""
-        self.generator.manual_seed(seed)
+        self.generators: dict[str, torch.Generator] = {}
+        """Each env's sampled rows (saved in `state_dict`, so a resumed run draws the same rows)."""
+        self.reseed(seed)
         needed = replay_bytes(specs, capacity)
         if check_memory:
             available = available_memory_bytes()
@@ -238,6 +239,13 @@ class MultiTaskReplay:
             self._ids_cache[key] = ids
         return ids
 
+    def reseed(self, seed: int) -> None:
+        """Seed every env's row stream from (seed, env name): common random numbers, so an env's
+        draws do not depend on which other envs share the replay."""
+        self.generators = {
+            env: stream(seed, "replay", env, device=self.device) for env in self.specs
+        }
+
     def sample(self, counts: Mapping[str, np.ndarray]) -> dict[str, Batch]:
         """Draw counts[env][t] transitions uniformly with replacement from each task's buffer.
 
@@ -264,7 +272,7 @@ class MultiTaskReplay:
             task_ids = self._task_ids(env, env_counts)
             # Uniform rows below each task's size: 62 random bits modulo the size (bias < 2**-40).
             draws = torch.randint(
-                0, 1 << 62, task_ids.shape, generator=self.generator, device=self.device
+                0, 1 << 62, task_ids.shape, generator=self.generators[env], device=self.device
             )
             rows = draws % self._size_on_device[env][task_ids]
             store = self._storage[env]
@@ -278,7 +286,7 @@ class MultiTaskReplay:
         """Contents (only the filled rows) and counters, as tensors so torch.load(weights_only=True) reads them."""
         state: ReplayState = {
             "capacity_per_task": dict(self.capacity_per_task),
-            "generator": self.generator.get_state(),
+            "generators": {env: g.get_state() for env, g in self.generators.items()},
             "envs": {},
         }
         for env, store in self.storage.items():
@@ -297,10 +305,10 @@ class MultiTaskReplay:
             raise SealError(
                 f"replay state has capacities per task {dict(state['capacity_per_task'])}, but this replay has {self.capacity_per_task}"
             )
-        # A replay state saved before the generator was stored (checkpoint format 2) keeps this
-        # replay's freshly seeded stream.
-        if "generator" in state:
-            self.generator.set_state(state["generator"])
+        # A state saved before the per-env streams (one "generator", or none) keeps this
+        # replay's freshly seeded streams: that resume draws other rows than the run would have.
+        for env, saved_generator in state.get("generators", {}).items():
+            self.generators[env].set_state(saved_generator)
         for env, saved in state["envs"].items():
             self._spec(env)
             store = self.storage[env]

@@ -15,7 +15,7 @@ import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict
-from typing import TypedDict
+from typing import NotRequired, TypedDict
 
 import numpy as np
 import torch
@@ -46,6 +46,7 @@ from seal.learner.update import (
     draw_noise,
     sac_update,
 )
+from seal.seeding import stream
 
 # 2: per-env critics (critic_sharing), optimiser slots by shared_update, the cached ratio lever.
 STATE_FORMAT = 2
@@ -75,7 +76,8 @@ class AgentState(TypedDict):
     actor_optimizers: list[dict[str, object]]  # torch.optim.Adam.state_dict() of each slot
     critic_optimizers: list[dict[str, object]]
     alpha_optimizer: dict[str, object]
-    rng: dict[str, torch.Tensor]  # "init", "update", "act" generator states
+    rng: dict[str, torch.Tensor]  # "update/<env>", "act/<env>" generator states
+    init_draws: NotRequired[int]  # how many times the weights were drawn (absent: older states)
     lr_factor: float
     num_updates: int
     ratio_lever: float | None
@@ -118,14 +120,17 @@ class Agent:
         self.device = resolve_device(config.device)
         self.specs: dict[str, EnvSpec] = {s.name: s for s in specs}
         self._keys = keys
-        init_seed, update_seed, act_seed = (
-            np.random.SeedSequence(self.seed).generate_state(3, np.uint32).tolist()
-        )
-        # Init draws on CPU so the same seed gives the same weights on every device.
-        self._init_generator = torch.Generator().manual_seed(init_seed)
-        # Separate streams: how often the collector acts does not change the update's noise.
-        self.update_generator = torch.Generator(self.device).manual_seed(update_seed)
-        self._act_generator = torch.Generator(self.device).manual_seed(act_seed)
+        # Common random numbers: every stream is keyed by (seed, env name, purpose), never by the
+        # set of envs, so an env's weights and noise are the same alone and in any joint run.
+        # Separate update and act streams: how often the collector acts does not change the
+        # update's noise.
+        self.update_generators = {
+            n: stream(self.seed, "update", n, device=self.device) for n in self.specs
+        }
+        self._act_generators = {
+            n: stream(self.seed, "act", n, device=self.device) for n in self.specs
+        }
+        self._init_draws = 0
         self._build_networks(specs)
         self.target_entropy = {
             s.name: float(-s.act_dim if config.target_entropy is None else config.target_entropy)
@@ -199,10 +204,21 @@ class Agent:
         )
 
     def _initialise(self) -> None:
-        """Draw all weights, copy the target critics, set temperatures, build fresh optimisers."""
+        """Draw all weights, copy the target critics, set temperatures, build fresh optimisers.
+
+        Each component draws from its own stream, keyed by (seed, draw, role, component): the
+        shared trunk by the seed alone, an env's translator, head and critic by its name. Init
+        draws on CPU so the same seed gives the same weights on every device.
+        """
+        draw = self._init_draws
+        self._init_draws += 1
         for net, role in ((self.actor, "actor"), (self.critic, "critic")):
             net.cpu()
-            net.reset_parameters(self._init_generator, self.config.init, HEAD_BOUND[role])
+            net.reset_parameters(
+                lambda component, role=role: stream(self.seed, "init", draw, role, component),
+                self.config.init,
+                HEAD_BOUND[role],
+            )
             net.to(self.device)
         # A deep copy: the targets own their tensors (never views of the online critics).
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
@@ -378,10 +394,14 @@ class Agent:
                 env_name,
                 self._actor_input(env_name, obs_t, ids_t),
                 ids_t,
-                self._act_generator,
+                self._act_generators[env_name],
                 deterministic,
             )
             return actions.cpu().numpy()
+
+    def reseed_acting(self, seed: int) -> None:
+        """Seed every env's exploration noise from (seed, "act", env name)."""
+        self._act_generators = {n: stream(seed, "act", n, device=self.device) for n in self.specs}
 
     def log_prob(
         self, env_name: str, obs: np.ndarray, actions: np.ndarray, task_ids: np.ndarray
@@ -556,10 +576,10 @@ class Agent:
             "critic_optimizers": self.critic_slots.state_dicts(),
             "alpha_optimizer": self.alpha_optimizer.state_dict(),
             "rng": {
-                "init": self._init_generator.get_state(),
-                "update": self.update_generator.get_state(),
-                "act": self._act_generator.get_state(),
+                **{f"update/{n}": g.get_state() for n, g in self.update_generators.items()},
+                **{f"act/{n}": g.get_state() for n, g in self._act_generators.items()},
             },
+            "init_draws": self._init_draws,
             "lr_factor": self._lr_factor,
             "num_updates": self.num_updates,
             "ratio_lever": self.last_ratio_lever,
@@ -591,8 +611,12 @@ class Agent:
         self.actor_slots.load_state_dicts(state["actor_optimizers"])
         self.critic_slots.load_state_dicts(state["critic_optimizers"])
         self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])
-        self._init_generator.set_state(state["rng"]["init"])
-        self.update_generator.set_state(state["rng"]["update"])
-        self._act_generator.set_state(state["rng"]["act"])
+        # A state saved before the per-env streams ("init", "update", "act") keeps this agent's
+        # freshly seeded streams: that resume draws other noise than the run would have.
+        for role, generators in (("update", self.update_generators), ("act", self._act_generators)):
+            for n, generator in generators.items():
+                if f"{role}/{n}" in state["rng"]:
+                    generator.set_state(state["rng"][f"{role}/{n}"])
+        self._init_draws = int(state.get("init_draws", 1))
         self.num_updates = int(state["num_updates"])
         self.last_ratio_lever = state["ratio_lever"]

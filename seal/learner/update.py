@@ -98,7 +98,7 @@ class Learner(Protocol):
     alpha_optimizer: torch.optim.Adam
     adam_cache: AdamCache
     stages: Stages
-    update_generator: torch.Generator
+    update_generators: dict[str, torch.Generator]
 
     def policy(self, name: str, task_ids: torch.Tensor) -> Policy: ...
     def qf(self, name: str, task_ids: torch.Tensor) -> TwinQ: ...
@@ -120,7 +120,7 @@ def batch_shares(inputs: Mapping[str, EnvInputs]) -> dict[str, float]:
 
 
 def draw_noise(learner: Learner, inputs: Mapping[str, EnvInputs]) -> dict[str, PolicyNoise]:
-    """The update's policy noise from `learner.update_generator`, in the order the update uses it
+    """The update's policy noise from each env's `learner.update_generators`, in the order the update uses it
     (stage by stage: the critic's of the stage's envs, then the actor's)."""
     drawn: dict[str, dict[str, torch.Tensor]] = {name: {} for name in inputs}
     for stage in stages_of(list(inputs), learner.config.shared_update):
@@ -135,7 +135,7 @@ def policy_noise(learner: Learner, name: str, env: EnvInputs) -> torch.Tensor:
     return torch.randn(
         env.batch.obs.shape[0],
         learner.specs[name].act_dim,
-        generator=learner.update_generator,
+        generator=learner.update_generators[name],
         device=learner.device,
         dtype=env.obs.dtype,
     )

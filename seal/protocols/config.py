@@ -207,6 +207,19 @@ class TransferConfig:
     """Actor and critic learning rates are multiplied by this after the transfer (issue 5: 0.1)."""
     reinit_critic: bool = False
     """Keep the fresh critic instead of the transferred one."""
+    # The maps are properties of the envs, not of SEAL: seal.envs registers them by name, a protocol names one.
+    map: str = ""
+    """A correspondence known by construction (seal.envs.env_map: "testbed_oracle", or "package.module:NAME") through which the env of the map's target adapter also starts from the checkpoint's env of its source adapter (a positive control's oracle, docs/transfer_testbed.md); "" = none."""
+    map_modules: Literal["all", "translator"] = "all"
+    """With map: what of the target env is mapped: "all" = its translator, action heads, critics and temperatures; "translator" = its policy translator only (the rest keeps its fresh init)."""
+    map_unmapped_log_std: Annotated[float, Field(ge=-20.0, le=2.0)] = -20.0
+    """With map_modules = "all": the log std of the target's action entries that no source entry drives (the testbed's distractors), in [-20, 2]; -20 (the lower clamp) = no noise; -1.354 = expected log-density 0, so they add nothing to the mapped critic's soft Bellman target (docs/transfer_testbed.md, round 5)."""
+
+    def __post_init__(self) -> None:
+        if self.map:
+            from seal.envs import env_map
+
+            env_map(self.map)  # an unknown name fails at load, naming the valid ones
 
 
 @with_config(SCHEMA)

@@ -33,7 +33,6 @@ from seal.protocols.phase_model import (
     Phase,
     PhaseModel,
     build_eval_collector,
-    derive_seed,
 )
 from seal.protocols.workers import (
     ActorWorker,
@@ -42,6 +41,7 @@ from seal.protocols.workers import (
     Results,
     cpu_copy,
 )
+from seal.seeding import derive_seed
 
 if TYPE_CHECKING:
     from tqdm import tqdm

@@ -3,7 +3,7 @@
 `plan_phases` splits a protocol into its phases (`Phase`); `PhaseModel` says how one phase's agent
 meets its envs (specs, names, the pad-and-fine-tune alignment's obs and id transforms);
 `build_adapters`, `build_alignment` and `run_agent_config` build what a run, a worker process
-and `seal protocol explain` each build for themselves; `derive_seed` gives every stream of a run
+and `seal protocol explain` each build for themselves; `seal.seeding.derive_seed` gives every stream of a run
 its seed. The loop (`seal.protocols.phase`), its worker processes (`seal.protocols.workers`), the
 memory estimate (`seal.protocols.resources`) and the run (`seal.protocols.runner`) all stand on
 this module, which imports none of them.
@@ -12,7 +12,6 @@ this module, which imports none of them.
 from __future__ import annotations
 
 import dataclasses
-import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -24,6 +23,7 @@ from seal.envs.base import EnvAdapter
 from seal.errors import SealError
 from seal.evaluation import AgentPolicy
 from seal.protocols.config import ProtocolConfig
+from seal.seeding import derive_seed
 
 if TYPE_CHECKING:
     from seal.envs.alignment import Alignment
@@ -49,12 +49,6 @@ class Phase:
     envs: tuple[str, ...]
     epochs: int
     aligned: bool = False
-
-
-def derive_seed(*parts: int | str) -> int:
-    """A 32-bit seed from a run seed and labels, stable across processes (crc32, not hash())."""
-    ints = [p if isinstance(p, int) else zlib.crc32(p.encode()) for p in parts]
-    return int(np.random.SeedSequence(ints).generate_state(1, np.uint32)[0])
 
 
 class PhaseModel:

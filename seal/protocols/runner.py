@@ -5,7 +5,8 @@ has one or more phases: baseline and joint have the phase "train"; finetune has 
 the source env) then "finetune" (on the target env, starting from the best pre-trained
 checkpoint with the policy's last layer re-initialised, SEAL Appendix D). A baseline or joint
 run with a [transfer] table starts its "train" phase the same way from any `seal run` checkpoint
-(issue 5: MT1 -> MT3, MT1 -> MT10), with the learning rates x transfer.lr_factor.
+(issue 5: MT1 -> MT3, MT1 -> MT10), with the learning rates x transfer.lr_factor; with
+transfer.map, one env also starts from another env of the checkpoint (`seal.protocols.mapped_start`).
 
 The epoch (garage MTSAC convention, issue 4's table)::
 
@@ -58,18 +59,19 @@ from seal.protocols.checkpointing import Checkpointer
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
 from seal.protocols.loggers import ScalarLogger, open_loggers
+from seal.protocols.mapped_start import mapped_start
 from seal.protocols.phase import LoopCallback, PhaseLoop, PhaseState, ProgressBar
 from seal.protocols.phase_model import (
     Phase,
     PhaseModel,
     build_adapters,
     build_alignment,
-    derive_seed,
     plan_phases,
     run_agent_config,
 )
 from seal.protocols.resources import check_resources
 from seal.protocols.rundir import DirLock, RunDir, new_group_id, parse_seed_dir, seed_dir
+from seal.seeding import derive_seed
 
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 """OSError numbers a run reports in one line: the user frees space and resumes."""
@@ -159,6 +161,9 @@ class Run:
         # [transfer]: read the source checkpoint now, so a bad path fails before anything is written
         # (a resumed run restores its own agent and does not need the source any more).
         self.transfer_state = None if resume else transfer_source(config)
+        # [transfer] map: which env starts from which, checked against the checkpoint now too.
+        if self.transfer_state is not None:
+            mapped_start(config, self.adapters, self.transfer_state)
         self.lock = DirLock(path)
         """Held from here to the end of `run()`: one writer per run directory."""
         if resume:
@@ -330,6 +335,9 @@ class Run:
                 assert state is not None  # None only without [transfer]
             try:
                 transfer_from(agent, state, reinit_critic=transfer.reinit_critic)
+                mapped = mapped_start(self.config, self.adapters, state)
+                if mapped is not None:
+                    mapped.apply(agent, state)
             except SealError as exc:
                 raise ConfigError(
                     f"{self.config.path}: transfer.checkpoint = {transfer.checkpoint!r}: {exc}"

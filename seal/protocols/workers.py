@@ -51,9 +51,9 @@ from seal.protocols.phase_model import (
     build_adapters,
     build_alignment,
     build_eval_collector,
-    derive_seed,
     run_agent_config,
 )
+from seal.seeding import derive_seed
 
 if TYPE_CHECKING:
     from seal.learner.collection import Collector, EpisodeStats
@@ -343,8 +343,8 @@ class _Collection:
         state = request["agent"]
         if state is not None:
             # The snapshot's own acting stream would repeat every epoch: draw from the epoch's.
-            act = torch.Generator(self.agent.device).manual_seed(int(request["act_seed"]))
-            self.agent.load_state_dict({**state, "rng": {**state["rng"], "act": act.get_state()}})
+            self.agent.load_state_dict(state)
+            self.agent.reseed_acting(int(request["act_seed"]))
         out = []
         for random_actions, active in request["passes"]:
             steps: list[Transition] = []

@@ -76,7 +76,7 @@ class ReferenceSAC:
     def _pi(self, name: str, x: torch.Tensor, ids: torch.Tensor):
         a = self.agent
         noise = torch.randn(
-            x.shape[0], a.specs[name].act_dim, generator=a.update_generator, dtype=x.dtype
+            x.shape[0], a.specs[name].act_dim, generator=a.update_generators[name], dtype=x.dtype
         )
         return tanh_gaussian(a.actor(self.key[name], x, ids), noise)
 

@@ -62,7 +62,7 @@ def test_losses_by_hand_on_a_network_with_known_weights() -> None:
     )
     # The update draws the next-state noise, then the policy noise, from its own generator.
     g = torch.Generator()
-    g.set_state(agent.update_generator.get_state())
+    g.set_state(agent.update_generators["toy"].get_state())
     eps_next = torch.randn(3, 1, generator=g)[:, 0].tolist()
     eps_pi = torch.randn(3, 1, generator=g)[:, 0].tolist()
     metrics = agent.update({"toy": batch})

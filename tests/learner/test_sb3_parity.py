@@ -60,7 +60,7 @@ def sac_loss_check(seed: int = 0, updates: int = 3, batch_size: int = 256) -> di
         terms = torch.from_numpy((rng.random(batch_size) < 0.1).astype(np.float32))
         # Our update draws the s' noise (critic target), then the s noise (actor), from its own
         # generator; predict both from a copy of it and hand them to SB3 in SB3's order (s, s').
-        gen = torch.Generator().set_state(ours.update_generator.get_state())
+        gen = torch.Generator().set_state(ours.update_generators["bench"].get_state())
         noise_next = torch.randn(batch_size, SB3_ACT_DIM, generator=gen)
         noise_obs = torch.randn(batch_size, SB3_ACT_DIM, generator=gen)
         metrics = ours.update(
