@@ -221,10 +221,11 @@ def target_auc(
 ) -> dict[str, float]:
     """Per task of `env`: the area under its evaluated success over gradient steps 0..budget, / budget.
 
-    Trapezoids between evaluations. No evaluation precedes the first update, so the curve starts
-    at success 0 at step 0 (an untrained policy succeeds in about 0.6% of point_view's episodes)
-    unless the run evaluated there; after its last evaluation it holds that value up to `budget`
-    (default: the run's own last evaluated step), and evaluations past `budget` are cut there.
+    Trapezoids between evaluations. The curve starts at the run's evaluation at step 0 where it
+    made one (the testbed's first evaluations fall in the warm-up), else at success 0 at step 0
+    (an untrained policy succeeds in about 0.6% of point_view's episodes); after its last
+    evaluation it holds that value up to `budget` (default: the run's own last evaluated step),
+    and evaluations past `budget` are cut there.
     """
     rows = metrics[metrics["env"] == env]
     if rows.empty:
@@ -760,7 +761,8 @@ def _statistics_notes(chosen: Sequence[Arm], summary: Mapping[str, Any]) -> list
         + "; ".join(f"{name}: {what}" for name, _, _, what in STATISTICS)
         + ". G = gradient steps until every target task first evaluates >= 90% (censored: the "
         "run's total); AUC = per task the area under the evaluated success over gradient steps "
-        "0..the alone arm's budget (success 0 at step 0), over the budget, mean over the tasks.",
+        "0..the alone arm's budget (success 0 at step 0 unless evaluated there), over the budget, "
+        "mean over the tasks.",
         "[lo, hi] = 95% percentile bootstrap CI of the mean over seeds (scipy.stats.bootstrap, "
         "10,000 resamples, seed 0); * = it excludes 0. sd_paired_<stat> = SD of the per-seed "
         "values; mde_<stat> = (t(0.975, n-1) + t(0.80, n-1)) sd / sqrt(n), the effect found with "
