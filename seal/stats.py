@@ -9,12 +9,19 @@ needs `arch`, which does not install here without compiling, so the resampling i
 
 Costs are the quantities here (transitions or gradient steps to 90%): lower is better. Every
 function is pure (numbers in, numbers out) and seeded, so a report is reproducible.
+
+Beside the intervals, what an instrument of n seeds can resolve at all: the minimum detectable
+effect of a paired comparison (`mde`, `seeds_for_mde`, `paired_power`), rliable's interquartile
+mean (`interquartile_mean`, `iqm_ci`), a bootstrap band around a mean curve (`bootstrap_band`),
+and the false-positive rate of a CI method on two halves of one arm (`split_false_positive_rate`).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from scipy import stats as scipy_stats
@@ -224,3 +231,199 @@ def resolved(ci: tuple[float, float]) -> bool:
     if not (math.isfinite(low) and math.isfinite(high)):
         return False
     return (low > 0 and high > 0) or (low < 0 and high < 0)
+
+
+# ---------------------------------------------------------------- resolving power
+
+
+def mde(sd: float, n: int, *, alpha: float = 0.05, power: float = 0.8) -> float:
+    """Minimum detectable effect of a paired comparison: (t_{1-alpha/2,n-1} + t_{power,n-1}) * sd / sqrt(n).
+
+    The smallest true mean of n paired differences (of sample SD `sd`) that a two-sided
+    one-sample t-test at level `alpha` detects with probability about `power`, in the unit of
+    `sd` (the normal-approximation formula with t quantiles; the exact power from the noncentral
+    t is 0.79 at n = 5 for power 0.8). NaN when n < 2 or `sd` is not finite.
+    """
+    if not (0.0 < alpha < 1.0 and 0.0 < power < 1.0):
+        raise SealError(f"alpha {alpha!r} and power {power!r}: expected probabilities in (0, 1)")
+    if n < 2 or not math.isfinite(sd):
+        return math.nan
+    df = n - 1
+    quantiles = scipy_stats.t.ppf(1.0 - alpha / 2.0, df) + scipy_stats.t.ppf(power, df)
+    return float(quantiles * sd / math.sqrt(n))
+
+
+def seeds_for_mde(
+    sd: float,
+    target: float = 0.10,
+    *,
+    alpha: float = 0.05,
+    power: float = 0.8,
+    max_seeds: int = 1_000_000,
+) -> int | None:
+    """The smallest n >= 2 with mde(sd, n) <= target (the t quantiles shrink with n too).
+
+    None when `sd` is not finite or more than `max_seeds` seeds would be needed.
+    """
+    if not target > 0:
+        raise SealError(f"target MDE {target!r}: expected > 0")
+    if not math.isfinite(sd) or mde(sd, max_seeds, alpha=alpha, power=power) > target:
+        return None
+    if mde(sd, 2, alpha=alpha, power=power) <= target:
+        return 2
+    low, high = 2, max_seeds  # mde(low) > target >= mde(high), and mde falls as n grows
+    while high - low > 1:
+        middle = (low + high) // 2
+        if mde(sd, middle, alpha=alpha, power=power) <= target:
+            high = middle
+        else:
+            low = middle
+    return high
+
+
+def mde_key(target: float) -> str:
+    """The suffix of `seeds_for_mde_<target>_...` keys: 0.10 -> "0p10"."""
+    return f"{target:.2f}".replace(".", "p")
+
+
+def paired_power(differences: Sequence[float], name: str, target: float = 0.10) -> dict[str, Any]:
+    """`sd_paired_<name>`, `mde_<name>` and `seeds_for_mde_<target>_<name>` of per-seed paired differences.
+
+    NaNs are dropped; the SD is the sample SD (ddof 1), the MDE is at the seeds given (`mde`), and
+    the seeds are those an MDE <= `target` needs at that SD (`seeds_for_mde`).
+    """
+    x = _finite(differences)
+    sd = float(np.std(x, ddof=1)) if len(x) >= 2 else math.nan
+    return {
+        f"sd_paired_{name}": sd,
+        f"mde_{name}": mde(sd, len(x)),
+        f"seeds_for_mde_{mde_key(target)}_{name}": seeds_for_mde(sd, target),
+    }
+
+
+# ---------------------------------------------------------------- aggregates over runs and tasks
+
+
+def interquartile_mean(values: Sequence[float]) -> float:
+    """rliable's IQM: the mean of the middle 50% of the values (scipy's trim_mean, 25% cut each end)."""
+    x = _finite(values)
+    return float(scipy_stats.trim_mean(x, 0.25)) if len(x) else math.nan
+
+
+def iqm_ci(
+    runs_by_task: np.ndarray | Sequence[Sequence[float]],
+    *,
+    confidence: float = DEFAULT_CONFIDENCE,
+    n_resamples: int = DEFAULT_RESAMPLES,
+    seed: int = 0,
+) -> tuple[float, float]:
+    """CI of the IQM over (run, task) of a runs x tasks table: rliable's stratified bootstrap.
+
+    Each task's runs are resampled on their own (the task is the stratum), then the IQM is taken
+    over every resampled (run, task) value. (nan, nan) below 2 runs or with a NaN in the table.
+    """
+    table = np.asarray(runs_by_task, dtype=float)
+    if table.ndim != 2 or table.shape[0] < 2 or not np.isfinite(table).all():
+        return math.nan, math.nan
+    if np.all(table == table.flat[0]):
+        return float(table.flat[0]), float(table.flat[0])
+    columns = [table[:, t] for t in range(table.shape[1])]
+
+    def statistic(*index: np.ndarray) -> np.ndarray:
+        stacked = np.concatenate([c[i] for c, i in zip(columns, index, strict=True)], axis=-1)
+        return scipy_stats.trim_mean(stacked, 0.25, axis=-1)
+
+    return _percentile_ci([len(c) for c in columns], statistic, confidence, n_resamples, seed)
+
+
+def bootstrap_band(
+    curves: np.ndarray | Sequence[Sequence[float]],
+    *,
+    confidence: float = DEFAULT_CONFIDENCE,
+    n_resamples: int = 2_000,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pointwise percentile bootstrap CI of the mean of a seeds x points table of curves.
+
+    Seeds are resampled whole (a curve stays one seed's), in numpy, since scipy.stats.bootstrap
+    takes a NaN for a degenerate sample; NaNs (a point a seed lacks) are left out of that point's
+    mean. One seed: the curve itself, at both ends.
+    """
+    _check(confidence, n_resamples)
+    table = np.atleast_2d(np.asarray(curves, dtype=float))
+    if table.shape[0] < 2:
+        return table[0].copy(), table[0].copy()
+    rng = np.random.default_rng(seed)
+    index = rng.integers(0, table.shape[0], size=(n_resamples, table.shape[0]))
+    with warnings.catch_warnings():
+        # A resample of only seeds that lack a point has no mean there: NaN, left out below.
+        warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
+        means = np.nanmean(table[index], axis=1)  # (resamples, points)
+    tail = 100.0 * (1.0 - confidence) / 2.0
+    low, high = np.nanpercentile(means, [tail, 100.0 - tail], axis=0)
+    return low, high
+
+
+# ---------------------------------------------------------------- false positives
+
+
+def t_ci(values: Sequence[float], *, confidence: float = DEFAULT_CONFIDENCE) -> tuple[float, float]:
+    """Student's t CI of the mean of `values` (NaNs dropped); (nan, nan) below 2 values."""
+    x = _finite(values)
+    if len(x) < 2:
+        return math.nan, math.nan
+    sem = float(np.std(x, ddof=1)) / math.sqrt(len(x))
+    if sem == 0:
+        return float(x.mean()), float(x.mean())
+    half = float(scipy_stats.t.ppf(0.5 + confidence / 2.0, len(x) - 1)) * sem
+    return float(x.mean()) - half, float(x.mean()) + half
+
+
+def binomial_ci(
+    successes: int, trials: int, confidence: float = DEFAULT_CONFIDENCE
+) -> tuple[float, float]:
+    """Clopper-Pearson (exact) CI of a binomial proportion (scipy.stats.binomtest)."""
+    if trials < 1 or not 0 <= successes <= trials:
+        raise SealError(f"{successes} of {trials} trials: expected 0 <= successes <= trials >= 1")
+    interval = scipy_stats.binomtest(successes, trials).proportion_ci(confidence, method="exact")
+    return float(interval.low), float(interval.high)
+
+
+def split_false_positive_rate(
+    costs: Sequence[float],
+    *,
+    half: int = 5,
+    splits: int = 1_000,
+    seed: int = 0,
+    ci: Callable[[Sequence[float]], tuple[float, float]] = bootstrap_ci,
+) -> dict[str, Any]:
+    """How often a CI method calls a difference between two halves of one arm resolved.
+
+    `costs` are one arm's per-seed costs (e.g. gradient steps to 90%), so there is no effect to
+    find. Each of `splits` draws takes two disjoint random sets of `half` seeds, pairs them at
+    random, forms the per-pair saving 1 - cost(a) / cost(b) (as `steps_saved` does), and applies
+    `ci` (default: the arms' percentile bootstrap) to their mean. Returns the share of CIs that
+    exclude 0 (`rate`), its Clopper-Pearson 95% CI (`rate_ci95`), and the counts.
+    """
+    x = np.asarray(costs, dtype=float).ravel()
+    if not np.isfinite(x).all() or not (x > 0).all():
+        raise SealError(f"costs {x.tolist()}: expected finite positive values, one per seed")
+    if half < 2 or 2 * half > len(x):
+        raise SealError(f"{len(x)} seeds cannot make two disjoint halves of {half} (half >= 2)")
+    if splits < 1:
+        raise SealError(f"splits {splits!r}: expected >= 1")
+    rng = np.random.default_rng(seed)
+    excluded = 0
+    for _ in range(splits):
+        order = rng.permutation(len(x))
+        a, b = x[order[:half]], x[order[half : 2 * half]]  # b's order is random: a random pairing
+        if resolved(ci(1.0 - a / b)):
+            excluded += 1
+    return {
+        "seeds": len(x),
+        "half": half,
+        "splits": splits,
+        "excluding_0": excluded,
+        "rate": excluded / splits,
+        "rate_ci95": list(binomial_ci(excluded, splits)),
+    }

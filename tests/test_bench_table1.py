@@ -128,6 +128,9 @@ def test_tiny_end_to_end(tmp_path: Path) -> None:
         "High FK",
         "Single Env (High FK batch)",
     }
+    # Beside it, the changes table and the report's plots (changes with their MDE, success).
+    assert "# Changes against the reference columns" in result["table"]
+    assert {Path(p).name for p in result["plots"]} >= {"changes_mw.png", "success_mw.png"}
     text = format_result(result)
     assert "1 seeds of 5 arms" in text and "budget 5400 s with >= 3 seeds: not met" in text
     assert result["budget"]["met"] is False  # one seed is fewer than the budget's three

@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import json
 import math
+import re
+from pathlib import Path
 
+import matplotlib.image
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -16,6 +21,8 @@ from seal.bench.transfer import (
     finished_run,
     format_result,
     run_transfer_bench,
+    target_auc,
+    target_budget,
     target_cost,
     updates_saved,
 )
@@ -198,6 +205,14 @@ def test_tiny_end_to_end(tmp_path) -> None:
         assert 0.0 <= cka["translator"] <= 1.0 and 0.0 <= cka["trunk"] <= 1.0, name
     assert "Single Env" in result["table"] and "Oracle policy" in result["table"]
     assert result["target_curve_distance"] is None  # one seed: no seed-to-seed scale to read it by
+    # Every statistic's power keys (NaN at one seed), the tables and the plots beside them.
+    for stat in ("steps", "robust_steps", "auc"):
+        assert {f"sd_paired_{stat}", f"mde_{stat}", f"seeds_for_mde_0p10_{stat}"} <= set(high)
+    assert high["auc_gain_per_seed"] == [
+        pytest.approx(high["auc_per_seed"][0] - alone["auc_per_seed"][0])
+    ]
+    assert {Path(p).name for p in result["plots"]} == {"changes.png", "success_target.png"}
+    assert all(Path(p).is_file() for p in result["tables"] + result["plots"])
 
 
 def test_cli_errors_are_one_line(capsys) -> None:
@@ -309,3 +324,187 @@ def test_a_run_predating_a_key_is_reused_only_at_that_keys_default() -> None:
     assert not _same_tables({**old, "training": {"batch_per_task": 32}}, today)
     assert not _same_tables({**old, "epochs": 3}, today)
     assert not _same_tables({"agent": {"latent_dim": 16}, "epochs": 2}, today)
+
+
+# ---------------------------------------------------------------- the paired statistics
+
+
+def test_target_auc_by_hand() -> None:
+    metrics = _metrics(
+        [
+            (2, "target", "t0", 0.5, 100, 0.0008),
+            (2, "target", "t1", 0.0, 100, 0.0008),
+            (2, "source", "east", 1.0, 100, 0.0072),  # not the target: ignored
+            (4, "target", "t0", 1.0, 200, 0.0016),
+            (4, "target", "t1", 0.4, 200, 0.0016),
+            (8, "target", "t1", 1.0, 400, 0.0032),  # t0 was not evaluated at step 400
+        ]
+    )
+    # Budget 300, success 0 at step 0. t0: (0, 0) (100, 0.5) (200, 1) then held at 1 to 300:
+    # 25 + 75 + 100 = 200 -> 0.667. t1: (0, 0) (100, 0) (200, 0.4) (300, 0.7 on the way to 1 at
+    # 400): 0 + 20 + 55 = 75 -> 0.25.
+    assert target_auc(metrics, budget=300) == pytest.approx({"t0": 200 / 300, "t1": 75 / 300})
+    # The default budget is the run's last evaluation (400): t0 holds 1 from 200 on (300);
+    # t1 rises from 0.4 at 200 to 1 at 400 (0 + 20 + 140 = 160).
+    assert target_auc(metrics) == pytest.approx({"t0": 300 / 400, "t1": 160 / 400})
+    assert target_budget(metrics) == 400
+    # An evaluation at step 0 (the testbed's first ones fall in the warm-up) starts the curve:
+    # an oracle at 0.8 from the start, 1.0 at 100 -> (0.8 + 1) / 2 * 100 + 100 = 190 of 200.
+    warm = _metrics([(1, "target", "t0", 0.8, 0, 0.0), (2, "target", "t0", 1.0, 100, 0.0008)])
+    assert target_auc(warm, budget=200) == pytest.approx({"t0": 190 / 200})
+    with pytest.raises(SealError, match="no rows of env 'nowhere'"):
+        target_auc(metrics, env="nowhere")
+
+
+def _cost(steps: int) -> TargetCost:
+    return TargetCost(8.0 * steps, steps, 0, 1, {"t0": 8.0 * steps}, ("t0",), {"t0": steps})
+
+
+def test_summary_has_each_statistics_ci_sd_mde_and_seeds_for_mde() -> None:
+    from seal.bench.transfer import summarise
+    from seal.stats import bootstrap_ci, mde, seeds_for_mde
+
+    chosen = arms(only=["high_source"])
+    alone = [_cost(2000)] * 5
+    joint = [_cost(s) for s in (1500, 3000, 1800, 2000, 1600)]
+    # AUC per task: the arm gains 0.1 on t0 and 0.3 on t1 in seed 0, nothing elsewhere.
+    auc = {
+        "alone": [{"t0": 0.5, "t1": 0.5}] * 5,
+        "high_source": [{"t0": 0.6, "t1": 0.8}] + [{"t0": 0.5, "t1": 0.5}] * 4,
+    }
+    summary = summarise(
+        {"alone": alone, "high_source": joint},
+        chosen,
+        robust={"alone": alone, "high_source": joint},
+        auc=auc,
+    )
+    high = summary["high_source"]
+    steps = [0.25, -0.5, 0.1, 0.0, 0.2]  # 1 - G(arm) / 2000
+    assert high["steps_saved_per_seed"] == pytest.approx(steps)
+    sd = float(np.std(steps, ddof=1))
+    for name in ("steps", "robust_steps"):
+        assert high[f"sd_paired_{name}"] == pytest.approx(sd)
+        assert high[f"mde_{name}"] == pytest.approx(mde(sd, 5))
+        assert high[f"seeds_for_mde_0p10_{name}"] == seeds_for_mde(sd)
+    assert high["auc_gain_per_seed"] == pytest.approx([0.2, 0, 0, 0, 0])
+    assert high["auc_gain"] == pytest.approx(0.04)
+    assert high["auc_gain_ci95"] == pytest.approx(list(bootstrap_ci([0.2, 0, 0, 0, 0])))
+    # IQM over the 10 (seed, task) gains 0.1, 0.3 and eight 0: the middle five are 0.
+    assert high["auc_gain_iqm"] == 0.0
+    assert high["sd_paired_auc"] == pytest.approx(np.std([0.2, 0, 0, 0, 0], ddof=1))
+    assert summary["alone"]["auc_mean"] == 0.5 and "auc_gain" not in summary["alone"]
+
+
+def _synthetic_runs(seeds: int = 5) -> dict[tuple[str, int], pd.DataFrame]:
+    """metrics.csv of the target for alone, high_source and oracle_policy: logistic success
+    curves around a step that differs by arm (the oracle learns ~1,500 steps sooner)."""
+    shifts = {"alone": 0, "high_source": 200, "oracle_policy": 1500}
+    runs = {}
+    for arm, shift in shifts.items():
+        for seed in range(seeds):
+            rng = np.random.default_rng(100 * seed + shift)
+            rows = []
+            for task in ("t0", "t1", "t2", "t3"):
+                centre = rng.normal(2500 - shift, 400)
+                for epoch in range(2, 101, 2):
+                    steps = 50 * epoch
+                    success = float(np.round(1 / (1 + np.exp(-(steps - centre) / 250)), 1))
+                    rows.append((epoch, "target", task, success, steps, steps * 8e-6))
+            runs[(arm, seed)] = _metrics(rows).assign(seed=seed)
+    return runs
+
+
+def test_transfer_tables_and_plots(tmp_path) -> None:
+    from seal.bench.transfer import format_table, summarise, write_transfer_report
+
+    runs = _synthetic_runs()
+    chosen = arms(only=["high_source", "oracle_policy"])
+    chosen = [a for a in chosen if a.name != "pretrain_source"]
+    names = [a.name for a in chosen]
+    costs = {n: [target_cost(runs[(n, s)]) for s in range(5)] for n in names}
+    auc = {
+        a.name: [target_auc(runs[(a.name, s)], target_budget(runs[("alone", s)])) for s in range(5)]
+        for a in chosen
+    }
+    summary = summarise(costs, chosen, robust=costs, auc=auc)
+    assert summary["oracle_policy"]["steps_saved"] > 0.3
+    text = format_table(costs, chosen, summary)
+    # A cell holds one thing: counts as columns, then one row per (task, arm, alone arm).
+    assert max(len(line) for line in text.splitlines()) <= 100
+    assert (
+        "# M transitions of the target" in text and "# Changes against each arm's alone arm" in text
+    )
+    assert "**Total (point_view)**" in text
+    assert re.search(r"\| Oracle policy +\| Single Env +\| \*\*-\d", text)  # resolved: bold
+    for key in ("sd_paired_steps", "mde_robust_steps", "seeds_for_mde_0p10_auc"):
+        assert key in text, key
+    written = write_transfer_report(tmp_path, costs, chosen, summary, runs)
+    assert {Path(p).name for p in written["tables"]} == {
+        "counts.md",
+        "counts.tex",
+        "changes.md",
+        "changes.tex",
+    }
+    assert {Path(p).name for p in written["plots"]} == {"changes.png", "success_target.png"}
+    for plot in written["plots"]:
+        image = matplotlib.image.imread(plot)
+        assert image.shape[0] > 200 and image.std() > 0.01
+    assert (tmp_path / "tables" / "changes.md").read_text() in text + "\n"
+
+
+# ---------------------------------------------------------------- the false-positive rate
+
+
+def _finished_alone_runs(root: Path, steps: list[int]) -> None:
+    """Finished runs of the alone arm under `root`, today's config, one per seed, whose target
+    reaches 90% on every task at `steps[seed]` gradient steps."""
+    from seal.protocols.loader import config_to_dict, dumps_toml
+
+    arm = next(a for a in ARMS if a.name == "alone")
+    config = load_protocol(arm.protocol)
+    for seed, reach in enumerate(steps):
+        run = root / config.name / f"20261201-000000-{seed:06d}" / f"seed-{seed}"
+        run.mkdir(parents=True)
+        (run / "config.toml").write_text(dumps_toml(config_to_dict(config)))
+        lines = [
+            f"{seed},train,{epoch},target,{task},{1.0 if 50 * epoch >= reach else 0.0},-1.0,"
+            f"{50 * epoch},{100 * epoch},{50 * epoch * 8e-6},1.0"
+            for epoch in range(2, 101, 2)
+            for task in ("t0", "t1", "t2", "t3")
+        ]
+        (run / "metrics.csv").write_text(
+            "seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s\n"
+            + "\n".join(lines)
+            + "\n"
+        )
+        (run / "provenance.json").write_text(
+            json.dumps({"seed": seed, "git_sha": "abc", "end_time": "2026-12-01T00:10:00"})
+        )
+
+
+def test_fpr_bench_on_ten_finished_alone_runs(tmp_path) -> None:
+    from seal.bench.transfer import format_fpr, run_fpr_bench
+    from seal.stats import binomial_ci
+
+    steps = [2000, 2500, 3000, 2200, 2800, 2600, 2400, 3100, 1900, 2700]
+    _finished_alone_runs(tmp_path, steps)
+    result = run_fpr_bench(out=tmp_path, reuse=True, splits=200)
+    assert len(result["reused"]) == 10  # nothing was run
+    assert result["grad_steps_to_90_per_seed"] == steps
+    rate = result["false_positive_rate"]
+    assert (rate["splits"], rate["half"], rate["seeds"]) == (200, 5, 10)
+    assert rate["rate"] == rate["excluding_0"] / 200
+    assert rate["rate_ci95"] == pytest.approx(list(binomial_ci(rate["excluding_0"], 200)))
+    assert result["goal"]["met"] is (rate["rate"] <= 0.10)
+    text = format_fpr(result)
+    assert "200 random 5/5 splits" in text and "Student's t CI, for comparison" in text
+    with pytest.raises(SealError, match="needs >= 10"):
+        run_fpr_bench(seeds=9, out=tmp_path, reuse=True)
+
+
+def test_cli_fpr_only_with_learn_transfer(capsys) -> None:
+    from seal.cli.main import main
+
+    assert main(["bench", "--learn", "table1", "--fpr"]) == 2
+    assert "--fpr only applies to --learn transfer" in capsys.readouterr().err
+    assert main(["bench", "--learn", "transfer", "--fpr", "--full"]) == 2

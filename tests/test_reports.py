@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import matplotlib.image
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -14,7 +15,7 @@ import seal
 from seal.cli.main import main
 from seal.errors import SealError
 from seal.reports import RunData, column_label, load_run, report
-from seal.stats import change_ci
+from seal.stats import change_ci, mde
 
 HEADER = "seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s\n"
 TRAIN_HEADER = "seed,phase,epoch,grad_steps,env,key,value\n"
@@ -209,8 +210,35 @@ def test_bad_paths_name_the_path(tmp_path: Path, groups: dict[str, Path]) -> Non
         load_run(run)
 
 
-def _cell(display: pd.DataFrame, task: str, column: str) -> str:
-    return display.set_index("Task").loc[task, column]
+def _md_table(md: str, section: str = "") -> tuple[list[str], dict[str, list[str]]]:
+    """The table under **section** of a Markdown document (the first one for ""), its column
+    chunks joined again: (header, {first cell: the other cells})."""
+    header: list[str] = []
+    rows: dict[str, list[str]] = {}
+    heading = ""
+    for block in md.split("\n\n"):
+        lines = block.strip().splitlines()
+        if len(lines) == 1 and lines[0].startswith("**") and lines[0].endswith("**"):
+            heading = lines[0].strip("*")
+            continue
+        if heading != section or not lines or not lines[0].startswith("|"):
+            continue
+        cells = [[c.strip() for c in line.strip("|").split("|")] for line in lines]
+        header = header + cells[0][1:] if header else cells[0]
+        for row in cells[2:]:
+            rows.setdefault(row[0], []).extend(row[1:])
+    return header, rows
+
+
+def _md_rows_of(md: str, section: str, arm: str) -> list[list[str]]:
+    """Every row of the table under **section** whose first cell is `arm`, without that cell."""
+    block = md.split(f"**{section}**\n\n", 1)[1].split("\n\n", 1)[0]
+    cells = [[c.strip() for c in line.strip("|").split("|")] for line in block.splitlines()[2:]]
+    return [row[1:] for row in cells if row[0] == arm]
+
+
+def _longest_line(path: Path) -> int:
+    return max(len(line) for line in path.read_text().splitlines())
 
 
 def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path]) -> None:
@@ -238,14 +266,10 @@ def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path
     )
 
     md = (out / "tables" / "update_counts.md").read_text()
-    table_lines = [line for line in md.splitlines() if line.startswith("|")]
-    header = [c.strip() for c in table_lines[0].strip("|").split("|")]
+    header, rows = _md_table(md)
     assert header == ["Task", "Single Env", "High FK", "Fine-tune on MW", "Pre-train on FK"]
-    rows = {
-        cells[0]: cells[1:]
-        for cells in ([c.strip() for c in line.strip("|").split("|")] for line in table_lines[2:])
-    }
-    # Meta-World rows first, then the kitchen, then one total per environment.
+    # Meta-World rows first, then the kitchen, then one total per environment. A cell holds the
+    # count alone: its changes are rows of update_changes.md, its steps x batch a table below.
     assert list(rows) == [
         "drawer-close-v3 (MW)",
         "reach-v3 (MW)",
@@ -254,52 +278,60 @@ def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path
         "Total (MW)",
         "Total (FK)",
     ]
-    # Two seeds a group: nothing is bold, whatever the CI (MIN_SEEDS_RESOLVED = 3). High FK and
-    # Single Env ran seeds 0 and 1 on MW, so drawer-close is paired by seed: the resamples give
-    # 0.02/0.128 - 1 = -84.4%, 0.035/0.16 - 1 = -78.1% or 0.05/0.192 - 1 = -74.0%, hence the CI.
-    # Beside each count: gradient steps x per-step batch, e.g. 750 steps x 46.67 = 35,000.
     assert rows["drawer-close-v3 (MW)"] == [
-        "0.16 ± 0.04525 [2/2] · 1250 steps × 128",
-        "0.035 ± 0.02121 (-78.1% [-84.4, -74.0]) [2/2] · 750 steps × 46.67",
-        "0.064 (-60.0%) [1/1] · 500 steps × 128",
+        "0.16 ± 0.04525 [2/2]",
+        "0.035 ± 0.02121 [2/2]",
+        "0.064 [1/1]",
         "",
     ]
-    assert rows["reach-v3 (MW)"] == ["0.192 [1/2] · 1500 steps × 128", "— [0/2]", "— [0/1]", ""]
-    assert rows["slide-cabinet (FK)"] == [
-        "0.192 [1/1] · 1500 steps × 128",
-        "0.14 ± 0.05657 (-27.1%) [2/2] · 750 steps × 186.7",  # one baseline seed: no CI
-        "",
-        "0.128 (-33.3%) [1/1] · 1000 steps × 128",
-    ]
-    assert rows["microwave (FK)"] == [
-        "— [0/1]",
-        "0.24 (n/a) [1/2] · 1500 steps × 160",
-        "",
-        "— [0/1]",
-    ]
-    assert rows["Total (MW)"] == [
-        "0.352 (2/2 tasks)",
-        "0.035 (1/2 tasks) (-78.1% [-84.4, -74.0] vs Single Env on 1 shared task)",
-        "0.064 (1/2 tasks) (-60.0% vs Single Env on 1 shared task)",
-        "",
-    ]
-    assert rows["Total (FK)"] == [
-        "0.192 (1/2 tasks)",
-        "0.38 (2/2 tasks) (-27.1% vs Single Env on 1 shared task)",
-        "",
-        "0.128 (1/2 tasks) (-33.3% vs Single Env on 1 shared task)",
-    ]
-    assert "Fewer than 3 seeds in" in md and "no change against or of them is resolved" in md
-    assert (
-        "Paired by seed (both columns reached the task in the same seeds): High FK vs Single Env (MW)"
-        in md
-    )
+    assert rows["reach-v3 (MW)"] == ["0.192 [1/2]", "— [0/2]", "— [0/1]", ""]
+    assert rows["slide-cabinet (FK)"] == ["0.192 [1/1]", "0.14 ± 0.05657 [2/2]", "", "0.128 [1/1]"]
+    assert rows["microwave (FK)"] == ["— [0/1]", "0.24 [1/2]", "", "— [0/1]"]
+    assert rows["Total (MW)"] == ["0.352 (2/2 tasks)", "0.035 (1/2 tasks)", "0.064 (1/2 tasks)", ""]
+    assert rows["Total (FK)"] == ["0.192 (1/2 tasks)", "0.38 (2/2 tasks)", "", "0.128 (1/2 tasks)"]
+    # Five columns do not fit 100 characters: the table is split, the Task column in each part.
+    assert md.count("| Task ") == 3 and _longest_line(out / "tables" / "update_counts.md") <= 100
+    # Gradient steps x per-step batch, e.g. 750 steps x 46.67 = 35,000 transitions.
+    _, steps = _md_table(md, "Gradient steps × per-step batch")
+    assert steps["drawer-close-v3 (MW)"] == ["1250 × 128", "750 × 46.67", "500 × 128", ""]
+    assert steps["microwave (FK)"] == ["—", "1500 × 160", "", "—"]
     assert "— = never reached 90% in any seed" in md
 
+    # The changes: one row per (task, arm, reference). Two seeds a group: nothing is bold,
+    # whatever the CI (MIN_SEEDS_RESOLVED = 3). High FK and Single Env ran seeds 0 and 1 on MW, so
+    # drawer-close is paired by seed: the resamples give 0.02/0.128 - 1 = -84.4%,
+    # 0.035/0.16 - 1 = -78.1% or 0.05/0.192 - 1 = -74.0%, hence the CI.
+    changes = (out / "tables" / "update_changes.md").read_text()
+    assert _longest_line(out / "tables" / "update_changes.md") <= 100
+    header, rows = _md_table(changes, "drawer-close-v3 (MW)")
+    assert header == ["Arm", "vs", "Change", "95% CI", "n"]
+    assert rows["High FK"] == ["Single Env", "-78.1%", "[-84.4, -74.0]", "2"]
+    assert rows["Fine-tune on MW"] == ["Single Env", "-60.0%", "[n/a]", "1 vs 2"]
+    _, rows = _md_table(changes, "slide-cabinet (FK)")
+    assert rows["High FK"] == ["Single Env", "-27.1%", "[n/a]", "2 vs 1"]  # one baseline seed
+    assert rows["Pre-train on FK"] == ["Single Env", "-33.3%", "[n/a]", "1"]
+    _, rows = _md_table(changes, "microwave (FK)")
+    assert rows["High FK"] == ["Single Env", "n/a", "[n/a]", "1 vs 0"]
+    header, rows = _md_table(changes, "Total (MW)")
+    assert header[-1] == "tasks"
+    assert rows["High FK"] == ["Single Env", "-78.1%", "[-84.4, -74.0]", "2", "1"]
+    assert "| **" not in changes  # no change bold: too few seeds
+    assert "Fewer than 3 seeds in" in changes and "against or of them is resolved" in changes
+    assert "Paired by seed: High FK vs Single Env (MW)" in changes
+    frame = pd.read_csv(out / "tables" / "update_changes.csv")
+    paired = frame.set_index(["task", "column"]).loc[("drawer-close-v3", "High FK")]
+    # Per seed 0.02 / 0.128 - 1 = -84.375% and 0.05 / 0.192 - 1 = -73.958%: SD 7.366 points.
+    assert paired["sd_paired_pct"] == pytest.approx(np.std([-84.375, -73.958333], ddof=1))
+    assert paired["mde_pct"] == pytest.approx(mde(paired["sd_paired_pct"], 2))
+    assert math.isnan(
+        frame.set_index(["task", "column"]).loc[("slide-cabinet", "High FK")]["mde_pct"]
+    )
+
     tex = (out / "tables" / "update_counts.tex").read_text()
-    assert r"0.035 $\pm$ 0.02121 (-78.1\% [-84.4, -74.0]) [2/2] $\cdot$ 750 steps" in tex
+    assert r"0.035 $\pm$ 0.02121 [2/2]" in tex and r"750 $\times$ 46.67" in tex
     assert r"\textbf" not in tex and r"\begin{tabular}" in tex
     assert "drawer-close-v3 (MW)" in tex and "--- [0/2]" in tex
+    assert r"-78.1\%" in (out / "tables" / "update_changes.tex").read_text()
 
     csv = pd.read_csv(out / "tables" / "update_counts.csv")
     assert set(csv.columns) >= {
@@ -323,6 +355,8 @@ def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path
     assert (out / "tables" / "success.md").is_file() and (out / "tables" / "success.tex").is_file()
 
     assert sorted(p.name for p in result.plots) == [
+        "changes_fk.png",
+        "changes_mw.png",
         "critic_loss.png",
         "success_fk.png",
         "success_mw.png",
@@ -336,9 +370,11 @@ def test_single_group_writes_into_the_group(groups: dict[str, Path]) -> None:
     assert result.out_dir == groups["high_fk"]
     assert (groups["high_fk"] / "tables" / "update_counts.md").is_file()
     _assert_png(groups["high_fk"] / "plots" / "success_mw.png")
-    # Without a baseline there is no percent change: cells carry no "(...%)".
+    # Without a baseline there is no change: no changes table, and no interval plot.
     md = (groups["high_fk"] / "tables" / "update_counts.md").read_text()
     assert "0.035 ± 0.02121 [2/2]" in md and "%)" not in md
+    assert not (groups["high_fk"] / "tables" / "update_changes.md").exists()
+    assert not list((groups["high_fk"] / "plots").glob("changes_*"))
 
 
 def test_single_run_writes_into_the_run(groups: dict[str, Path]) -> None:
@@ -495,6 +531,14 @@ def test_cli_report_json(
     assert payload["update_count_totals"]["Single Env"]["mw"] == pytest.approx(0.352)
     assert Path(payload["tables"]["update_counts.md"]).is_file()
     assert all(Path(p).is_file() for p in payload["plots"])
+    (change,) = [
+        c
+        for c in payload["changes"]
+        if (c["task"], c["column"], c["vs"]) == ("drawer-close-v3", "High FK", "Single Env")
+    ]
+    assert change["pct_change"] == pytest.approx(-78.125)
+    assert (change["paired"], change["n_column"], change["resolved"]) == (True, 2, False)
+    assert Path(payload["tables"]["update_changes.md"]).is_file()
 
 
 def test_cli_report_bad_path_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -547,13 +591,8 @@ def _three_seed_groups(root: Path) -> list[Path]:
 def test_matched_alone_column_and_the_not_bold_rule(tmp_path: Path) -> None:
     result = report(_three_seed_groups(tmp_path / "reports"), out=tmp_path / "out")
     md = (tmp_path / "out" / "tables" / "update_counts.md").read_text()
-    lines = [line for line in md.splitlines() if line.startswith("|")]
-    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    header, rows = _md_table(md)
     assert header == ["Task", "Single Env", "Single Env (High FK batch)", "High FK"]
-    rows = {
-        cells[0]: cells[1:]
-        for cells in ([c.strip() for c in line.strip("|").split("|")] for line in lines[2:])
-    }
     counts = result.update_counts.set_index(["column", "env", "task"])
     a = counts.loc[("High FK", "fk", "a")]
     assert a["reference"] == "Single Env" and a["matched_reference"] == "Single Env (High FK batch)"
@@ -565,16 +604,34 @@ def test_matched_alone_column_and_the_not_bold_rule(tmp_path: Path) -> None:
         tuple(100 * v for v in change_ci([0.02, 0.02, 0.04], [0.192] * 3, paired=True))
     )
     assert a["resolved"] and a["matched_resolved"]
+    # Fewer updates than both references, each resolved: the count is bold; 500, 500, 1000 steps
+    # -> 666.7 steps x 40 transitions a step = 26,667.
+    assert rows["a (FK)"][2] == "**0.02667 ± 0.01155** [3/3]"
+    assert _md_table(md, "Gradient steps × per-step batch")[1]["a (FK)"][2] == "666.7 × 40"
     # Against Single Env (0.192 in every seed) the resampled means run from 0.02 (-89.6%) to 0.04
-    # (-79.2%); 500, 500, 1000 steps -> 666.7 steps x 40 transitions a step = 26,667.
-    assert rows["a (FK)"][2] == (
-        "**0.02667 ± 0.01155 (-86.1% [-89.6, -79.2] vs Single Env; -50.0% [-66.7, -33.3] vs "
-        "matched)** [3/3] · 666.7 steps × 40"
-    )
+    # (-79.2%); against the matched arm from -66.7% to -33.3%. Both resolved: bold.
+    changes = (tmp_path / "out" / "tables" / "update_changes.md").read_text()
+    change_rows = _md_table(changes, "a (FK)")[1]
+    assert change_rows["Single Env (High FK batch)"] == [
+        "Single Env",
+        "**-72.2%**",
+        "**[-79.2, -68.8]**",
+        "3",
+    ]
+    assert _md_rows_of(changes, "a (FK)", "High FK") == [
+        ["Single Env", "**-86.1%**", "**[-89.6, -79.2]**", "3"],
+        ["matched", "**-50.0%**", "**[-66.7, -33.3]**", "3"],
+    ]
     b = counts.loc[("High FK", "fk", "b")]
     assert b["pct_change"] == pytest.approx(100 * (0.35 / 0.384 - 1))
     assert b["pct_ci_low"] < 0 < b["pct_ci_high"] and not b["resolved"]
     assert not rows["b (FK)"][2].startswith("**")
+    assert _md_rows_of(changes, "b (FK)", "High FK")[0] == [
+        "Single Env",
+        "-8.9%",
+        "[-21.9, +4.2]",
+        "3",
+    ]
     # The matched arm is set against Single Env only: the batch's effect without the other env.
     matched_a = counts.loc[("Single Env (High FK batch)", "fk", "a")]
     assert matched_a["reference"] == "Single Env" and matched_a["matched_reference"] == ""
@@ -582,9 +639,16 @@ def test_matched_alone_column_and_the_not_bold_rule(tmp_path: Path) -> None:
     total = result.totals.set_index(["column", "env"]).loc[("High FK", "fk")]
     assert total["shared_tasks"] == 2 and total["matched_shared_tasks"] == 2
     assert total["pct_change"] == pytest.approx(100 * ((0.08 / 3 + 0.35 / 3) / (0.192 + 0.128) - 1))
-    assert "vs matched on 2 shared tasks" in rows["Total (FK)"][2]
-    assert "Fewer than 3 seeds" not in md
-    assert "vs matched = against the column's batch-matched alone arm" in md
+    assert _md_rows_of(changes, "Total (FK)", "High FK")[1] == [
+        "matched",
+        "-6.5%",
+        "[-50.0, +45.8]",
+        "3",
+        "2",
+    ]
+    assert rows["Total (FK)"][2] == "0.1433 (2/2 tasks)"  # the count alone
+    assert "Fewer than 3 seeds" not in changes
+    assert "vs matched = against the arm's batch-matched alone arm" in changes
 
 
 def test_cli_report_consecutive(
@@ -619,9 +683,13 @@ def test_seeds_run_one_at_a_time_make_one_column(tmp_path: Path) -> None:
     assert set(counts.index.get_level_values("column")) == {"Single Env (High FK batch)", "High FK"}
     a = counts.loc[("High FK", "fk", "a")]
     assert (a["reached"], a["seeds"], a["matched_paired"]) == (3, 3, True)
-    # Without a Single Env column the cell still shows its change against the matched arm.
+    # Without a Single Env column the change against the matched arm is still there, and bold.
     md = (tmp_path / "out" / "tables" / "update_counts.md").read_text()
-    assert "**0.02667 ± 0.01155 (-50.0% [-66.7, -33.3] vs matched)** [3/3]" in md
+    assert "**0.02667 ± 0.01155** [3/3]" in md
+    changes = (tmp_path / "out" / "tables" / "update_changes.md").read_text()
+    assert _md_rows_of(changes, "a (FK)", "High FK") == [
+        ["matched", "**-50.0%**", "**[-66.7, -33.3]**", "3"]
+    ]
 
 
 def test_reward_versions_are_compared_only_for_adapters_the_runs_have(
@@ -660,3 +728,14 @@ def test_a_cells_ci_is_of_the_change_it_shows_when_a_seed_never_reached() -> Non
     assert -50.0 <= low < high <= 20.0  # the extreme resamples: 1.0 against 2.0, 1.2 against 1.0
     # Both reached in the same seeds: paired, as before.
     assert _cell_change(arm.fillna(1.1), base, "t")[2]
+
+
+def test_cli_report_prints_the_counts_and_the_changes(
+    tmp_path: Path, groups: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    paths = [str(groups["baseline_mw"]), str(groups["high_fk"])]
+    assert main(["report", *paths, "--out", str(tmp_path / "o")]) == 0
+    printed = capsys.readouterr().out
+    assert "# Millions of updates to reach 90% success" in printed
+    assert "# Changes against the reference columns" in printed
+    assert "**drawer-close-v3 (MW)**" in printed

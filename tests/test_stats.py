@@ -1,4 +1,5 @@
-"""seal.stats: bootstrap CIs against scipy and hand-worked cases, probability of improvement."""
+"""seal.stats: bootstrap CIs against scipy and hand-worked cases, probability of improvement, the
+minimum detectable effect (by hand and by simulation), the IQM and the false-positive rate."""
 
 from __future__ import annotations
 
@@ -11,11 +12,20 @@ from scipy import stats as scipy_stats
 from seal.errors import SealError
 from seal.stats import (
     MIN_SEEDS_RESOLVED,
+    binomial_ci,
+    bootstrap_band,
     bootstrap_ci,
     change_ci,
+    interquartile_mean,
+    iqm_ci,
+    mde,
+    paired_power,
     probability_of_improvement,
     resolved,
+    seeds_for_mde,
+    split_false_positive_rate,
     stratified_change_ci,
+    t_ci,
 )
 
 # Five seeds' transitions to 90% (millions) for an arm and its base, seed i against seed i.
@@ -169,3 +179,153 @@ def test_resolved_means_the_ci_excludes_zero(ci: tuple[float, float], expected: 
 
 def test_min_seeds_resolved() -> None:
     assert MIN_SEEDS_RESOLVED == 3
+
+
+# ---------------------------------------------------------------- the minimum detectable effect
+
+
+def test_mde_by_hand() -> None:
+    # SD 0.44 of the paired per-seed savings over 5 seeds (issue 34's testbed figure). From
+    # scipy.stats.t.ppf: t(0.975, 4) = 2.7764451051977934, t(0.80, 4) = 0.9409645772351816, so
+    # MDE = (2.7764451 + 0.9409646) * 0.44 / sqrt(5) = 3.7174097 * 0.1967727 = 0.7314895.
+    assert mde(0.44, 5) == pytest.approx((2.7764451051977934 + 0.9409645772351816) * 0.44 / 5**0.5)
+    assert mde(0.44, 5) == pytest.approx(0.7314895060119713, rel=1e-12)
+    # n = 2: t(0.975, 1) = 12.706204736174698, t(0.80, 1) = 1.3763819204711736.
+    assert mde(1.0, 2) == pytest.approx((12.706204736174698 + 1.3763819204711736) / 2**0.5)
+    assert mde(0.0, 5) == 0.0
+    assert math.isnan(mde(0.44, 1)) and math.isnan(mde(math.nan, 5))
+
+
+def test_seeds_for_mde_is_the_smallest_n_and_the_quantiles_move_with_n() -> None:
+    # At n = 154: t(0.975, 153) = 1.97559, t(0.80, 153) = 0.84398, MDE = 2.81957 * 0.44 / sqrt(154)
+    # = 0.09997 <= 0.10; at n = 153 it is above 0.10. The normal quantiles (1.95996 + 0.84162)
+    # would give 152: the t quantiles, recomputed at every n, add two seeds.
+    assert seeds_for_mde(0.44) == 154
+    assert mde(0.44, 154) <= 0.10 < mde(0.44, 153)
+    assert seeds_for_mde(0.0) == 2
+    assert seeds_for_mde(math.nan) is None
+    assert seeds_for_mde(0.44, max_seeds=100) is None
+    with pytest.raises(SealError, match="target MDE"):
+        seeds_for_mde(0.44, target=0.0)
+
+
+def test_paired_power_keys() -> None:
+    power = paired_power([0.1, 0.2, 0.3, math.nan], "steps")
+    assert set(power) == {"sd_paired_steps", "mde_steps", "seeds_for_mde_0p10_steps"}
+    assert power["sd_paired_steps"] == pytest.approx(0.1)  # NaN dropped: SD of 0.1, 0.2, 0.3
+    assert power["mde_steps"] == pytest.approx(mde(0.1, 3))
+    assert power["seeds_for_mde_0p10_steps"] == seeds_for_mde(0.1)
+    one = paired_power([0.5], "auc")
+    assert math.isnan(one["sd_paired_auc"]) and one["seeds_for_mde_0p10_auc"] is None
+
+
+def test_a_planted_effect_at_the_mde_is_found_with_power_near_08() -> None:
+    # 20,000 experiments of n = 5 paired differences ~ N(MDE, 1), each judged by a two-sided
+    # one-sample t-test at 0.05. The formula is the normal approximation with t quantiles: the
+    # exact power is the noncentral t's, scipy.stats.nct with df 4 and noncentrality
+    # 2.7764 + 0.9410 = 3.7174, which is 0.7913. The simulation's SE is about 0.003.
+    n, experiments = 5, 20_000
+    effect = mde(1.0, n)
+    rng = np.random.default_rng(0)
+    differences = rng.normal(effect, 1.0, size=(experiments, n))
+    p_values = scipy_stats.ttest_1samp(differences, 0.0, axis=1).pvalue
+    power = float(np.mean(p_values < 0.05))
+    assert power == pytest.approx(0.7913, abs=0.012)
+    assert power == pytest.approx(0.80, abs=0.025)
+    # Half the MDE is found far less often; no effect at about the test's level.
+    half = float(
+        np.mean(scipy_stats.ttest_1samp(differences - effect / 2, 0.0, axis=1).pvalue < 0.05)
+    )
+    null = float(np.mean(scipy_stats.ttest_1samp(differences - effect, 0.0, axis=1).pvalue < 0.05))
+    assert half < 0.45 and null == pytest.approx(0.05, abs=0.01)
+
+
+# ---------------------------------------------------------------- IQM and bands
+
+
+def test_interquartile_mean_is_rliables_trimmed_mean() -> None:
+    # Of 8 values the middle 4 (3, 4, 5, 6): the outlier 100 does not move it.
+    assert interquartile_mean([1, 2, 3, 4, 5, 6, 7, 100]) == pytest.approx(4.5)
+    assert interquartile_mean([2.0, math.nan, 2.0]) == 2.0
+    assert math.isnan(interquartile_mean([]))
+
+
+def test_iqm_ci_resamples_runs_within_each_task() -> None:
+    table = np.array([[0.1, 0.5], [0.2, 0.6], [0.3, 0.9], [0.4, 0.7]])
+    low, high = iqm_ci(table)
+    assert low <= interquartile_mean(table.ravel()) <= high
+    # Replicated by hand: one index draw per task (column), in order, then the IQM of all 8.
+    rng = np.random.default_rng(0)
+    draws = [rng.integers(0, 4, (10_000, 4)) for _ in range(2)]
+    stacked = np.concatenate([table[:, t][d] for t, d in enumerate(draws)], axis=-1)
+    iqms = scipy_stats.trim_mean(stacked, 0.25, axis=-1)
+    assert (low, high) == pytest.approx((np.percentile(iqms, 2.5), np.percentile(iqms, 97.5)))
+    assert iqm_ci(np.full((3, 2), 0.5)) == (0.5, 0.5)
+    assert all(math.isnan(v) for v in iqm_ci([[0.1, 0.2]]))
+
+
+def test_bootstrap_band_brackets_the_mean_curve() -> None:
+    curves = np.array([[0.0, 0.5, 1.0], [0.0, 0.3, 0.9], [0.0, 0.7, 1.0], [0.0, 0.4, 1.0]])
+    low, high = bootstrap_band(curves)
+    mean = curves.mean(axis=0)
+    assert (low <= mean).all() and (mean <= high).all()
+    # Where every seed agrees the band is the point; elsewhere it lies within the seeds' range.
+    assert (low[0], high[0]) == (0.0, 0.0)
+    assert curves[:, 1].min() <= low[1] < high[1] <= curves[:, 1].max()
+    one_low, one_high = bootstrap_band(curves[:1])
+    assert (one_low == curves[0]).all() and (one_high == curves[0]).all()
+
+
+# ---------------------------------------------------------------- the false-positive rate
+
+
+def test_binomial_ci_is_clopper_pearson() -> None:
+    # 0 of 1,000: the exact upper end is 1 - 0.025 ** (1 / 1000) = 0.00368.
+    assert binomial_ci(0, 1000) == pytest.approx((0.0, 1 - 0.025 ** (1 / 1000)))
+    low, high = binomial_ci(50, 1000)
+    assert low < 0.05 < high and high - low == pytest.approx(0.028, abs=0.002)
+    with pytest.raises(SealError, match="trials"):
+        binomial_ci(3, 2)
+
+
+def test_false_positive_rate_without_spread_is_zero() -> None:
+    result = split_false_positive_rate([2000.0] * 10, splits=50)
+    assert (result["excluding_0"], result["rate"], result["splits"]) == (0, 0.0, 50)
+    assert result["rate_ci95"] == pytest.approx(list(binomial_ci(0, 50)))
+    with pytest.raises(SealError, match="two disjoint halves of 5"):
+        split_false_positive_rate([1.0] * 9)
+    with pytest.raises(SealError, match="finite positive"):
+        split_false_positive_rate([1.0] * 9 + [0.0])
+
+
+def test_false_positive_rate_on_synthetic_data_with_no_effect() -> None:
+    # Ten alone-arm seeds drawn from one distribution (mean 2,500 steps, SD 250): any difference
+    # between two halves is noise. Averaged over 10 such arms of 200 splits each, Student's t
+    # interval (exact for normal differences) calls about 5% of them resolved; the arms'
+    # percentile bootstrap over 5 pairs is narrower than its nominal 95% and calls more.
+    rng = np.random.default_rng(5)
+    arms = [rng.normal(2500.0, 250.0, 10) for _ in range(10)]
+
+    def mean_rate(ci) -> float:
+        rates = [
+            split_false_positive_rate(a, splits=200, seed=i, ci=ci)["rate"]
+            for i, a in enumerate(arms)
+        ]
+        return float(np.mean(rates))
+
+    t_rate = mean_rate(t_ci)
+    assert 0.02 <= t_rate <= 0.09
+    boot_rate = mean_rate(lambda v: bootstrap_ci(v, n_resamples=1000))
+    assert t_rate < boot_rate <= 0.25
+    # Reproducible: the same seed draws the same splits.
+    assert split_false_positive_rate(arms[0], splits=100, ci=t_ci) == split_false_positive_rate(
+        arms[0], splits=100, ci=t_ci
+    )
+
+
+def test_t_ci() -> None:
+    x = [0.1, 0.3, 0.2, 0.4]
+    half = scipy_stats.t.ppf(0.975, 3) * np.std(x, ddof=1) / 2
+    assert t_ci(x) == pytest.approx((0.25 - half, 0.25 + half))
+    assert t_ci([0.2, 0.2]) == (0.2, 0.2)
+    assert all(math.isnan(v) for v in t_ci([0.2]))

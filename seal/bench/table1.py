@@ -4,7 +4,8 @@ Meta-World drawer-close-v3 and the kitchen's slide-cabinet under the paper's fou
 (Single Env, 50/50, High FK, High MW), each ratio column with its batch-matched alone arms. Every
 arm is an ordinary protocol run by `seal run` in its own process (the transfer bench's launcher,
 two at a time); the table is `seal report`'s on their run directories, so its cells, changes,
-bootstrap CIs and [reached/seeds] are the ones a user gets from `seal report` on the same runs.
+bootstrap CIs, [reached/seeds] and plots (changes with their MDE, success with a bootstrap band)
+are the ones a user gets from `seal report` on the same runs.
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ TABLE1 = Path(__file__).resolve().parents[2] / "protocols" / "table1_small"
 BUDGET_S = 90 * 60
 """Wall time the default set (3 seeds of every arm) must fit on 2 CPU cores (issue 23)."""
 MIN_SEEDS = 3
+TABLES = ("update_counts.md", "update_changes.md")
+"""The report's tables the bench prints, in order."""
 
 
 def _arm(name: str, label: str) -> Arm:
@@ -108,13 +111,16 @@ def run_table1_bench(
     wall = time.monotonic() - started
     ordered = [run_dirs[(a.name, s)] for a in chosen for s in range(seeds)]
     result = report(ordered, out=Path(out) / "table1")
-    table = (result.out_dir / "tables" / "update_counts.md").read_text()
+    # The counts (and steps x batch), then one row per (task, arm, reference): the changes.
+    table = "\n".join(result.tables[name].read_text() for name in TABLES if name in result.tables)
     loaded = {key: load_run(path) for key, path in run_dirs.items()}
     versions = code_versions({k: r.provenance.get("git_sha") for k, r in loaded.items()})
     fresh = not reused
     return {
         "table": table,
         "cells": _cells(result.update_counts),
+        "changes": result.to_json()["changes"],
+        "plots": [str(p) for p in result.plots],
         "report_dir": str(result.out_dir),
         "seeds": seeds,
         "arms": [a.name for a in chosen],

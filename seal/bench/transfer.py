@@ -11,6 +11,16 @@ exactly what the replay handed to gradient updates) until each of its tasks firs
 evaluated success, summed over its tasks. A task that never reaches it counts as the run's total
 for that task and is reported as censored. The mean over seeds is of the per-seed figures; seed
 s of an arm is set against seed s of its target-alone arm.
+
+Each arm's three paired statistics against its alone arm, seed for seed: `steps` (steps_saved,
+1 - G(arm) / G(alone), G = gradient steps until every target task first reaches 90%),
+`robust_steps` (the same with 2 evaluations in a row) and `auc` (AUC(arm) - AUC(alone), the area
+under each target task's evaluated success over gradient steps 0..budget, over the budget,
+averaged over the tasks; `target_auc`), each with its 95% CI and what the seeds can resolve
+(`seal.stats.paired_power`: sd_paired_<stat>, mde_<stat>, seeds_for_mde_0p10_<stat>).
+`false_positive_rate` runs the CI method on two halves of the alone arm, where no effect exists.
+The tables (counts, steps x batch, changes: one thing a cell) and plots (each arm's statistics
+with CI and MDE, the target's success with a bootstrap band) go to `<out>/transfer/`.
 """
 
 from __future__ import annotations
@@ -200,6 +210,45 @@ def target_cost(
         reached=tuple(str(t) for t in first.loc[first["reached"], "task"]),
         per_task_steps=per_task_steps,
     )
+
+
+def target_budget(metrics: pd.DataFrame, env: str = TARGET_ENV) -> int:
+    """The gradient step of a run's last evaluation of `env` (its budget, unless it stopped early)."""
+    return int(metrics.loc[metrics["env"] == env, "grad_steps"].max())
+
+
+def target_auc(
+    metrics: pd.DataFrame, budget: int | None = None, env: str = TARGET_ENV
+) -> dict[str, float]:
+    """Per task of `env`: the area under its evaluated success over gradient steps 0..budget, / budget.
+
+    Trapezoids between evaluations. The curve starts at the run's evaluation at step 0 where it
+    made one (the testbed's first evaluations fall in the warm-up), else at success 0 at step 0
+    (an untrained policy succeeds in about 0.6% of point_view's episodes); after its last
+    evaluation it holds that value up to `budget` (default: the run's own last evaluated step),
+    and evaluations past `budget` are cut there.
+    """
+    rows = metrics[metrics["env"] == env]
+    if rows.empty:
+        raise SealError(
+            f"metrics table has no rows of env {env!r}; envs: {sorted(set(metrics['env']))}"
+        )
+    budget = target_budget(metrics, env) if budget is None else int(budget)
+    if budget <= 0:
+        raise SealError(f"AUC budget {budget} gradient steps: expected > 0")
+    out: dict[str, float] = {}
+    for task, frame in rows.sort_values(["epoch", "grad_steps"], kind="stable").groupby(
+        "task", sort=False
+    ):
+        steps = frame["grad_steps"].to_numpy(dtype=float)
+        success = frame["success"].to_numpy(dtype=float)
+        if steps[0] > 0:
+            steps, success = np.r_[0.0, steps], np.r_[0.0, success]
+        inside = steps < budget
+        x = np.r_[steps[inside], budget]
+        y = np.r_[success[inside], np.interp(budget, steps, success)]  # holds the last value
+        out[str(task)] = float(np.trapezoid(y, x) / budget)
+    return out
 
 
 def saved(arm: Sequence[float], alone: Sequence[float]) -> list[float]:
@@ -464,11 +513,13 @@ ROBUST_CONSECUTIVE = 2
 def _saving(
     runs: Sequence[TargetCost], alone: Sequence[TargetCost], prefix: str = ""
 ) -> dict[str, Any]:
-    """steps_saved and transfer_updates_saved per seed, their means, and their 95% bootstrap CIs."""
-    from seal.stats import bootstrap_ci, probability_of_improvement
+    """steps_saved and transfer_updates_saved per seed, their means, their 95% bootstrap CIs, and
+    what the seeds resolve of steps_saved (`paired_power` as `steps`, or `robust_steps`)."""
+    from seal.stats import bootstrap_ci, paired_power, probability_of_improvement
 
     steps, updates = steps_saved(runs, alone), updates_saved(runs, alone)
     return {
+        **paired_power(steps, f"{prefix}steps"),
         f"{prefix}steps_saved_per_seed": steps,
         f"{prefix}steps_saved": float(np.nanmean(steps)),
         f"{prefix}ci95": list(bootstrap_ci(steps)),
@@ -482,16 +533,48 @@ def _saving(
     }
 
 
+def _auc_summary(
+    runs: Sequence[Mapping[str, float]], alone: Sequence[Mapping[str, float]] | None
+) -> dict[str, Any]:
+    """An arm's target AUC (`target_auc`, per seed and task): per seed (the tasks' mean), mean and
+    IQM over (seed, task); against its alone arm the paired gain AUC(arm) - AUC(alone) per seed,
+    its mean, CI and `paired_power` (as `auc`), and the IQM over (seed, task) of the gains."""
+    from seal.stats import bootstrap_ci, interquartile_mean, iqm_ci, paired_power
+
+    tasks = list(runs[0])
+    own = np.array([[run[t] for t in tasks] for run in runs])
+    out: dict[str, Any] = {
+        "auc_per_seed": own.mean(axis=1).tolist(),
+        "auc_mean": float(own.mean()),
+        "auc_iqm": interquartile_mean(own.ravel()),
+    }
+    if alone is not None:
+        gains = own - np.array([[run[t] for t in tasks] for run in alone])
+        per_seed = gains.mean(axis=1).tolist()
+        out.update(
+            auc_gain_per_seed=per_seed,
+            auc_gain=float(np.mean(per_seed)),
+            auc_gain_ci95=list(bootstrap_ci(per_seed)),
+            auc_gain_iqm=interquartile_mean(gains.ravel()),
+            auc_gain_iqm_ci95=list(iqm_ci(gains)),
+            **paired_power(per_seed, "auc"),
+        )
+    return out
+
+
 def summarise(
     costs: Mapping[str, Sequence[TargetCost]],
     chosen: Sequence[Arm],
     robust: Mapping[str, Sequence[TargetCost]] | None = None,
     cka: Mapping[str, Sequence[Mapping[str, float]]] | None = None,
     pretrain: Mapping[str, Any] | None = None,
+    auc: Mapping[str, Sequence[Mapping[str, float]]] | None = None,
 ) -> dict[str, Any]:
     """Per target arm: the target's transitions, gradient steps and per-step batch to 90%, censored tasks,
     and against its alone arm steps_saved and transfer_updates_saved with 95% CIs, under the paper's
-    criterion and (`robust`, `robust_` keys) under ROBUST_CONSECUTIVE; `alignment_cka` from `cka`."""
+    criterion and (`robust`, `robust_` keys) under ROBUST_CONSECUTIVE, with what the seeds resolve
+    of each; `alignment_cka` from `cka`; the AUC statistics (`_auc_summary`) from `auc`, per arm
+    and seed the target's `target_auc` over its alone arm's budget."""
     out: dict[str, Any] = {}
     for arm in chosen:
         if not arm.has_target:
@@ -524,6 +607,8 @@ def summarise(
         if robust is not None:
             entry["robust_grad_steps_to_90_per_seed"] = [c.grad_steps for c in robust[arm.name]]
             entry["robust_censored"] = int(sum(c.censored for c in robust[arm.name]))
+        if auc is not None and arm.name in auc:
+            entry.update(_auc_summary(auc[arm.name], auc.get(arm.alone) if arm.alone else None))
         if cka is not None and arm.name in cka:
             per_seed = cka[arm.name]
             entry["alignment_cka_per_seed"] = [dict(v) for v in per_seed]
@@ -547,66 +632,170 @@ def pretrain_cost(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -
     }
 
 
-def format_table(
-    costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm], summary: Mapping[str, Any]
-) -> str:
-    """Table 1's layout for the target: task rows, arm columns, M transitions to 90% as mean ± std (change) [k/n];
-    then the same cells taken apart (gradient steps x per-step batch), and one line per arm with its savings and CIs."""
-    chosen = [a for a in chosen if a.has_target]
-    tasks = list(next(iter(costs.values()))[0].per_task)
-    header = ["Task (point_view)", *(a.label for a in chosen)]
-    rows: list[list[str]] = []
+TASK_LABEL = "point_view"
+"""How the tables name the target's env ("t0 (point_view)")."""
+
+
+def _values(runs: Sequence[TargetCost], task: str) -> list[float]:
+    """Per seed: the target's transitions to 90% of `task` ("Total": all tasks; censored: totals)."""
+    return [c.consumed if task == "Total" else c.per_task[task] for c in runs]
+
+
+def _reached(runs: Sequence[TargetCost], task: str) -> int:
+    return sum(1 for c in runs if (c.censored == 0 if task == "Total" else task in c.reached))
+
+
+def _counts_display(
+    costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm], tasks: Sequence[str]
+) -> pd.DataFrame:
+    """Task rows (and Total), arm columns: M transitions to 90% as mean ± std [reached/seeds]."""
+    records = []
     for task in [*tasks, "Total"]:
-        row = [task]
+        record = {"Task": f"{task} ({TASK_LABEL})"}
+        for arm in chosen:
+            values = _values(costs[arm.name], task)
+            std = float(np.std(values, ddof=1)) / 1e6 if len(values) > 1 else math.nan
+            # Censored seeds count their total, so every cell has a mean; [k/n] says how many reached.
+            cell = format_count(float(np.mean(values)) / 1e6, std, 1, len(values))
+            record[arm.label] = (
+                cell.rsplit(" [", 1)[0] + f" [{_reached(costs[arm.name], task)}/{len(values)}]"
+            )
+        records.append(record)
+    return pd.DataFrame.from_records(records)
+
+
+def _steps_display(
+    costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm], tasks: Sequence[str]
+) -> pd.DataFrame:
+    """Per (task, arm): gradient steps to 90% x mean per-step batch = the transitions (means over seeds)."""
+    records = []
+    for task in tasks:
+        record = {"Task": f"{task} ({TASK_LABEL})"}
         for arm in chosen:
             runs = costs[arm.name]
-            if task == "Total":
-                values = [c.consumed for c in runs]
-                reached = sum(1 for c in runs if c.censored == 0)
-            else:
-                values = [c.per_task[task] for c in runs]
-                reached = sum(1 for c in runs if task in c.reached)
-            mean = float(np.mean(values)) / 1e6
-            std = float(np.std(values, ddof=1)) / 1e6 if len(values) > 1 else math.nan
-            pct = None
-            if arm.alone is not None:
-                base = costs[arm.alone]
-                base_values = (
-                    [c.consumed for c in base]
-                    if task == "Total"
-                    else [c.per_task[task] for c in base]
-                )
-                base_mean = float(np.mean(base_values)) / 1e6
-                pct = 100.0 * (mean - base_mean) / base_mean if base_mean > 0 else None
-            # Censored seeds count their total, so every cell has a mean; [k/n] says how many reached.
-            cell = format_count(mean, std, max(reached, 1), len(runs), pct, arm.alone is not None)
-            row.append(cell.rsplit(" [", 1)[0] + f" [{reached}/{len(runs)}]")
-        rows.append(row)
-    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
-    lines = [
-        "  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)),
-        "  ".join("-" * w for w in widths),
-        *("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows),
-    ]
-    lines.append(
-        "M transitions of the target consumed by updates until first >= 90% success; mean ± std over seeds "
-        "(change vs. its Single Env column) [seeds that reached / seeds]; a task never reached counts its run's total."
+            steps = float(np.mean([c.per_task_steps[task] for c in runs]))
+            per_step = float(
+                np.mean([c.per_task[task] / max(c.per_task_steps[task], 1) for c in runs])
+            )
+            record[arm.label] = f"{format_number(steps)} × {per_step:.1f}"
+        records.append(record)
+    return pd.DataFrame.from_records(records)
+
+
+def _change_rows(
+    costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm], tasks: Sequence[str]
+) -> pd.DataFrame:
+    """Per (task or Total, arm with an alone arm): the change of the mean transitions to 90%
+    against the alone arm, with its paired 95% bootstrap CI over seeds, as
+    `seal.reports.changes.change_rows` lays changes out (censored seeds count their totals)."""
+    from seal.reports.changes import CHANGE_ROW_COLUMNS
+    from seal.stats import MIN_SEEDS_RESOLVED, change_ci, resolved
+
+    labels = {a.name: a.label for a in ARMS}
+    records = []
+    for task in [*tasks, "Total"]:
+        for arm in chosen:
+            if arm.alone is None:
+                continue
+            mine, base = _values(costs[arm.name], task), _values(costs[arm.alone], task)
+            low, high = change_ci(mine, base, paired=True)
+            base_mean = float(np.mean(base))
+            n = len(mine)
+            records.append(
+                {
+                    "env": TARGET_ENV,
+                    "task": task,
+                    "column": arm.label,
+                    "reference": labels[arm.alone],
+                    "vs": labels[arm.alone],
+                    "pct_change": 100 * (float(np.mean(mine)) / base_mean - 1)
+                    if base_mean > 0
+                    else math.nan,
+                    "pct_ci_low": 100 * low,
+                    "pct_ci_high": 100 * high,
+                    "n_column": n,
+                    "n_reference": len(base),
+                    "paired": True,
+                    "resolved": n >= MIN_SEEDS_RESOLVED and resolved((low, high)),
+                    "shared_tasks": len(tasks) if task == "Total" else 0,
+                    "sd_paired_pct": math.nan,
+                    "mde_pct": math.nan,
+                }
+            )
+    return pd.DataFrame.from_records(records, columns=list(CHANGE_ROW_COLUMNS))
+
+
+STATISTICS: tuple[tuple[str, str, str, str], ...] = (
+    ("steps", "steps_saved", "ci95", "steps_saved = 1 - G(arm) / G(alone)"),
+    ("robust_steps", "robust_steps_saved", "robust_ci95", "the same, 2 evaluations in a row"),
+    ("auc", "auc_gain", "auc_gain_ci95", "AUC(arm) - AUC(alone) of the target's success"),
+)
+"""The paired statistics: (name in the sd_/mde_ keys, its key, its CI's key, what it is)."""
+
+
+def _statistic_note(label: str, name: str, key: str, ci_key: str, s: Mapping[str, Any]) -> str:
+    """ "steps +0.115* [-0.27, +0.45] (+0.20, ...), sd_paired_steps 0.440, mde_steps 0.546,
+    seeds_for_mde_0p10_steps 154": a statistic's mean (* resolved), CI, per-seed values and power."""
+    from seal.stats import resolved
+
+    low, high = s[ci_key]
+    per_seed = ", ".join(f"{v:+.3f}" for v in s[f"{key}_per_seed"])
+    seeds = s[f"seeds_for_mde_0p10_{name}"]
+    text = (
+        f"{name} {s[key]:+.3f}{'*' if resolved((low, high)) else ''} [{low:+.3f}, {high:+.3f}] "
+        f"({per_seed}), sd_paired_{name} {s[f'sd_paired_{name}']:.3f}, "
+        f"mde_{name} {s[f'mde_{name}']:.3f}, seeds_for_mde_0p10_{name} "
+        f"{'n/a' if seeds is None else seeds}"
     )
-    lines += ["", *_decomposition_table(costs, chosen, tasks), ""]
+    if name == "auc":
+        iqm_low, iqm_high = s["auc_gain_iqm_ci95"]
+        text += (
+            f"; IQM over (seed, task) {s['auc_gain_iqm']:+.3f} [{iqm_low:+.3f}, {iqm_high:+.3f}]"
+        )
+    return f"{label}: {text}"
+
+
+def _statistics_notes(chosen: Sequence[Arm], summary: Mapping[str, Any]) -> list[str]:
+    """What the paired statistics are, then one note per (arm, statistic) with its keys."""
+    notes = [
+        "Paired statistics, arm seed s against its alone arm's seed s: "
+        + "; ".join(f"{name}: {what}" for name, _, _, what in STATISTICS)
+        + ". G = gradient steps until every target task first evaluates >= 90% (censored: the "
+        "run's total); AUC = per task the area under the evaluated success over gradient steps "
+        "0..the alone arm's budget (success 0 at step 0 unless evaluated there), over the budget, "
+        "mean over the tasks.",
+        "[lo, hi] = 95% percentile bootstrap CI of the mean over seeds (scipy.stats.bootstrap, "
+        "10,000 resamples, seed 0); * = it excludes 0. sd_paired_<stat> = SD of the per-seed "
+        "values; mde_<stat> = (t(0.975, n-1) + t(0.80, n-1)) sd / sqrt(n), the effect found with "
+        "power 0.8 at these n seeds; seeds_for_mde_0p10_<stat> = the seeds an MDE <= 0.10 needs "
+        "at that SD (seal.stats). IQM = rliable's interquartile mean, stratified bootstrap CI.",
+    ]
+    for arm in chosen:
+        s = summary[arm.name]
+        if arm.alone is None or s["steps_saved"] is None:
+            continue
+        label = f"{arm.label} vs {summary[arm.alone]['label']}"
+        for name, key, ci_key, _ in STATISTICS:
+            if key in s:
+                notes.append(_statistic_note(label, name, key, ci_key, s))
+    return notes
+
+
+def _arm_notes(chosen: Sequence[Arm], summary: Mapping[str, Any]) -> list[str]:
+    """One note per arm: steps to 90% per seed, censored tasks, transfer_updates_saved, CKA, pre-training."""
+    notes = []
     for arm in chosen:
         s = summary[arm.name]
         text = (
-            f"{arm.label:<28} steps to 90% {format_number(s['grad_steps_to_90_mean'])} "
+            f"{arm.label}: steps to 90% {format_number(s['grad_steps_to_90_mean'])} "
             f"{s['grad_steps_to_90_per_seed']}; censored {s['censored']}/{s['task_runs']}"
         )
         if s["steps_saved"] is not None:
+            low, high = s["transfer_updates_saved_ci95"]
             text += (
-                f"; steps_saved {_with_ci(s, 'steps_saved', 'ci95')}"
-                f"; transfer_updates_saved {_with_ci(s, 'transfer_updates_saved', 'transfer_updates_saved_ci95')}"
-                f"; P(fewer steps) {s['probability_of_improvement']:.2f}"
+                f"; transfer_updates_saved {s['transfer_updates_saved']:+.3f} "
+                f"[{low:+.2f}, {high:+.2f}]; P(fewer steps) {s['probability_of_improvement']:.2f}"
             )
-            if "robust_steps_saved" in s:
-                text += f"; 2 evals in a row: steps_saved {_with_ci(s, 'robust_steps_saved', 'robust_ci95')}"
         if s["alignment_cka"] is not None:
             cka = s["alignment_cka"]
             text += f"; CKA translator {cka['translator']:.2f}, trunk {cka['trunk']:.2f}"
@@ -617,45 +806,145 @@ def format_table(
                 f"{format_number(pre['consumed_mean'] / 1e6)} M transitions, "
                 f"all tasks reached in {pre['reached_all']}/{len(pre['grad_steps_per_seed'])} seeds"
             )
-        lines.append(text)
-    return "\n".join(lines)
+        notes.append(text)
+    return notes
 
 
-def _with_ci(summary: Mapping[str, Any], key: str, ci_key: str) -> str:
-    """'+0.123 [-0.1, +0.3] (+0.2, ...)': a saving's mean, its 95% CI and its per-seed values; * when the CI excludes 0."""
-    from seal.stats import resolved
+def transfer_documents(
+    costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm], summary: Mapping[str, Any]
+) -> dict[str, tuple[str, list[Any], list[str]]]:
+    """The bench's tables as `seal.reports.tables` documents, stem -> (title, sections, notes):
+    `counts` (M transitions to 90%, arms as columns, then gradient steps x per-step batch) and
+    `changes` (one row per (task, arm, alone arm), then the paired statistics in the notes)."""
+    from seal.reports.tables import change_sections, changes_display
 
-    low, high = summary[ci_key]
-    per_seed = ", ".join(f"{v:+.2f}" for v in summary[f"{key}_per_seed"])
-    star = "*" if resolved((low, high)) else ""
-    return f"{summary[key]:+.3f}{star} 95% CI [{low:+.2f}, {high:+.2f}] ({per_seed})"
+    chosen = [a for a in chosen if a.has_target]
+    tasks = list(next(iter(costs.values()))[0].per_task)
+    counts = (
+        "M transitions of the target consumed by updates until first >= 90% success",
+        [
+            ("", _counts_display(costs, chosen, tasks), None),
+            ("Gradient steps × per-step batch", _steps_display(costs, chosen, tasks), None),
+        ],
+        [
+            "Mean ± sample std over seeds [seeds that reached / seeds]; a task never reached counts "
+            "its run's total. Total = the sum over the target's tasks.",
+            "Gradient steps to first >= 90% × the task's mean per-step batch over them "
+            "(transitions per step), means over seeds: the transitions above are steps × batch, so "
+            "a change in them is a change in steps times a change in batch share. Steps count from "
+            "the target's first update.",
+            *_arm_notes(chosen, summary),
+        ],
+    )
+    rows = _change_rows(costs, chosen, tasks)
+    labels = {TARGET_ENV: TASK_LABEL}
+    changes = (
+        "Changes against each arm's alone arm",
+        change_sections(
+            changes_display(rows, labels, "markdown"), changes_display(rows, labels, "latex")
+        )
+        if len(rows)
+        else [],
+        [
+            "Change = mean(arm) / mean(alone) - 1 of the target's transitions to 90% (censored "
+            "seeds at their totals), 95% CI = paired percentile bootstrap over seeds in percent; "
+            "bold = it excludes 0 with >= 3 seeds; n = seed pairs; tasks = the tasks in a total.",
+            *_statistics_notes(chosen, summary),
+        ],
+    )
+    return {"counts": counts, "changes": changes}
 
 
-def _decomposition_table(
-    costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm], tasks: Sequence[str]
-) -> list[str]:
-    """Per (task, arm): gradient steps to 90% x mean per-step batch = the transitions above (means over seeds)."""
-    header = ["Task (point_view)", *(a.label for a in chosen)]
-    rows = []
-    for task in tasks:
-        row = [task]
-        for arm in chosen:
-            runs = costs[arm.name]
-            steps = float(np.mean([c.per_task_steps[task] for c in runs]))
-            per_step = float(
-                np.mean([c.per_task[task] / max(c.per_task_steps[task], 1) for c in runs])
-            )
-            row.append(f"{format_number(steps)} x {per_step:.1f}")
-        rows.append(row)
-    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
-    return [
-        "  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)),
-        "  ".join("-" * w for w in widths),
-        *("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows),
-        "Gradient steps to first >= 90% x the task's mean per-step batch over them (transitions per step), "
-        "means over seeds: the transitions above are steps x batch, so a change in them is a change in steps "
-        "times a change in batch share. Steps count from the target's first update.",
+def format_table(
+    costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm], summary: Mapping[str, Any]
+) -> str:
+    """`transfer_documents` as Markdown: the counts (and steps x batch), then the changes and the
+    paired statistics; no line longer than 100 characters (`seal.reports.tables.LINE_LIMIT`)."""
+    from seal.reports.tables import markdown_document
+
+    return "\n".join(
+        markdown_document(title, sections, notes)
+        for title, sections, notes in transfer_documents(costs, chosen, summary).values()
+    )
+
+
+def write_transfer_report(
+    directory: Path,
+    costs: Mapping[str, Sequence[TargetCost]],
+    chosen: Sequence[Arm],
+    summary: Mapping[str, Any],
+    metrics: Mapping[tuple[str, int], pd.DataFrame],
+) -> dict[str, list[str]]:
+    """`directory`/tables/{counts,changes}.{md,tex} and `directory`/plots/: changes.png (each
+    arm's paired statistics with their CIs and MDEs) and success_target.png (the target's mean
+    success per arm, 95% bootstrap band over seeds). Returns the paths written."""
+    from seal.reports.plots import (
+        Interval,
+        column_colours,
+        plot_intervals,
+        plot_success,
+    )
+    from seal.reports.tables import write_document
+    from seal.stats import MIN_SEEDS_RESOLVED, resolved
+
+    tables_dir, plots_dir = directory / "tables", directory / "plots"
+    tables_dir.mkdir(parents=True, exist_ok=True)
+    plots_dir.mkdir(parents=True, exist_ok=True)
+    written: dict[str, list[str]] = {"tables": [], "plots": []}
+    for stem, (title, sections, notes) in transfer_documents(costs, chosen, summary).items():
+        if sections:
+            paths = write_document(tables_dir / stem, title, sections, notes)
+            written["tables"] += [str(p) for p in paths.values()]
+    targets = [a for a in chosen if a.has_target]
+    compared = [
+        a for a in targets if a.alone is not None and summary[a.name]["steps_saved"] is not None
     ]
+    if compared:
+        panels = []
+        for name, key, ci_key, what in STATISTICS:
+            rows = []
+            for arm in compared:
+                s = summary[arm.name]
+                if key not in s:
+                    continue
+                ci = (float(s[ci_key][0]), float(s[ci_key][1]))
+                enough = len(s[f"{key}_per_seed"]) >= MIN_SEEDS_RESOLVED
+                rows.append(
+                    Interval(
+                        f"{arm.label} vs {summary[arm.alone]['label']}",
+                        float(s[key]),
+                        *ci,
+                        float(s[f"mde_{name}"]),
+                        enough and resolved(ci),
+                    )
+                )
+            if rows:
+                panels.append((f"{name}: {what}", rows))
+        path = plot_intervals(
+            panels,
+            plots_dir / "changes.png",
+            "paired statistic (positive = the arm needs less / learns more than its alone arm)",
+            "Target: each arm against its alone arm, mean over seeds, 95% CI, ±MDE",
+        )
+        written["plots"].append(str(path))
+    frames = [
+        frame[frame["env"] == TARGET_ENV].assign(column=arm.label, env_label=TASK_LABEL)
+        for (name, _), frame in metrics.items()
+        for arm in targets
+        if arm.name == name
+    ]
+    if frames:
+        labels = [a.label for a in targets]
+        success = plot_success(
+            pd.concat(frames, ignore_index=True),
+            "grad_steps",
+            column_colours(labels),
+            {TARGET_ENV: f"{TASK_LABEL} (target)"},
+            plots_dir,
+            DEFAULT_THRESHOLD,
+        )
+        written["plots"] += [str(p) for p in success]
+    return written
 
 
 # ---------------------------------------------------------------- the command
@@ -795,12 +1084,28 @@ def run_transfer_bench(
             }
     mismatches = agent_mismatches({k: r.config.get("agent", {}) for k, r in loaded.items()}, chosen)
     versions = code_versions({k: r.provenance.get("git_sha") for k, r in loaded.items()})
+    # Each arm's target AUC over its alone arm's budget, so that a pair shares one window.
+    auc = {
+        arm.name: [
+            target_auc(
+                loaded[(arm.name, s)].metrics,
+                target_budget(loaded[(arm.alone or arm.name, s)].metrics),
+            )
+            for s in range(seeds)
+        ]
+        for arm in targets
+    }
     summary = summarise(
         costs,
         chosen,
         robust=costs_of(ROBUST_CONSECUTIVE),
         cka=alignment(run_dirs, chosen, seeds),
         pretrain=pretrain,
+        auc=auc,
+    )
+    report_dir = Path(out) / "transfer"
+    written = write_transfer_report(
+        report_dir, costs, chosen, summary, {k: r.metrics for k, r in loaded.items()}
     )
 
     def figure(name: str, key: str = "transfer_updates_saved") -> Any:
@@ -836,6 +1141,9 @@ def run_transfer_bench(
             {k: r.metrics for k, r in loaded.items()}, chosen, seeds
         ),
         "table": format_table(costs, chosen, summary),
+        "report_dir": str(report_dir),
+        "tables": written["tables"],
+        "plots": written["plots"],
         "seeds": seeds,
         "full": full,
         "overrides": list(overrides),
@@ -849,6 +1157,116 @@ def run_transfer_bench(
         "load_before": load_before,
         "load_after": machine_load(),
     }
+
+
+# ---------------------------------------------------------------- the false-positive rate
+
+FPR_SEEDS = 10
+"""Seeds of the alone arm the false-positive rate splits (two halves of FPR_HALF)."""
+FPR_HALF = 5
+"""Seeds a half: the bench's 5 seeds an arm."""
+FPR_SPLITS = 1_000
+FPR_GOAL = 0.10
+"""The share of CIs that may exclude 0 where there is no effect; above it, change the CI method."""
+
+
+def false_positive_rate(
+    run_dirs: Sequence[Path], splits: int = FPR_SPLITS, half: int = FPR_HALF, seed: int = 0
+) -> dict[str, Any]:
+    """The arms' CI method on two halves of one arm's seeds, where there is no effect to find.
+
+    `run_dirs` are runs of one arm (the alone arm, seeds 0-9); G = the target's gradient steps
+    until every task first reaches 90% (`target_cost`, censored at the run's total).
+    `seal.stats.split_false_positive_rate` draws `splits` random half/half splits, pairs the halves'
+    seeds at random, and applies the arms' CI (percentile bootstrap of the mean saving) and, for
+    comparison, Student's t CI to the mean of 1 - G(a) / G(b).
+    """
+    from functools import partial
+
+    from seal import load_run
+    from seal.stats import bootstrap_ci, split_false_positive_rate, t_ci
+
+    costs = [target_cost(load_run(path).metrics) for path in run_dirs]
+    steps = [c.grad_steps for c in costs]
+    split = partial(split_false_positive_rate, steps, half=half, splits=splits, seed=seed)
+    rate = split(ci=bootstrap_ci)
+    return {
+        "grad_steps_to_90_per_seed": steps,
+        "censored_per_seed": [c.censored for c in costs],
+        "ci_method": "percentile bootstrap of the mean saving (the arms' ci95)",
+        "false_positive_rate": rate,
+        "false_positive_rate_t": split(ci=t_ci),
+        "goal": {"rate_le": FPR_GOAL, "met": rate["rate"] <= FPR_GOAL},
+    }
+
+
+def run_fpr_bench(
+    seeds: int = FPR_SEEDS,
+    out: str | os.PathLike[str] = "reports/bench_transfer",
+    parallel: int = 2,
+    log: Callable[[str], None] = lambda _: None,
+    reuse: bool = False,
+    splits: int = FPR_SPLITS,
+) -> dict[str, Any]:
+    """`seal bench --learn transfer --fpr`: run (or, with `reuse`, take) the alone arm's seeds
+    0..seeds-1 under `out`, then `false_positive_rate` on them; a JSON-able dict."""
+    from seal import load_run
+    from seal.bench.timing import machine_load
+
+    if seeds < 2 * FPR_HALF:
+        raise SealError(f"--seeds {seeds}: the false-positive rate needs >= {2 * FPR_HALF}")
+    (alone,) = arms(only=["alone"])
+    load_before = machine_load()
+    started = time.monotonic()
+    jobs = [(alone, seed) for seed in range(seeds)]
+    run_dirs, reused = run_or_reuse(jobs, Path(out), (), parallel, log, reuse)
+    wall = time.monotonic() - started
+    paths = [run_dirs[(alone.name, s)] for s in range(seeds)]
+    shas = {(alone.name, s): load_run(p).provenance.get("git_sha") for s, p in enumerate(paths)}
+    return {
+        "arm": alone.name,
+        "seeds": seeds,
+        **false_positive_rate(paths, splits=splits),
+        "run_dirs": {f"{alone.name}/seed-{s}": str(p) for s, p in enumerate(paths)},
+        "reused": sorted(f"{a}/seed-{s}" for a, s in reused),
+        "code_versions": code_versions(shas),
+        "wall_s": wall,
+        "parallel": parallel,
+        "load_before": load_before,
+        "load_after": machine_load(),
+    }
+
+
+def format_fpr(result: Mapping[str, Any]) -> str:
+    """The human-readable output of `run_fpr_bench`."""
+    rate, t_rate = result["false_positive_rate"], result["false_positive_rate_t"]
+
+    def share(r: Mapping[str, Any]) -> str:
+        low, high = r["rate_ci95"]
+        return (
+            f"{r['excluding_0']}/{r['splits']} = {r['rate']:.3f} (95% CI [{low:.3f}, {high:.3f}])"
+        )
+
+    verdict = "met" if result["goal"]["met"] else "not met: change the CI method and say so"
+    lines = [
+        f"False-positive rate: {result['arm']} seeds 0-{result['seeds'] - 1}, G = target steps to "
+        f"90% {result['grad_steps_to_90_per_seed']} (censored tasks per seed "
+        f"{result['censored_per_seed']})",
+        f"{rate['splits']} random {rate['half']}/{rate['half']} splits, halves paired at random, "
+        "CI of the mean of 1 - G(a) / G(b) excluding 0:",
+        f"  {result['ci_method']}: {share(rate)}; goal <= {result['goal']['rate_le']}: {verdict}",
+        f"  Student's t CI, for comparison: {share(t_rate)}",
+    ]
+    note = versions_note(result["code_versions"])
+    if note:
+        lines.append(f"WARNING, {note}")
+    reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
+    lines.append(
+        f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s "
+        f"wall{reused}; load before {result['load_before']['loadavg_1m']} (1 min), after "
+        f"{result['load_after']['loadavg_1m']}"
+    )
+    return "\n".join(lines)
 
 
 def format_result(result: Mapping[str, Any]) -> str:
@@ -896,6 +1314,7 @@ def format_result(result: Mapping[str, Any]) -> str:
     note = versions_note(result["code_versions"])
     if note:
         lines.append(f"WARNING, {note}")
+    lines.append(f"Tables and plots: {result['report_dir']}")
     reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
     lines.append(
         f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s wall{reused}; "

@@ -1,4 +1,4 @@
-"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1] [--full]]`: learner and collection speed as ratios, learning evidence."""
+"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1] [--full | --fpr]]`: learner and collection speed as ratios, learning evidence."""
 
 from __future__ import annotations
 
@@ -48,6 +48,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--full",
         action="store_true",
         help="with --learn transfer: also the per_env, 50/50 and high-target arms, the shared-critic diagnostic, and their target-alone arms",
+    )
+    parser.add_argument(
+        "--fpr",
+        action="store_true",
+        help="with --learn transfer: only the false-positive rate: run the alone arm for --seeds seeds (default 10), draw 1,000 random 5/5 splits of them, pair the halves at random, and report the share of the arms' 95%% CIs that exclude 0, with its binomial 95%% CI",
     )
     parser.add_argument(
         "--seeds",
@@ -159,6 +164,8 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.full and args.learn != "transfer":
         raise SealError("--full only applies to --learn transfer")
+    if args.fpr and (args.learn != "transfer" or args.full or args.arms):
+        raise SealError("--fpr only applies to --learn transfer, without --full and --arms")
     if args.arms and args.learn not in LEARN_SETS:
         raise SealError("--arms only applies to --learn transfer, kitchen and table1")
     if args.overrides and args.protocol is None and args.learn != "table1":
@@ -168,6 +175,16 @@ def run(args: argparse.Namespace) -> int:
 
         module, default_seeds, default_out = LEARN_SETS[args.learn]
         bench = importlib.import_module(module)
+        if args.fpr:
+            result = bench.run_fpr_bench(
+                seeds=bench.FPR_SEEDS if args.seeds is None else args.seeds,
+                out=args.out or default_out,
+                parallel=args.jobs,
+                log=log,
+                reuse=args.reuse,
+            )
+            print(json.dumps(result, indent=2) if args.json else bench.format_fpr(result))
+            return 0
         extra: dict[str, object] = {}
         if args.learn == "transfer":
             extra["full"] = args.full

@@ -89,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(result.to_json()))
         return 0
     print((result.tables["update_counts.md"]).read_text())
+    if "update_changes.md" in result.tables:
+        print(result.tables["update_changes.md"].read_text())
     print(f"tables: {result.out_dir / 'tables'}")
     for path in result.plots:
         print(f"plot:   {path}")

@@ -6,8 +6,10 @@ curves, long format). A group directory holds several `seed-<n>/` runs. This pac
 files only, never live objects, so a report can be rebuilt from any copy of the directories.
 
 `report` lays groups out as Table 1 (Task x {Single Env, 50/50, High FK, High MW}) and Tables 6-7
-("Pre-train on X" / "Fine-tune on Y"), with the update-count metric of `seal.metrics`, and draws
-the success curves of Figs. 2-4 and the critic-loss curves of Fig. 7.
+("Pre-train on X" / "Fine-tune on Y"), with the update-count metric of `seal.metrics`, writes
+every change against a reference as a row of its own (count, change and steps are each a table),
+and draws the success curves of Figs. 2-4 (with a bootstrap band), the changes with their CIs and
+minimum detectable effects, and the critic-loss curves of Fig. 7.
 
 The package splits by idea: `seal.reports.load` reads run directories, `seal.reports.groups`
 labels columns and gathers groups, `seal.reports.tables` and `seal.reports.plots` write the
@@ -33,7 +35,7 @@ from seal.metrics import (
     first_reach,
 )
 from seal.protocols.rundir import METRICS_COLUMNS, TRAIN_COLUMNS  # defined once, by the writer
-from seal.reports.changes import _with_uncertainty, few_seeds, pairing
+from seal.reports.changes import _with_uncertainty, change_rows, few_seeds, pairing
 from seal.reports.groups import (
     BASELINE_COLUMN,
     _column_rank,
@@ -46,11 +48,12 @@ from seal.reports.groups import (
 from seal.reports.load import RunData, _is_run_dir, load_run, run_dirs
 from seal.reports.plots import (
     XAxis,
-    _colours,
     _plot_critic_loss,
     _plot_schedulers,
-    _plot_success,
     _safe,
+    column_colours,
+    plot_changes,
+    plot_success,
 )
 from seal.reports.tables import (
     ReportResult,
@@ -58,9 +61,13 @@ from seal.reports.tables import (
     _notes,
     _paper_suffix,
     _row_order,
+    _steps_cell,
     _success_tables,
     _update_count_table,
     _write_table,
+    change_sections,
+    changes_display,
+    write_document,
 )
 from seal.stats import MIN_SEEDS_RESOLVED
 
@@ -163,25 +170,30 @@ def _update_counts(
 
 
 def _count_notes(
-    per_seed: pd.DataFrame,
     counts: pd.DataFrame,
     threshold: float,
-    layout: _Layout,
     warnings: Sequence[str],
     consecutive: int = 1,
 ) -> list[str]:
-    """The update-count table's notes: definitions, the paper's product where it differs, warnings."""
-    notes = _notes(
-        threshold,
-        with_change=bool((counts["column"] == BASELINE_COLUMN).any() and len(layout.columns) > 1),
-    )
+    """The update-count tables' notes: definitions, steps x batch, the paper's product, warnings."""
+    notes = _notes(threshold, with_change=False)
     if consecutive > 1:
         notes.insert(
             1,
             f"Reached = {consecutive} successive evaluations >= {threshold:.0%}; counted at the "
             f"first of them (the paper's criterion is 1).",
         )
-    notes.extend(_uncertainty_notes(per_seed, counts, layout.labels))
+    if (counts["reference"] != "").any() or (counts["matched_reference"] != "").any():
+        notes.append(
+            "Bold = fewer updates than every reference of the column (Single Env, its "
+            "batch-matched alone arm), each change resolved; the changes, their CIs and seeds are "
+            "in update_changes.md."
+        )
+    notes.append(
+        "Steps × batch = gradient steps to the threshold × the task's mean per-step batch over "
+        "them (transitions / steps), means over the seeds that reached it; their product is the "
+        "count above. A lower count with as many steps is a smaller batch share, not transfer."
+    )
     if (counts["reached"] > 0).any() and any(
         _paper_suffix(r.updates_mean, r.paper_updates_mean, int(r.reached), "plain")
         for r in counts.itertuples(index=False)
@@ -194,37 +206,32 @@ def _count_notes(
     return notes
 
 
-def _uncertainty_notes(
-    per_seed: pd.DataFrame, counts: pd.DataFrame, labels: dict[str, str]
+def _change_notes(
+    per_seed: pd.DataFrame, counts: pd.DataFrame, labels: dict[str, str], threshold: float
 ) -> list[str]:
-    """How the CIs were made (paired or not), the steps x batch split, and too few seeds."""
-    if not (counts["reference"] != "").any():
-        return []
+    """How to read the changes table: the change, the CIs (paired or not), n, the MDE, few seeds."""
     notes = [
-        "steps × b = gradient steps to the threshold × the task's mean per-step batch over them "
-        "(transitions / steps), means over the seeds that reached it; their product is the count.",
-        "[lo, hi] after a change = its 95% percentile bootstrap CI in percent over seeds "
-        "(scipy.stats.bootstrap, 10,000 resamples, seed 0); a total's change is over the tasks "
-        "both columns reached, seeds resampled within each task (stratified bootstrap). Bold = a "
-        "decrease whose CI excludes 0 (against every labelled reference).",
+        f"Change = mean(Arm) / mean(reference) - 1 of the updates to {threshold:.0%}, over the "
+        "seeds that reached the task; vs matched = against the arm's batch-matched alone arm, "
+        "Single Env (<arm> batch): the same per-task batch without the other environment's data.",
+        "95% CI = percentile bootstrap over seeds in percent (scipy.stats.bootstrap, 10,000 "
+        "resamples, seed 0); a total's change is over the tasks both columns reached (tasks), "
+        "seeds resampled within each task (stratified bootstrap). Bold = resolved: the CI "
+        f"excludes 0 and both columns reached it in >= {MIN_SEEDS_RESOLVED} seeds.",
+        "n = the seeds behind a change: one number when paired by seed (both reached it in the "
+        "same seeds), else the arm's vs the reference's (a total: the seeds run).",
+        "update_changes.csv adds, for a paired change, the SD of its per-seed relative changes and "
+        "the minimum detectable effect at its seeds (seal.stats.mde: two-sided 0.05, power 0.8), "
+        "in percent; plots/changes_<env>.png draws every change with its CI and that MDE.",
     ]
     pairs = pairing(counts, labels)
     if pairs["paired"]:
-        notes.append(
-            "Paired by seed (both columns reached the task in the same seeds): "
-            + ", ".join(pairs["paired"])
-            + "."
-        )
+        notes.append("Paired by seed: " + ", ".join(pairs["paired"]) + ".")
     if pairs["unpaired"]:
         notes.append(
             "Unpaired (different seeds, or seeds that reached the task in one column only): "
             + ", ".join(pairs["unpaired"])
             + "."
-        )
-    if (counts["matched_reference"] != "").any():
-        notes.append(
-            "vs matched = against the column's batch-matched alone arm, Single Env (<column> "
-            "batch): the same per-task batch without the other environment's data."
         )
     few = few_seeds(per_seed, counts)
     if few:
@@ -240,23 +247,50 @@ def _write_tables(
     tables_dir: Path,
     metrics: pd.DataFrame,
     counts: tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame],
+    changes: pd.DataFrame,
     layout: _Layout,
     title: str,
-    notes: list[str],
+    notes: tuple[list[str], list[str]],
 ) -> dict[str, Path]:
-    """update_counts.{csv,md,tex}, update_counts_per_seed.csv and success.{csv,md,tex}."""
+    """update_counts.{csv,md,tex} (counts, then steps x batch), update_counts_per_seed.csv,
+    update_changes.{csv,md,tex} (when a column has a reference) and success.{csv,md,tex}."""
     per_seed, aggregated, totals = counts
+    count_notes, change_notes = notes
     tables: dict[str, Path] = {}
-    for name, frame in (("update_counts", aggregated), ("update_counts_per_seed", per_seed)):
+    frames = [("update_counts", aggregated), ("update_counts_per_seed", per_seed)]
+    if len(changes):
+        frames.append(("update_changes", changes))
+    for name, frame in frames:
         path = tables_dir / f"{name}.csv"
         frame.to_csv(path, index=False)
         tables[path.name] = path
     cols, rows, labels = layout.columns, layout.rows, layout.labels
-    display_md = _update_count_table(aggregated, totals, cols, rows, labels, "markdown")
-    display_tex = _update_count_table(aggregated, totals, cols, rows, labels, "latex")
-    tables.update(
-        _write_table(display_md, tables_dir / "update_counts", title, notes, latex=display_tex)
-    )
+
+    def table(style: str, steps: bool = False) -> pd.DataFrame:
+        if steps:  # no total: a sum of steps over tasks counts nothing
+            return _update_count_table(aggregated, None, cols, rows, labels, style, _steps_cell)
+        return _update_count_table(aggregated, totals, cols, rows, labels, style)
+
+    sections = [
+        ("", table("markdown"), table("latex")),
+        (
+            "Gradient steps × per-step batch",
+            table("markdown", steps=True),
+            table("latex", steps=True),
+        ),
+    ]
+    tables.update(write_document(tables_dir / "update_counts", title, sections, count_notes))
+    if len(changes):
+        display = changes_display(changes, labels, "markdown")
+        latex = changes_display(changes, labels, "latex")
+        tables.update(
+            write_document(
+                tables_dir / "update_changes",
+                "Changes against the reference columns",
+                change_sections(display, latex),
+                change_notes,
+            )
+        )
     success_long, success_display = _success_tables(metrics, cols, rows, labels)
     success_csv = tables_dir / "success.csv"
     success_long.to_csv(success_csv, index=False)
@@ -278,8 +312,10 @@ def report(
     """Merge runs and groups into the paper's tables and plots; write them under `out`.
 
     `paths` are run directories and/or group directories (e.g. the baseline groups and the joint
-    groups). Writes `tables/update_counts.{md,csv,tex}`, `tables/update_counts_per_seed.csv`,
-    `tables/success.{md,csv,tex}`, `plots/success_<env>.png` and `plots/critic_loss.png` under
+    groups). Writes `tables/update_counts.{md,csv,tex}` (the counts, then steps x batch),
+    `tables/update_counts_per_seed.csv`, `tables/update_changes.{md,csv,tex}` (one row per task,
+    column and reference, when a column has one), `tables/success.{md,csv,tex}`,
+    `plots/success_<env>.png`, `plots/changes_<env>.png` and `plots/critic_loss.png` under
     `out` (default: the run or group directory when there is one, else
     `<reports root>/comparison/<protocols>/`). `threshold` defaults to the runs' configured
     [evaluation].threshold when they agree, else 0.9. `x` is the plots' x axis. `consecutive` = K
@@ -299,13 +335,20 @@ def report(
     per_seed, counts, totals = _update_counts(metrics, threshold, consecutive)
     layout = _Layout.of(metrics)
     warnings = _comparability_warnings(groups)
-    notes = _count_notes(per_seed, counts, threshold, layout, warnings, consecutive)
+    changes = change_rows(per_seed, counts, totals, layout.rows, layout.columns)
+    notes = (
+        _count_notes(counts, threshold, warnings, consecutive),
+        _change_notes(per_seed, counts, layout.labels, threshold),
+    )
     title = f"Millions of updates to reach {threshold:.0%} success"
-    tables = _write_tables(tables_dir, metrics, (per_seed, counts, totals), layout, title, notes)
+    tables = _write_tables(
+        tables_dir, metrics, (per_seed, counts, totals), changes, layout, title, notes
+    )
 
-    colours = _colours(layout.columns)
+    colours = column_colours(layout.columns)
     skipped: list[str] = []
-    plots = _plot_success(metrics, x, colours, layout.labels, plots_dir, threshold)
+    plots = plot_success(metrics, x, colours, layout.labels, plots_dir, threshold)
+    plots.extend(plot_changes(changes, layout.labels, plots_dir))
     loss_plot = _plot_critic_loss(train, x, colours, layout.labels, plots_dir)
     if loss_plot is None:
         skipped.append("critic_loss.png: no critic_loss rows in the runs' train.csv")
@@ -324,6 +367,7 @@ def report(
         groups=[g.path for g in groups],
         skipped=skipped,
         warnings=warnings,
+        changes=changes,
     )
 
 

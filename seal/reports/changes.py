@@ -11,19 +11,24 @@ only a resolved decrease is bold.
 The references of a column C are Single Env and, when the report has it, the batch-matched alone
 arm "Single Env (C batch)" (`seal.reports.groups.matched_label`): the same per-task batch as C
 without the other environment, so the change against it is what the other environment's data did.
+
+`change_rows` lays every change out as one row per (task, column, reference), with the seeds
+behind it and, where it is paired by seed, the minimum detectable effect of its seeds
+(`seal.stats.mde` of the per-seed relative changes): the changes table and the interval plot.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from seal.metrics import percent_change
 from seal.reports.groups import BASELINE_COLUMN, matched_label
-from seal.stats import MIN_SEEDS_RESOLVED, change_ci, resolved, stratified_change_ci
+from seal.stats import MIN_SEEDS_RESOLVED, change_ci, mde, resolved, stratified_change_ci
 
 # Column prefixes of the two references in the counts and totals tables.
 _REFERENCES = ("", "matched_")
@@ -232,4 +237,98 @@ def pairing(counts: pd.DataFrame, labels: Mapping[str, str]) -> dict[str, list[s
     return out
 
 
-__all__ = ["few_seeds", "pairing"]
+CHANGE_ROW_COLUMNS = (
+    "env",
+    "task",
+    "column",
+    "reference",
+    "vs",
+    "pct_change",
+    "pct_ci_low",
+    "pct_ci_high",
+    "n_column",
+    "n_reference",
+    "paired",
+    "resolved",
+    "shared_tasks",
+    "sd_paired_pct",
+    "mde_pct",
+)
+"""update_changes.csv's columns (`change_rows`)."""
+
+
+def _paired_spread(arm: pd.DataFrame, base: pd.DataFrame, task: str) -> tuple[float, float]:
+    """(SD, MDE) in percent of the per-seed relative changes arm / base - 1 of one task's pairs."""
+    seeds = sorted(set(arm.index) & set(base.index))
+    a = np.array(_task_values(arm, task, seeds))
+    b = np.array(_task_values(base, task, seeds))
+    keep = np.isfinite(a) & np.isfinite(b) & (b > 0)
+    if keep.sum() < 2:
+        return math.nan, math.nan
+    sd = float(np.std(100 * (a[keep] / b[keep] - 1), ddof=1))
+    return sd, mde(sd, int(keep.sum()))
+
+
+def change_rows(
+    per_seed: pd.DataFrame,
+    counts: pd.DataFrame,
+    totals: pd.DataFrame,
+    rows: Sequence[tuple[str, str]],
+    columns: Sequence[str],
+) -> pd.DataFrame:
+    """One row per (task, column, reference) with a reference, tasks in `rows`' order, then the
+    totals of each env; CHANGE_ROW_COLUMNS. `vs` is "Single Env" or "matched" (the column's
+    batch-matched alone arm); n_column and n_reference are the seeds that reached the task in each
+    (a total: the seeds run); a paired row has its seeds' SD and MDE, in percent."""
+    tables = _seed_values(per_seed)
+    cells = {(r.column, r.env, r.task): r for r in counts.itertuples(index=False)}
+    records: list[dict[str, object]] = []
+
+    def record(env: str, task: str, column: str, prefix: str, row: Any, n: tuple[int, int]) -> None:
+        records.append(
+            {
+                "env": env,
+                "task": task,
+                "column": column,
+                "reference": getattr(row, f"{prefix}reference"),
+                "vs": "matched" if prefix else BASELINE_COLUMN,
+                "pct_change": float(getattr(row, f"{prefix}pct_change")),
+                "pct_ci_low": float(getattr(row, f"{prefix}pct_ci_low")),
+                "pct_ci_high": float(getattr(row, f"{prefix}pct_ci_high")),
+                "n_column": n[0],
+                "n_reference": n[1],
+                "paired": bool(getattr(row, f"{prefix}paired")),
+                "resolved": bool(getattr(row, f"{prefix}resolved")),
+                "shared_tasks": int(getattr(row, f"{prefix}shared_tasks", 0) or 0),
+                "sd_paired_pct": math.nan,
+                "mde_pct": math.nan,
+            }
+        )
+
+    for env, task in rows:
+        for column in columns:
+            row = cells.get((column, env, task))
+            for prefix in _REFERENCES:
+                ref = "" if row is None else getattr(row, f"{prefix}reference")
+                if not ref:
+                    continue
+                base = cells[(ref, env, task)]
+                record(env, task, column, prefix, row, (int(row.reached), int(base.reached)))
+                if records[-1]["paired"]:
+                    spread = _paired_spread(tables[(column, env)], tables[(ref, env)], task)
+                    records[-1].update(sd_paired_pct=spread[0], mde_pct=spread[1])
+    seeds = per_seed.groupby(["column", "env"])["seed"].nunique()
+    total_rows = {(t.column, t.env): t for t in totals.itertuples(index=False)}
+    for env in dict.fromkeys(env for env, _ in rows):
+        for column in columns:
+            total = total_rows.get((column, env))
+            for prefix in _REFERENCES:
+                ref = "" if total is None else getattr(total, f"{prefix}reference")
+                if not ref:
+                    continue
+                n = (int(seeds.get((column, env), 0)), int(seeds.get((ref, env), 0)))
+                record(env, "Total", column, prefix, total, n)
+    return pd.DataFrame.from_records(records, columns=list(CHANGE_ROW_COLUMNS))
+
+
+__all__ = ["change_rows", "few_seeds", "pairing"]

@@ -1,24 +1,34 @@
-"""Plots: the success curves of Figs. 2-4, the critic-loss curves of Fig. 7, scheduler timelines.
+"""Plots: the success curves of Figs. 2-4, the changes with their CIs, the critic-loss curves of
+Fig. 7, scheduler timelines.
 
-Each curve is a column's mean ± sample std over seeds, seeds aligned on the epoch and drawn
-against gradient steps or epochs (`XAxis`), in Fig. 4's colours for the paper's columns. Runs
-with a scheduler.csv get their pool-membership (and SMT budget) timelines from
-seal.schedulers.plots. Figures are drawn with matplotlib's Agg canvas, never a display.
+A success curve is a column's mean over seeds with a 95% bootstrap band (seeds resampled,
+`seal.stats.bootstrap_band`), a critic-loss curve its mean ± sample std; seeds are aligned on the
+epoch and drawn against gradient steps or epochs (`XAxis`), in Fig. 4's colours for the paper's
+columns. `plot_intervals` draws changes as one row per arm: the change, its CI, the zero line and
+the minimum detectable effect around it (`plot_changes` for a report's changes table). Runs with
+a scheduler.csv get their pool-membership (and SMT budget) timelines from seal.schedulers.plots.
+Figures are drawn with matplotlib's Agg canvas, never a display.
 """
 
 from __future__ import annotations
 
+import math
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 
 from seal.reports.groups import BASELINE_COLUMN, _column_rank, _Group
+from seal.stats import bootstrap_band
 
 # Fig. 4's colours: equal ratio green, high MW blue, high FK orange; the baseline is black.
 _COLUMN_COLOURS = {
@@ -40,7 +50,8 @@ _OTHER_COLOURS = (
 XAxis = Literal["grad_steps", "epoch"]
 
 
-def _colours(columns: Sequence[str]) -> dict[str, str]:
+def column_colours(columns: Sequence[str]) -> dict[str, str]:
+    """Each column's colour: Fig. 4's for the paper's columns, the others from a cycle."""
     others = iter(_OTHER_COLOURS * (1 + len(columns) // len(_OTHER_COLOURS)))
     return {c: _COLUMN_COLOURS.get(c) or next(others) for c in columns}
 
@@ -65,7 +76,36 @@ def _mean_std_over_seeds(frame: pd.DataFrame, x: str, value: str) -> pd.DataFram
     ).reset_index()
 
 
-def _plot_success(
+def success_curves(metrics: pd.DataFrame, x: XAxis) -> pd.DataFrame:
+    """Per (column, env, epoch): x, the mean over seeds of the success averaged over the env's
+    tasks, its 95% bootstrap band (`low`, `high`) and the seeds."""
+    per_eval = (
+        metrics.groupby(["column", "env", "seed", "epoch"], sort=False)
+        .agg(success=("success", "mean"), grad_steps=("grad_steps", "mean"))
+        .reset_index()
+    )
+    frames = []
+    for (column, env), frame in per_eval.groupby(["column", "env"], sort=False):
+        table = frame.pivot_table(index="seed", columns="epoch", values="success")
+        low, high = bootstrap_band(table.to_numpy())
+        frames.append(
+            pd.DataFrame(
+                {
+                    "column": column,
+                    "env": env,
+                    "epoch": table.columns,
+                    "x": frame.groupby("epoch")[x].mean().reindex(table.columns).to_numpy(),
+                    "mean": table.mean(axis=0).to_numpy(),
+                    "low": low,
+                    "high": high,
+                    "seeds": table.notna().sum(axis=0).to_numpy(),
+                }
+            )
+        )
+    return pd.concat(frames, ignore_index=True)
+
+
+def plot_success(
     metrics: pd.DataFrame,
     x: XAxis,
     colours: dict[str, str],
@@ -73,11 +113,9 @@ def _plot_success(
     plots: Path,
     threshold: float,
 ) -> list[Path]:
-    """Figs. 2-4: per environment, success averaged over its tasks, mean ± std over seeds, per column."""
-    per_eval = metrics.groupby(["column", "env", "seed", "epoch"], sort=False).agg(
-        success=("success", "mean"), grad_steps=("grad_steps", "mean")
-    )
-    curves = _mean_std_over_seeds(per_eval.reset_index(), x, "success")
+    """Figs. 2-4: per environment, success averaged over its tasks, mean over seeds with a 95%
+    bootstrap band, per column; `plots/success_<env>.png`."""
+    curves = success_curves(metrics, x)
     written = []
     for env in dict.fromkeys(metrics["env"]):
         fig = Figure(figsize=(6.4, 4.0))
@@ -85,7 +123,6 @@ def _plot_success(
         env_curves = curves[curves["env"] == env]
         for column in sorted(env_curves["column"].unique(), key=_column_rank):
             curve = env_curves[env_curves["column"] == column].sort_values("x")
-            std = curve["std"].fillna(0.0)
             seeds = int(curve["seeds"].max())
             ax.plot(
                 curve["x"],
@@ -96,8 +133,8 @@ def _plot_success(
             )
             ax.fill_between(
                 curve["x"],
-                (curve["mean"] - std).clip(0, 1),
-                (curve["mean"] + std).clip(0, 1),
+                curve["low"],
+                curve["high"],
                 color=colours[column],
                 alpha=0.2,
                 linewidth=0,
@@ -109,10 +146,104 @@ def _plot_success(
         ax.set_xlabel("gradient steps" if x == "grad_steps" else "epoch")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylabel("success rate (mean over tasks)")
-        ax.set_title(f"{labels[env]}: success, mean ± std over seeds")
+        ax.set_title(f"{labels.get(env, env)}: success, mean over seeds, 95% bootstrap band")
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize="small")
         written.append(_save(fig, plots / f"success_{_safe(env)}.png"))
+    return written
+
+
+@dataclass(frozen=True)
+class Interval:
+    """One row of an interval plot: a change, its CI and the minimum detectable effect."""
+
+    label: str
+    value: float
+    low: float
+    high: float
+    mde: float = math.nan
+    """The smallest effect the row's seeds can detect (seal.stats.mde); NaN: none drawn."""
+    resolved: bool = False
+    """Drawn in colour: the CI excludes 0 with enough seeds (seal.stats.MIN_SEEDS_RESOLVED)."""
+
+
+def plot_intervals(
+    panels: Sequence[tuple[str, Sequence[Interval]]], path: Path, xlabel: str, title: str
+) -> Path:
+    """One panel per (title, rows), one row per arm: the change (a dot, in colour when resolved),
+    its CI (a bar), the zero line, and the band -MDE..+MDE around 0 within which the row's seeds
+    would miss a true effect more often than 1 time in 5."""
+    heights = [0.45 * max(len(rows), 1) + 0.9 for _, rows in panels]
+    fig = Figure(figsize=(7.0, sum(heights) + 0.9), layout="constrained")
+    axes = fig.subplots(len(panels), 1, squeeze=False, height_ratios=heights)[:, 0]
+    for ax, (name, rows) in zip(axes, panels, strict=True):
+        ys = np.arange(len(rows))[::-1]
+        for y, row in zip(ys, rows, strict=True):
+            if math.isfinite(row.mde):
+                ax.barh(y, 2 * row.mde, left=-row.mde, height=0.6, color="0.85", zorder=0)
+            if not math.isfinite(row.value):
+                ax.text(0, y, " n/a", va="center", fontsize="small", color="grey")
+                continue
+            colour = "tab:blue" if row.resolved else "black"
+            if math.isfinite(row.low) and math.isfinite(row.high):
+                ax.errorbar(
+                    row.value,
+                    y,
+                    xerr=[[row.value - row.low], [row.high - row.value]],
+                    fmt="o",
+                    color=colour,
+                    capsize=3,
+                    zorder=2,
+                )
+            else:
+                ax.plot(row.value, y, "o", color=colour, zorder=2)
+        ax.axvline(0.0, color="black", linewidth=1, zorder=1)
+        ax.set_yticks(ys, [r.label for r in rows], fontsize="small")
+        ax.set_ylim(-0.7, len(rows) - 0.3)
+        ax.set_title(name, fontsize="medium")
+        ax.grid(axis="x", alpha=0.3)
+    axes[-1].set_xlabel(xlabel)
+    handles = [
+        Line2D([], [], color="black", marker="o", label="change, 95% CI"),
+        Line2D([], [], color="tab:blue", marker="o", label="resolved"),
+        Patch(color="0.85", label="±MDE (power 0.8, two-sided 0.05)"),
+    ]
+    fig.legend(handles=handles, loc="outside lower center", ncols=3, fontsize="x-small")
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_changes(changes: pd.DataFrame, labels: Mapping[str, str], plots: Path) -> list[Path]:
+    """`plots/changes_<env>.png`: a report's changes (seal.reports.changes.change_rows), one
+    panel per task and total, one row per (arm, reference), in percent."""
+    written = []
+    for env, rows in changes.groupby("env", sort=False):
+        panels = [
+            (
+                f"{task} ({labels.get(str(env), env)})",
+                [
+                    Interval(
+                        f"{r.column} vs {r.vs}",
+                        r.pct_change,
+                        r.pct_ci_low,
+                        r.pct_ci_high,
+                        r.mde_pct,
+                        bool(r.resolved),
+                    )
+                    for r in task_rows.itertuples(index=False)
+                ],
+            )
+            for task, task_rows in rows.groupby("task", sort=False)
+        ]
+        path = plots / f"changes_{_safe(str(env))}.png"
+        written.append(
+            plot_intervals(
+                panels,
+                path,
+                "change in updates to the threshold (%)",
+                f"{labels.get(str(env), env)}: changes against the references",
+            )
+        )
     return written
 
 

@@ -1,16 +1,21 @@
-"""Tables: the update-count and final-success tables `report` writes, and what it returns.
+"""Tables: the update-count, changes and final-success tables `report` writes, and what it returns.
 
-`ReportResult` is what a report wrote and the numbers behind it. The update-count table (Table 1,
-Tables 6-7) has Task rows and one column per setting, cells from seal.metrics.format_count with
-Appendix B's product beside them where it differs, and a total per environment; the success
-table gives each run's last evaluation. `_write_table` writes a display table as Markdown (notes
-below) and LaTeX (notes in the caption); `_notes` and `_comparability_warnings` say how to read it.
+`ReportResult` is what a report wrote and the numbers behind it. A cell holds one thing. The
+update-count table (Table 1, Tables 6-7) has Task rows and one column per setting, cells from
+seal.metrics.format_count, and a total per environment; below it the same cells taken apart as
+gradient steps x per-step batch (with Appendix B's product where it differs). The changes table
+has one row per (task, column, reference): the change, its CI and the seeds behind it
+(`change_sections`). The success table gives each run's last evaluation. `write_document`
+writes display tables as Markdown (notes below, no line longer than `LINE_LIMIT`: wide tables are
+split into several, `fit_markdown`) and LaTeX (notes in the caption); `_notes` and
+`_comparability_warnings` say how to read them.
 """
 
 from __future__ import annotations
 
 import math
 import re
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +51,8 @@ class ReportResult:
     """Notes on what could not be drawn (e.g. no critic_loss rows in train.csv)."""
     warnings: list[str] = field(default_factory=list)
     """Settings that differ between the groups compared (agent.shared_update, critic_sharing, reward versions)."""
+    changes: pd.DataFrame = field(default_factory=pd.DataFrame)
+    """One row per (task, column, reference): seal.reports.changes.change_rows (update_changes.csv)."""
 
     def to_json(self) -> dict[str, Any]:
         """Paths and update-count numbers as plain JSON values (NaN -> null)."""
@@ -56,6 +63,10 @@ class ReportResult:
                 if value is None or (isinstance(value, float) and not math.isfinite(value))
                 else value
             )
+
+        def plain(value: Any) -> Any:
+            value = value.item() if hasattr(value, "item") else value  # numpy scalars
+            return num(value) if isinstance(value, float) else value
 
         counts: dict[str, dict[str, dict[str, dict[str, float | None]]]] = {}
         for row in self.update_counts.itertuples(index=False):
@@ -83,9 +94,17 @@ class ReportResult:
             "plots": [str(p) for p in self.plots],
             "update_counts": counts,
             "update_count_totals": totals,
+            "changes": [
+                {k: plain(v) for k, v in record.items()}
+                for record in self.changes.to_dict(orient="records")
+            ],
             "skipped": self.skipped,
             "warnings": self.warnings,
         }
+
+
+Section = tuple[str, pd.DataFrame, pd.DataFrame | None]
+"""(heading or "", display table, its LaTeX display or None to escape the display)."""
 
 
 def _row_order(frame: pd.DataFrame) -> list[tuple[str, str]]:
@@ -127,39 +146,36 @@ def _decomposition(row: Any) -> str:
     return f" · {format_number(row.grad_steps_mean)} steps × {format_number(row.per_step_mean)}"
 
 
-def _cell(row: Any, show_pct: bool, style: str) -> str:
-    """One update-count cell: count ± std, its changes with CIs, [k/n], C×GS×BS, steps × batch."""
-    pct = None if math.isnan(row.pct_change) else float(row.pct_change)
-    matched = getattr(row, "matched_reference", "")
-    bold = pct is not None and pct < 0 and bool(row.resolved)
-    ci, vs, also = (_ci(row) if show_pct else None), "", ""
-    if matched and show_pct:
-        # Against both references, each labelled; bold only for fewer updates than both, resolved.
-        bold = bold and row.matched_pct_change < 0 and bool(row.matched_resolved)
-        also = "; " + _change(row.matched_pct_change, _ci(row, "matched_"), "matched")
-        vs = BASELINE_COLUMN
-    elif matched and math.isfinite(row.matched_pct_change):
-        # No Single Env in the report: the change against the batch-matched alone arm only.
-        pct, show_pct, vs = float(row.matched_pct_change), True, "matched"
-        bold, ci = pct < 0 and bool(row.matched_resolved), _ci(row, "matched_")
-    cell = format_count(
+def _resolved_decrease(row: Any, prefix: str) -> bool:
+    pct = float(getattr(row, f"{prefix}pct_change"))
+    return math.isfinite(pct) and pct < 0 and bool(getattr(row, f"{prefix}resolved"))
+
+
+def _bold(row: Any) -> bool:
+    """Fewer updates than every reference the row has (Single Env, its matched arm), each resolved."""
+    prefixes = [p for p in ("", "matched_") if getattr(row, f"{p}reference", "")]
+    return bool(prefixes) and all(_resolved_decrease(row, p) for p in prefixes)
+
+
+def _cell(row: Any, style: str) -> str:
+    """One update-count cell: count ± std [k/n], bold when `_bold` (the changes have a table of their own)."""
+    return format_count(
         row.updates_mean,
         row.updates_std,
         int(row.reached),
         int(row.seeds),
-        pct,
-        show_pct,
-        style,
-        bold=bold,
-        ci=ci,
-        vs=vs,
-        also=also.replace("%", r"\%") if style == "latex" else also,
+        style=style,
+        bold=_bold(row),
     )
-    cell += _paper_suffix(row.updates_mean, row.paper_updates_mean, int(row.reached), style)
-    decomposition = _decomposition(row)
-    if style == "latex":
-        decomposition = decomposition.replace("×", r"$\times$").replace("·", r"$\cdot$")
-    return cell + decomposition
+
+
+def _steps_cell(row: Any, style: str) -> str:
+    """ "1250 × 128": gradient steps to the threshold x the mean per-step batch, and C×GS×BS where it differs."""
+    if int(row.reached) == 0 or not math.isfinite(row.per_step_mean):
+        return "---" if style == "latex" else NEVER_REACHED
+    times = r"$\times$" if style == "latex" else "×"
+    text = f"{format_number(row.grad_steps_mean)} {times} {format_number(row.per_step_mean)}"
+    return text + _paper_suffix(row.updates_mean, row.paper_updates_mean, int(row.reached), style)
 
 
 def _total_cell(total: Any, style: str) -> str:
@@ -186,35 +202,92 @@ def _total_cell(total: Any, style: str) -> str:
 
 def _update_count_table(
     counts: pd.DataFrame,
-    totals: pd.DataFrame,
+    totals: pd.DataFrame | None,
     columns: list[str],
     rows: list[tuple[str, str]],
     labels: dict[str, str],
     style: str,
+    cell: Any = _cell,
 ) -> pd.DataFrame:
-    """The display table: Task x columns, cells from seal.metrics.format_count, total rows per env."""
-    has_baseline = set(counts.loc[counts["column"] == BASELINE_COLUMN, "env"])
+    """A display table: Task x columns, one `cell(row, style)` each; with `totals`, a total row per env.
+
+    A total row shows the count alone: `_total_cell` of the total with its references cleared
+    (its changes are rows of the changes table).
+    """
     cells = {(r.column, r.env, r.task): r for r in counts.itertuples(index=False)}
-    total_rows = {(t.column, t.env): t for t in totals.itertuples(index=False)}
     esc = _escape_latex if style == "latex" else (lambda s: s)
     records = []
     for env, task in rows:
         record = {"Task": esc(f"{task} ({labels[env]})")}
         for column in columns:
             row = cells.get((column, env, task))
-            if row is None:
-                record[esc(column)] = ""
-                continue
-            show_pct = column != BASELINE_COLUMN and env in has_baseline
-            record[esc(column)] = _cell(row, show_pct, style)
+            record[esc(column)] = "" if row is None else cell(row, style)
         records.append(record)
+    if totals is None:
+        return pd.DataFrame.from_records(records)
+    total_rows = {(t.column, t.env): t for t in totals.itertuples(index=False)}
     for env in dict.fromkeys(env for env, _ in rows):
         record = {"Task": esc(f"Total ({labels[env]})")}
         for column in columns:
             total = total_rows.get((column, env))
-            record[esc(column)] = "" if total is None else _total_cell(total, style)
+            record[esc(column)] = (
+                ""
+                if total is None
+                else _total_cell(total._replace(reference="", matched_reference=""), style)
+            )
         records.append(record)
     return pd.DataFrame.from_records(records)
+
+
+CHANGE_COLUMNS = ("Arm", "vs", "Change", "95% CI", "n")
+"""The changes table's columns, under one heading per task (a total's section adds "tasks")."""
+
+
+def _seeds_text(n_column: int, n_reference: int, paired: bool) -> str:
+    return str(n_column) if paired else f"{n_column} vs {n_reference}"
+
+
+def changes_display(changes: pd.DataFrame, labels: dict[str, str], style: str) -> pd.DataFrame:
+    """`seal.reports.changes.change_rows` as a display table: Task, CHANGE_COLUMNS and tasks
+    (shared tasks of a total, else ""); a resolved change (CI and seeds) in bold."""
+    esc = _escape_latex if style == "latex" else (lambda s: s)
+    records = []
+    for row in changes.itertuples(index=False):
+        change = format_percent(row.pct_change)
+        ci = format_ci((row.pct_ci_low / 100, row.pct_ci_high / 100))
+        if row.resolved:
+            change, ci = (
+                (rf"\textbf{{{change}}}", rf"\textbf{{{ci}}}")
+                if style == "latex"
+                else (f"**{change}**", f"**{ci}**")
+            )
+        records.append(
+            {
+                "Task": esc(f"{row.task} ({labels.get(row.env, row.env)})"),
+                "Arm": esc(row.column),
+                "vs": esc(row.vs),
+                "Change": change.replace("%", r"\%") if style == "latex" else change,
+                "95% CI": ci,
+                "n": _seeds_text(row.n_column, row.n_reference, row.paired),
+                "tasks": str(row.shared_tasks) if row.task == "Total" else "",
+            }
+        )
+    return pd.DataFrame.from_records(records, columns=["Task", *CHANGE_COLUMNS, "tasks"])
+
+
+def change_sections(changes: pd.DataFrame, latex: pd.DataFrame | None = None) -> list[Section]:
+    """`changes_display` tables as `write_document` sections: one per task (the heading), one
+    row per (arm, reference); the "tasks" column only where a row has one (a total's)."""
+    sections: list[Section] = []
+    for task, rows in changes.groupby("Task", sort=False):
+        keep = list(CHANGE_COLUMNS) + (["tasks"] if (rows["tasks"] != "").any() else [])
+        tex = (
+            None
+            if latex is None
+            else latex.loc[rows.index, keep].reset_index(drop=True).rename(columns=_escape_latex)
+        )
+        sections.append((str(task), rows[keep].reset_index(drop=True), tex))
+    return sections
 
 
 PAPER_GAP = 0.005
@@ -326,6 +399,104 @@ def _success_tables(
     return long, pd.DataFrame.from_records(records)
 
 
+LINE_LIMIT = 100
+"""No line of a Markdown table or of its notes is longer than this many characters."""
+
+
+def _markdown(frame: pd.DataFrame) -> str:
+    return frame.to_markdown(index=False, disable_numparse=True)
+
+
+def _column_chunks(display: pd.DataFrame, limit: int) -> list[list[int]]:
+    """Column positions of the tables `display` is split into so that each renders within
+    `limit` characters a line: the first column in every one, the others in order, greedily."""
+    chunks: list[list[int]] = []
+    current: list[int] = []
+    for position in range(1, display.shape[1]):
+        trial = [*current, position]
+        rendered = _markdown(display.iloc[:, [0, *trial]])
+        if current and max(len(line) for line in rendered.splitlines()) > limit:
+            chunks.append(current)
+            current = [position]
+        else:
+            current = trial
+    chunks.append(current)
+    return [[0, *chunk] for chunk in chunks]
+
+
+def fit_markdown(display: pd.DataFrame, limit: int = LINE_LIMIT) -> str:
+    """`display` as Markdown; when a line would pass `limit` characters, as several tables of
+    its columns, the first column repeated in each (a single column wider than that stays)."""
+    return "\n\n".join(
+        _markdown(display.iloc[:, chunk]) for chunk in _column_chunks(display, limit)
+    )
+
+
+def wrap_notes(notes: Sequence[str], width: int = LINE_LIMIT) -> str:
+    """Notes as a Markdown list, each wrapped at `width` characters."""
+    return "".join(
+        textwrap.fill(
+            note,
+            width,
+            initial_indent="- ",
+            subsequent_indent="  ",
+            break_long_words=False,
+            break_on_hyphens=False,
+        )
+        + "\n"
+        for note in notes
+    )
+
+
+def _latex_caption(text: str) -> str:
+    caption = _escape_latex(text).replace("±", r"$\pm$").replace(">=", r"$\geq$")
+    caption = caption.replace(NEVER_REACHED, "---").replace("×", r"$\times$")
+    # pandas writes \caption{ before the first line.
+    return textwrap.fill(
+        caption, LINE_LIMIT - len(r"\caption{"), break_long_words=False, break_on_hyphens=False
+    )
+
+
+def markdown_document(title: str, sections: Sequence[Section], notes: Sequence[str]) -> str:
+    """The title, each section's table under its heading (`fit_markdown`), then the notes."""
+    parts = [f"# {title}"]
+    for heading, display, _ in sections:
+        parts.append((f"**{heading}**\n\n" if heading else "") + fit_markdown(display))
+    return "\n\n".join(parts) + "\n\n" + wrap_notes(notes)
+
+
+def write_document(
+    stem: Path, title: str, sections: Sequence[Section], notes: Sequence[str]
+) -> dict[str, Path]:
+    """Markdown (the sections under their headings, then the notes) and LaTeX (one table per
+    section and column chunk; the title and notes in the first caption) of display tables."""
+    tex_parts: list[str] = []
+    for heading, display, latex in sections:
+        latex_frame = (
+            latex if latex is not None else display.map(_escape_latex).rename(columns=_escape_latex)
+        )
+        for chunk in _column_chunks(display, LINE_LIMIT):
+            caption = (
+                f"{title}. {' '.join(notes)}"
+                if not tex_parts
+                else (heading or f"{title} (continued)")
+            )
+            frame = latex_frame.iloc[:, chunk]
+            tex_parts.append(
+                frame.to_latex(
+                    index=False,
+                    escape=False,
+                    caption=_latex_caption(caption),
+                    column_format="l" + "r" * (frame.shape[1] - 1),
+                )
+            )
+    md = stem.with_suffix(".md")
+    md.write_text(markdown_document(title, sections, notes))
+    tex = stem.with_suffix(".tex")
+    tex.write_text("\n".join(tex_parts))
+    return {md.name: md, tex.name: tex}
+
+
 def _write_table(
     display: pd.DataFrame,
     stem: Path,
@@ -333,28 +504,5 @@ def _write_table(
     notes: list[str],
     latex: pd.DataFrame | None = None,
 ) -> dict[str, Path]:
-    """Markdown (with notes) and LaTeX (notes in the caption) versions of a display table."""
-    md = stem.with_suffix(".md")
-    md.write_text(
-        f"# {title}\n\n{display.to_markdown(index=False, disable_numparse=True)}\n\n"
-        + "".join(f"- {n}\n" for n in notes)
-    )
-    tex = stem.with_suffix(".tex")
-    latex_frame = (
-        latex if latex is not None else display.map(_escape_latex).rename(columns=_escape_latex)
-    )
-    caption = (
-        _escape_latex(title + ". " + " ".join(notes))
-        .replace("±", r"$\pm$")
-        .replace(">=", r"$\geq$")
-    )
-    caption = caption.replace(NEVER_REACHED, "---")
-    tex.write_text(
-        latex_frame.to_latex(
-            index=False,
-            escape=False,
-            caption=caption,
-            column_format="l" + "r" * (latex_frame.shape[1] - 1),
-        )
-    )
-    return {md.name: md, tex.name: tex}
+    """Markdown (with notes) and LaTeX (notes in the caption) versions of one display table."""
+    return write_document(stem, title, [("", display, latex)], notes)
