@@ -140,4 +140,6 @@ def test_cli_rejects_set_outside_protocol_and_table1(capsys) -> None:
     from seal.cli.main import main
 
     assert main(["bench", "--learn", "transfer", "--set", "protocol.epochs=2"]) == 2
-    assert "--set only applies to --protocol and --learn table1" in capsys.readouterr().err
+    assert "--set only applies to --protocol, --learn table1 and --learn quickstart" in (
+        capsys.readouterr().err
+    )

@@ -1,4 +1,4 @@
-"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1] [--full | --fpr]]`: learner and collection speed as ratios, learning evidence."""
+"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1|quickstart] [--full | --fpr]]`: learner and collection speed as ratios, learning evidence."""
 
 from __future__ import annotations
 
@@ -27,7 +27,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "microwave and bottom-right-burner without); "
             "--learn table1 runs paper Table 1 at laptop scale (protocols/table1_small: drawer-close-v3 and "
             "slide-cabinet under Single Env, 50/50, High FK and High MW with batch-matched alone arms) and "
-            "prints `seal report`'s table of it with 95% CIs and its wall time."
+            "prints `seal report`'s table of it with 95% CIs and its wall time; "
+            "--learn quickstart runs README command 1's protocol for seeds 0-9 (one at a time) and "
+            "writes the README's table, kitchen curve and k-of-10 line into docs/."
         ),
     )
     parser.add_argument(
@@ -41,8 +43,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs="?",
         const="evidence",
         default=None,
-        metavar="transfer|kitchen|table1",
-        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs; --learn table1: only paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md)",
+        metavar="transfer|kitchen|table1|quickstart",
+        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs; --learn table1: only paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md); --learn quickstart: README command 1 over seeds 0-9",
     )
     parser.add_argument(
         "--full",
@@ -58,31 +60,31 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--seeds",
         type=int,
         default=None,
-        help="with --learn transfer|kitchen|table1: seeds per arm (default 5 for transfer, 2 for kitchen, 3 for table1)",
+        help="with --learn transfer|kitchen|table1|quickstart: seeds per arm (default 5 for transfer, 2 for kitchen, 3 for table1, 10 for quickstart)",
     )
     parser.add_argument(
         "--arms",
         nargs="+",
         metavar="ARM",
         default=None,
-        help="with --learn transfer|kitchen|table1: only these arms (protocols/testbed/<ARM>.toml and the alone arms and pre-trainings they need, positive_pretrained being round 4's name of pretrained_trunk; protocols/kitchen_learn/<ARM>.toml; protocols/table1_small/<ARM>.toml and its references)",
+        help="with --learn transfer|kitchen|table1|quickstart: only these arms (protocols/testbed/<ARM>.toml and the alone arms and pre-trainings they need, positive_pretrained being round 4's name of pretrained_trunk; protocols/kitchen_learn/<ARM>.toml; protocols/table1_small/<ARM>.toml and its references)",
     )
     parser.add_argument(
         "--reuse",
         action="store_true",
-        help="with --learn transfer|kitchen|table1: take finished runs under --out whose resolved config is today's instead of running them again",
+        help="with --learn transfer|kitchen|table1|quickstart: take finished runs under --out whose resolved config is today's instead of running them again",
     )
     parser.add_argument(
         "--jobs",
         type=int,
-        default=2,
-        help="with --learn transfer|kitchen|table1: `seal run` processes at a time (default 2)",
+        default=None,
+        help="with --learn transfer|kitchen|table1|quickstart: `seal run` processes at a time (default 2; 1 for quickstart, whose shipped threads assume the machine to itself)",
     )
     parser.add_argument(
         "--out",
         default=None,
         metavar="DIR",
-        help="with --learn transfer|kitchen|table1: reports root of the runs (default reports/bench_transfer, reports/bench_kitchen or reports/bench_table1)",
+        help="with --learn transfer|kitchen|table1|quickstart: reports root of the runs (default reports/bench_transfer, reports/bench_kitchen, reports/bench_table1 or reports/bench_quickstart)",
     )
     parser.add_argument(
         "--only", nargs="+", metavar="KEY", help="run only these keys, e.g. --only sac_vs_sb3"
@@ -132,7 +134,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="TABLE.KEY=VALUE",
-        help='with --protocol or --learn table1: override a protocol value (e.g. protocol.device=cuda, agent.preset="seal_prototype")',
+        help='with --protocol, --learn table1 or --learn quickstart: override a protocol value (e.g. protocol.device=cuda, agent.preset="seal_prototype")',
     )
     parser.set_defaults(func=run)
 
@@ -141,6 +143,7 @@ LEARN_SETS: dict[str, tuple[str, int, str]] = {
     "transfer": ("seal.bench.transfer", 5, "reports/bench_transfer"),
     "kitchen": ("seal.bench.kitchen", 2, "reports/bench_kitchen"),
     "table1": ("seal.bench.table1", 3, "reports/bench_table1"),
+    "quickstart": ("seal.bench.quickstart", 10, "reports/bench_quickstart"),
 }
 """`--learn <set>`: the module (with run_<set>_bench and format_result), default seeds and reports root."""
 
@@ -159,27 +162,30 @@ def run(args: argparse.Namespace) -> int:
 
     if args.learn not in (None, "evidence", *LEARN_SETS):
         raise SealError(
-            f"--learn {args.learn!r}: unknown; valid: --learn, --learn transfer, --learn kitchen, "
-            "--learn table1"
+            f"--learn {args.learn!r}: unknown; valid: --learn, "
+            + ", ".join(f"--learn {name}" for name in LEARN_SETS)
         )
     if args.full and args.learn != "transfer":
         raise SealError("--full only applies to --learn transfer")
     if args.fpr and (args.learn != "transfer" or args.full or args.arms):
         raise SealError("--fpr only applies to --learn transfer, without --full and --arms")
     if args.arms and args.learn not in LEARN_SETS:
-        raise SealError("--arms only applies to --learn transfer, kitchen and table1")
-    if args.overrides and args.protocol is None and args.learn != "table1":
-        raise SealError("--set only applies to --protocol and --learn table1")
+        raise SealError("--arms only applies to --learn transfer, kitchen, table1 and quickstart")
+    if args.overrides and args.protocol is None and args.learn not in ("table1", "quickstart"):
+        raise SealError("--set only applies to --protocol, --learn table1 and --learn quickstart")
     if args.learn in LEARN_SETS:
         import importlib
 
         module, default_seeds, default_out = LEARN_SETS[args.learn]
+        jobs = args.jobs if args.jobs is not None else (1 if args.learn == "quickstart" else 2)
+        if jobs < 1:
+            raise SealError(f"--jobs must be >= 1, got {jobs}")
         bench = importlib.import_module(module)
         if args.fpr:
             result = bench.run_fpr_bench(
                 seeds=bench.FPR_SEEDS if args.seeds is None else args.seeds,
                 out=args.out or default_out,
-                parallel=args.jobs,
+                parallel=jobs,
                 log=log,
                 reuse=args.reuse,
             )
@@ -188,12 +194,12 @@ def run(args: argparse.Namespace) -> int:
         extra: dict[str, object] = {}
         if args.learn == "transfer":
             extra["full"] = args.full
-        if args.learn == "table1":
+        if args.learn in ("table1", "quickstart"):
             extra["overrides"] = args.overrides
         result = getattr(bench, f"run_{args.learn}_bench")(
             seeds=default_seeds if args.seeds is None else args.seeds,
             out=args.out or default_out,
-            parallel=args.jobs,
+            parallel=jobs,
             log=log,
             only=args.arms,
             reuse=args.reuse,

@@ -1,0 +1,50 @@
+"""`seal bench --learn quickstart`: the README's table, curve and k-of-n line from the shipped file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from seal.bench.quickstart import arms, format_result, k_of_n_line, run_quickstart_bench
+from seal.errors import SealError
+from tests.test_bench_table1 import TINY
+
+
+def test_k_of_n_counts_a_seed_only_when_every_task_reached() -> None:
+    reached = {
+        0: {"drawer-close-v3 (mw)": True, "slide-cabinet (fk)": True},
+        1: {"drawer-close-v3 (mw)": True, "slide-cabinet (fk)": False},
+        2: {"drawer-close-v3 (mw)": False, "slide-cabinet (fk)": False},
+        3: {"drawer-close-v3 (mw)": True, "slide-cabinet (fk)": True},
+    }
+    line = k_of_n_line(reached, "this CPU")
+    assert "in **2 of 4 seeds** (seeds 0-3; this CPU)" in line
+    assert "Seed 1 did not reach: slide-cabinet (fk)." in line
+    assert "Seed 2 did not reach: drawer-close-v3 (mw), slide-cabinet (fk)." in line
+    assert "Seed 0 did not" not in line and "Seed 3 did not" not in line
+
+
+def test_only_the_quickstart_arm() -> None:
+    assert [a.name for a in arms()] == ["quickstart"]
+    with pytest.raises(SealError, match="unknown quickstart arm 'nope'"):
+        arms(["nope"])
+
+
+def test_tiny_end_to_end_writes_the_readme_pieces(tmp_path: Path) -> None:
+    # Two seeds of the shipped file at tiny sizes (2 epochs of 2 updates): the plumbing only.
+    docs = tmp_path / "docs"
+    docs.mkdir()
+    result = run_quickstart_bench(
+        seeds=2, out=tmp_path / "runs", overrides=TINY, docs=docs, parallel=2
+    )
+    assert sorted(result["run_dirs"]) == ["seed-0", "seed-1"] and result["n"] == 2
+    assert set(result["reached"]) == {"0", "1"}
+    assert all(len(tasks) == 2 for tasks in result["reached"].values())
+    assert result["goal"]["met"] is None  # fewer than 10 seeds are not judged
+    page = (docs / "quickstart_table.md").read_text()
+    assert f"in **{result['k']} of 2 seeds**" in page
+    assert "Seed 0 alone (what README command 1 prints)" in page
+    assert "slide-cabinet (FK)" in page and "drawer-close-v3 (MW)" in page
+    assert (docs / "quickstart_success_fk.png").stat().st_size > 0
+    assert "Goal: >= 9 of 10 seeds: not judged" in format_result(result)
