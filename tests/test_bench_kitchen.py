@@ -7,7 +7,8 @@ import dataclasses
 import pandas as pd
 import pytest
 
-from seal.bench.kitchen import (
+from seal.errors import SealError
+from seal.experiments.kitchen import (
     ARMS,
     arms,
     format_result,
@@ -15,7 +16,6 @@ from seal.bench.kitchen import (
     run_figures,
     run_kitchen_bench,
 )
-from seal.errors import SealError
 from seal.protocols import load_protocol
 
 

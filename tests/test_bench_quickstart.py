@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from seal.bench.quickstart import arms, format_result, k_of_n_line, run_quickstart_bench
 from seal.errors import SealError
+from seal.experiments.quickstart import arms, format_result, k_of_n_line, run_quickstart_bench
 from tests.test_bench_table1 import TINY
 
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from seal.bench.table1 import ARMS, REFERENCES, TABLE1, arms, format_result, run_table1_bench
 from seal.errors import SealError
+from seal.experiments.table1 import ARMS, REFERENCES, TABLE1, arms, format_result, run_table1_bench
 from seal.protocols import load_protocol
 from seal.schedulers import Progress
 from seal.schedulers.registry import build_scheduler

@@ -12,7 +12,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from seal.bench.transfer import (
+from seal.errors import SealError
+from seal.experiments.transfer import (
     ARMS,
     TargetCost,
     agent_mismatches,
@@ -26,7 +27,6 @@ from seal.bench.transfer import (
     target_cost,
     updates_saved,
 )
-from seal.errors import SealError
 from seal.protocols import load_protocol
 from seal.protocols.loader import config_to_dict
 
@@ -276,7 +276,7 @@ def test_code_versions_group_runs_by_commit() -> None:
 
 
 def test_every_arm_has_the_jsons_keys() -> None:
-    from seal.bench.transfer import summarise
+    from seal.experiments.transfer import summarise
 
     def cost(steps: int) -> TargetCost:
         return TargetCost(8.0 * steps, steps, 0, 1, {"t0": 8.0 * steps}, ("t0",), {"t0": steps})
@@ -302,7 +302,7 @@ def test_every_arm_has_the_jsons_keys() -> None:
 
 
 def test_a_run_predating_a_key_is_reused_only_at_that_keys_default() -> None:
-    from seal.bench.transfer import _same_tables
+    from seal.experiments.transfer import _same_tables
 
     today = {
         "agent": {"latent_dim": 8, "head_hidden": [], "clip_per": "optimizer"},
@@ -361,7 +361,7 @@ def _cost(steps: int) -> TargetCost:
 
 
 def test_summary_has_each_statistics_ci_sd_mde_and_seeds_for_mde() -> None:
-    from seal.bench.transfer import summarise
+    from seal.experiments.transfer import summarise
     from seal.stats import bootstrap_ci, mde, seeds_for_mde
 
     chosen = arms(only=["high_source"])
@@ -415,7 +415,7 @@ def _synthetic_runs(seeds: int = 5) -> dict[tuple[str, int], pd.DataFrame]:
 
 
 def test_transfer_tables_and_plots(tmp_path) -> None:
-    from seal.bench.transfer import format_table, summarise, write_transfer_report
+    from seal.experiments.transfer import format_table, summarise, write_transfer_report
 
     runs = _synthetic_runs()
     chosen = arms(only=["high_source", "oracle_policy"])
@@ -483,7 +483,7 @@ def _finished_alone_runs(root: Path, steps: list[int]) -> None:
 
 
 def test_fpr_bench_on_ten_finished_alone_runs(tmp_path) -> None:
-    from seal.bench.transfer import format_fpr, run_fpr_bench
+    from seal.experiments.transfer import format_fpr, run_fpr_bench
     from seal.stats import binomial_ci
 
     steps = [2000, 2500, 3000, 2200, 2800, 2600, 2400, 3100, 1900, 2700]

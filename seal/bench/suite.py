@@ -46,11 +46,11 @@ from seal.bench.flops import (
     flop_formula_check,
     quickstart_setup,
 )
-from seal.bench.learn import run_learn
 from seal.bench.lever import bench_ratio_lever
 from seal.bench.sb3 import bench_sac_vs_sb3
 from seal.bench.timing import machine_load
 from seal.errors import SealError
+from seal.experiments.learn import run_learn
 
 
 @dataclass(frozen=True)

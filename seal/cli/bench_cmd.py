@@ -140,10 +140,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 LEARN_SETS: dict[str, tuple[str, int, str]] = {
-    "transfer": ("seal.bench.transfer", 5, "reports/bench_transfer"),
-    "kitchen": ("seal.bench.kitchen", 2, "reports/bench_kitchen"),
-    "table1": ("seal.bench.table1", 3, "reports/bench_table1"),
-    "quickstart": ("seal.bench.quickstart", 10, "reports/bench_quickstart"),
+    "transfer": ("seal.experiments.transfer", 5, "reports/bench_transfer"),
+    "kitchen": ("seal.experiments.kitchen", 2, "reports/bench_kitchen"),
+    "table1": ("seal.experiments.table1", 3, "reports/bench_table1"),
+    "quickstart": ("seal.experiments.quickstart", 10, "reports/bench_quickstart"),
 }
 """`--learn <set>`: the module (with run_<set>_bench and format_result), default seeds and reports root."""
 

@@ -7,7 +7,7 @@ the policy which of the 4 goals to reach.
 
 from __future__ import annotations
 
-from seal.bench.learn import point_evidence
+from seal.experiments.learn import point_evidence
 
 
 def test_mtmhsac_solves_every_point_task_and_needs_the_one_hot() -> None:

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import torch
 
-from seal.bench.transfer import TESTBED, last_checkpoint
 from seal.envs.testbed import paired_states, point_action
 from seal.errors import ConfigError
+from seal.experiments.transfer import TESTBED, last_checkpoint
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.probes import agent_from_state
 from seal.protocols import load_protocol, run_seed

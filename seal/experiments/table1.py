@@ -16,8 +16,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from seal.bench.transfer import Arm, code_versions, run_or_reuse, versions_note
 from seal.errors import SealError, UnknownNameError
+from seal.experiments.transfer import Arm, code_versions, run_or_reuse, versions_note
 
 if TYPE_CHECKING:
     import pandas as pd

@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
-from seal.bench.transfer import Arm, code_versions, run_or_reuse, versions_note
 from seal.errors import SealError, UnknownNameError
+from seal.experiments.transfer import Arm, code_versions, run_or_reuse, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 from seal.protocols import load_protocol
 

@@ -19,8 +19,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from seal.bench.transfer import Arm, code_versions, run_or_reuse, versions_note
 from seal.errors import SealError, UnknownNameError
+from seal.experiments.transfer import Arm, code_versions, run_or_reuse, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
 REPO = Path(__file__).resolve().parents[2]

@@ -1,0 +1,9 @@
+"""The learning experiments: the instrument that measures transfer, and the learning evidence.
+
+Each module launches ordinary protocols with `seal run` (two at a time on 2 cores), reads their run
+directories and reports against a stated goal: `transfer` (the transfer testbed: its arms, the
+ladder of positive controls, seed-paired changes, the MDE and the false-positive rate), `table1`
+(paper Table 1 at laptop scale), `kitchen` (single kitchens from their own rewards), `quickstart`
+(README command 1 over ten seeds) and `learn` (point and reach-v3 evidence). The statistics are
+`seal.stats`'; the CLI is `seal bench --learn <name>`.
+"""
