@@ -213,6 +213,11 @@ def test_tiny_end_to_end(tmp_path) -> None:
     ]
     assert {Path(p).name for p in result["plots"]} == {"changes.png", "success_target.png"}
     assert all(Path(p).is_file() for p in result["tables"] + result["plots"])
+    # Issue 34's goals are judged, and not met by one seed: the oracle needs >= 5, the MDE an SD.
+    oracle = result["goal"]["oracle_policy"]
+    assert oracle["met"] is False and oracle["steps_saved"] == 0.0
+    assert result["goal"]["mde"]["per_arm"]["high_source"] is None
+    assert "oracle_policy steps_saved +0.000" in format_result(result)
 
 
 def test_cli_errors_are_one_line(capsys) -> None:

@@ -119,6 +119,18 @@ high-source arm gives the round-3 headline, `POSITIVE_CONTROLS` round 4's positi
 
 ARM_ALIASES: dict[str, str] = {"positive_pretrained": "pretrained_trunk"}
 """Old arm names `--arms` still takes (round 4's results keep theirs)."""
+ORACLE_GOAL = 0.80
+"""steps_saved oracle_policy must reach, with a 95% CI above 0, at >= 5 seeds (issue 34)."""
+MDE_GOAL = 0.15
+"""The smaller of an arm's steps and robust_steps MDEs at 5 seeds (from their paired SDs) must
+be at most this, a fraction of the paired alone arm's steps (issue 34)."""
+MIN_SEEDS_FOR_GOALS = 5
+
+
+def _finite_number(value: Any) -> bool:
+    return isinstance(value, int | float) and math.isfinite(value)
+
+
 POSITIVE_CONTROLS = ("pretrained_trunk", "positive_sparse_target")
 """Round 4's positive controls, whose goal is POSITIVE_GOAL (SEAL's own mechanism must carry them)."""
 
@@ -1122,6 +1134,37 @@ def run_transfer_bench(
         p["steps_saved"] >= POSITIVE_GOAL and p["ci95"][0] > 0 for p in positives.values()
     )
     control_ci = figure("no_correspondence", "ci95")
+    # Issue 34: transfer by construction must be seen (oracle_policy >= 80% with a CI above 0 at
+    # >= 5 seeds), and the instrument must resolve 15% of the alone arm's steps at 5 seeds.
+    oracle = summary.get("oracle_policy")
+    oracle_goal = None
+    if oracle is not None and oracle.get("steps_saved") is not None:
+        oracle_goal = {
+            "steps_saved_ge": ORACLE_GOAL,
+            "seeds_ge": MIN_SEEDS_FOR_GOALS,
+            "steps_saved": oracle["steps_saved"],
+            "ci95": oracle["ci95"],
+            "met": bool(
+                seeds >= MIN_SEEDS_FOR_GOALS
+                and oracle["steps_saved"] >= ORACLE_GOAL
+                and oracle["ci95"][0] > 0
+            ),
+        }
+    from seal.stats import mde
+
+    # The MDE at 5 seeds from each statistic's paired SD (the goal's n, whatever --seeds was).
+    mdes = {
+        name: min(
+            (
+                mde(s[k], MIN_SEEDS_FOR_GOALS)
+                for k in ("sd_paired_steps", "sd_paired_robust_steps")
+                if _finite_number(s.get(k))
+            ),
+            default=None,
+        )
+        for name, s in summary.items()
+        if s.get("steps_saved") is not None
+    }
     return {
         "transfer_updates_saved": figure("high_source"),
         "goal": {
@@ -1134,6 +1177,13 @@ def run_transfer_bench(
             "positive_met": positive_met if positives else None,
             "no_correspondence_ci95": control_ci,
             "no_correspondence_ci_not_above_0": None if control_ci is None else control_ci[0] <= 0,
+            "oracle_policy": oracle_goal,
+            "mde": {
+                "mde_le": MDE_GOAL,
+                "at_seeds": MIN_SEEDS_FOR_GOALS,
+                "per_arm": mdes,
+                "met": {n: None if v is None else bool(v <= MDE_GOAL) for n, v in mdes.items()},
+            },
         },
         "arms": summary,
         "pretrain": pretrain,
@@ -1300,6 +1350,22 @@ def format_result(result: Mapping[str, Any]) -> str:
         lines.append(
             f"no-correspondence control steps_saved 95% CI [{low:+.2f}, {high:+.2f}] "
             f"(goal: includes 0 or lies below it: {'met' if goal['no_correspondence_ci_not_above_0'] else 'not met'})"
+        )
+    oracle = goal.get("oracle_policy")
+    if oracle is not None:
+        low, high = oracle["ci95"]
+        lines.append(
+            f"oracle_policy steps_saved {oracle['steps_saved']:+.3f} [{low:+.2f}, {high:+.2f}] "
+            f"(goal >= {oracle['steps_saved_ge']} with the CI above 0 at >= {oracle['seeds_ge']} "
+            f"seeds: {'met' if oracle['met'] else 'not met'})"
+        )
+    mdes = goal.get("mde", {}).get("per_arm", {})
+    if mdes:
+        shown_mde = ", ".join(f"{n} {v:.2f}" for n, v in mdes.items() if v is not None)
+        met = [n for n, ok in goal["mde"]["met"].items() if ok]
+        lines.append(
+            f"MDE at {goal['mde']['at_seeds']} seeds, min(steps, robust_steps): {shown_mde} "
+            f"(goal <= {goal['mde']['mde_le']}: met by {', '.join(met) or 'no arm'})"
         )
     distance = result["target_curve_distance"]
     if distance is not None:
