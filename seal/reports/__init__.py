@@ -24,6 +24,7 @@ from pathlib import Path
 import pandas as pd
 
 from seal.errors import SealError
+from seal.files import check_inside
 from seal.metrics import (
     DEFAULT_THRESHOLD,
     add_percent_change,
@@ -113,8 +114,20 @@ def _frames(groups: Sequence[_Group]) -> tuple[pd.DataFrame, pd.DataFrame]:
 
 
 def _output_dirs(out_dir: Path) -> tuple[Path, Path]:
-    """`out_dir`'s tables/ and plots/, created; SealError if they cannot be."""
+    """`out_dir`'s tables/ and plots/, created; SealError if they cannot be.
+
+    Nothing is written through a symlink: tables/ or plots/ leading out of `out_dir` is refused
+    before anything is written, and a symlinked file in them is removed, so the report writes a
+    file of its own in its place instead of overwriting where the link points.
+    """
     tables_dir, plots_dir = out_dir / "tables", out_dir / "plots"
+    for folder in (tables_dir, plots_dir):
+        check_inside(folder, out_dir, what=f"report's {folder.name}/ folder")
+    for folder in (tables_dir, plots_dir):
+        if folder.is_dir():
+            for entry in folder.iterdir():
+                if entry.is_symlink():
+                    entry.unlink()
     try:
         tables_dir.mkdir(parents=True, exist_ok=True)
         plots_dir.mkdir(parents=True, exist_ok=True)
