@@ -59,7 +59,7 @@ def parse_override(text: str, path: str = "--set") -> tuple[list[str], Any]:
     except RecursionError:
         raise ConfigError(
             f"{path}: override {key.strip()}: the value nests arrays or inline tables more than "
-            f"{MAX_NESTING} levels deep"
+            f"{MAX_NESTING} levels deep; at most {MAX_NESTING} are valid"
         ) from None
     return parts, value
 
@@ -107,7 +107,8 @@ def check_nesting(raw: Mapping[str, Any], where: str) -> None:
     """ConfigError if tables and arrays in `raw` nest deeper than MAX_NESTING."""
     depth, path = _nesting(dict(raw))
     if depth > MAX_NESTING:
-        key = ".".join(path[:3]) + (".…" if len(path) > 3 else "")
+        key = "".join(p if p.startswith("[") else f".{shown_key(p)}" for p in path[:4])
+        key = key.removeprefix(".") + ("…" if len(path) > 4 else "")
         raise ConfigError(
             f"{where}: {key or 'the document'} nests tables or arrays more than {MAX_NESTING} levels "
             f"deep; at most {MAX_NESTING} are valid"
@@ -122,8 +123,8 @@ def parse_toml(text: str, where: str) -> dict[str, Any]:
         raise ConfigError(f"{where}: not valid TOML: {exc}") from None
     except RecursionError:  # tomllib recurses once per level of nested arrays and inline tables
         raise ConfigError(
-            f"{where}: not valid here: arrays or inline tables nested more than {MAX_NESTING} "
-            "levels deep"
+            f"{where}: arrays or inline tables nest more than {MAX_NESTING} levels deep; at most "
+            f"{MAX_NESTING} are valid"
         ) from None
     check_nesting(raw, where)
     return raw

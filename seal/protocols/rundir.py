@@ -381,7 +381,7 @@ class RunDir:
     def epoch_checkpoints(self) -> list[Path]:
         """Epoch checkpoints, oldest first (by modification order of their names: phase, then epoch)."""
         found = [p for p in self.checkpoints.glob("ckpt-*.pt")]
-        return sorted(found, key=lambda p: p.stat().st_mtime_ns)
+        return sorted(found, key=lambda p: p.lstat().st_mtime_ns)  # lstat: a dangling link too
 
     def prune(self, keep_last: int) -> None:
         """Delete all but the newest `keep_last` epoch checkpoints."""
@@ -401,10 +401,18 @@ def check_layout(run: Path) -> None:
     read_data_file(run / "config.toml", what="run config", within=run, limit=CONFIG_LIMIT)
     for name in WRITTEN_THROUGH:
         check_inside(run / name, run, what=name)
-    for folder in ("checkpoints", "tb"):
-        if (run / folder).is_dir():
-            for entry in (run / folder).iterdir():
-                check_inside(entry, run, what=f"{folder}/{entry.name}")
+    if (run / "tb").is_dir():  # TensorBoard writes into tb/<phase>/
+        for entry in (run / "tb").iterdir():
+            check_inside(entry, run, what=f"tb/{entry.name}")
+    if (run / "checkpoints").is_dir():
+        # A damaged checkpoint (a link out, a FIFO) is skipped by the resume and replaced by
+        # rename when written again; only a directory in its place cannot be replaced.
+        for entry in (run / "checkpoints").iterdir():
+            if entry.is_dir() and not entry.is_symlink():
+                raise SealError(
+                    f"{entry}: checkpoints/{entry.name} is a directory; seal writes checkpoints "
+                    "there as files: remove it, then try again"
+                )
     check_inside(run / LOCK_FILE, run, what="lock file")
     for name in (*CSV_FILES, "provenance.json"):
         if os.path.lexists(run / name):

@@ -17,6 +17,8 @@ tables and figures; this module holds `report`, which ties them together.
 from __future__ import annotations
 
 import os
+import tempfile
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -83,15 +85,27 @@ def _resolve_threshold(groups: Sequence[_Group], threshold: float | None) -> flo
 
 
 def _default_out(paths: Sequence[str | os.PathLike[str]], groups: Sequence[_Group]) -> Path:
-    """One run -> the run; one group -> the group; several -> <reports root>/comparison/<protocols>."""
-    if len(groups) == 1:
-        group = groups[0]
-        if len(paths) == 1 and _is_run_dir(Path(paths[0])):
-            return Path(paths[0])
-        return group.path
+    """One path, a run or a group -> itself; several (even runs of one group) -> a new directory
+    of their own, <reports root>/comparison/<protocols>/<time>-<random>, made here.
+
+    `seal report` locks the one path while it writes into it (`DirLock`); a comparison's
+    directory is made new and unique (`tempfile.mkdtemp`: an exclusive create), so no other
+    process writes into it and it needs no lock.
+    """
+    if len(paths) == 1:
+        return Path(paths[0]) if _is_run_dir(Path(paths[0])) else groups[0].path
     root = Path(os.path.commonpath([str(g.path.parent.parent) for g in groups]))
     names = "+".join(dict.fromkeys(g.runs[0].protocol for g in groups))
-    return root / "comparison" / _safe(names)[:150]
+    parent = root / "comparison" / _safe(names)[:150]
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        made = Path(tempfile.mkdtemp(prefix=time.strftime("%Y%m%d-%H%M%S-"), dir=parent))
+    except OSError as exc:
+        raise SealError(
+            f"cannot make the comparison directory in {parent}: {exc.strerror}; pass --out DIR"
+        ) from None
+    made.chmod(0o755)  # mkdtemp's 0700 would hide the report from the rest of the group
+    return made
 
 
 def _frames(groups: Sequence[_Group]) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -293,8 +307,8 @@ def report(
     `paths` are run directories and/or group directories (e.g. the baseline groups and the joint
     groups). Writes `tables/update_counts.{md,csv,tex}`, `tables/update_counts_per_seed.csv`,
     `tables/success.{md,csv,tex}`, `plots/success_<env>.png` and `plots/critic_loss.png` under
-    `out` (default: the run or group directory when there is one, else
-    `<reports root>/comparison/<protocols>/`). `threshold` defaults to the runs' configured
+    `out` (default: the run or group directory when there is one, else a new directory
+    `<reports root>/comparison/<protocols>/<time>-<random>/`). `threshold` defaults to the runs' configured
     [evaluation].threshold when they agree, else 0.9. `x` is the plots' x axis. `consecutive` = K
     counts a task as reached at the first of K successive evaluations >= threshold
     (`seal.metrics.first_reach`; 1, the default, is the paper's criterion).

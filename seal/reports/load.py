@@ -139,7 +139,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
         metrics_path, REQUIRED_METRICS_COLUMNS, text_columns=("phase", "env", "task")
     )
     train_path = run / "train.csv"
-    if train_path.is_file():
+    if os.path.lexists(train_path):
         train = _read_csv(train_path, TRAIN_COLUMNS, text_columns=("phase", "env", "key"))
     else:
         train = pd.DataFrame(
