@@ -408,7 +408,8 @@ def check_layout(run: Path) -> None:
         # A damaged checkpoint (a link out, a FIFO) is skipped by the resume and replaced by
         # rename when written again; only a directory in its place cannot be replaced.
         for entry in (run / "checkpoints").iterdir():
-            if entry.is_dir() and not entry.is_symlink():
+            written = entry.name.startswith(("ckpt-", "best")) and entry.suffix == ".pt"
+            if written and entry.is_dir() and not entry.is_symlink():
                 raise SealError(
                     f"{entry}: checkpoints/{entry.name} is a directory; seal writes checkpoints "
                     "there as files: remove it, then try again"

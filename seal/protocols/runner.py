@@ -36,6 +36,7 @@ full disk (ENOSPC, EDQUOT) while it writes stops it with one line naming the fil
 
 from __future__ import annotations
 
+import copy
 import errno
 import json
 import math
@@ -53,6 +54,7 @@ from seal.errors import ConfigError, SealError
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.sac import Agent, AgentState
 from seal.learner.transfer import transfer_from
+from seal.protocols import scheduling
 from seal.protocols.checkpoint_fields import (
     EpochCheckpoint,
     RunCheckpoint,
@@ -291,6 +293,7 @@ class Run:
         for path in reversed(self.rundir.epoch_checkpoints()):
             try:
                 payload = check_epoch_checkpoint(read_checkpoint(path), path, phases, self.seed)
+                self._check_scheduler_state(payload, path)
                 self.rundir.truncate_to(payload["runner"]["rows"])
             except SealError as exc:
                 skipped.append({"file": path.name, "why": str(exc)})
@@ -308,6 +311,27 @@ class Run:
             f"--resume {self.rundir.path}: no intact checkpoint to resume from ({why}); "
             f"delete {self.rundir.checkpoints} to start the run over"
         )
+
+    def _check_scheduler_state(self, payload: EpochCheckpoint, path: Path) -> None:
+        """SealError if the checkpoint's scheduler state does not load into a fresh scheduler of
+        its phase: its keys are each scheduler's own, which the checkpoint's TypedDicts leave
+        untyped, so it is loaded into a throwaway one here, before the resume changes anything."""
+        phase = self.phases[payload["runner"]["phase_index"]]
+        model = PhaseModel(self.config, phase, self.adapters, self.alignment)
+        scheduler = scheduling.build(
+            self.config.scheduler,
+            model.env_tasks,
+            {e: self.config.envs[e].adapter for e in phase.envs},
+            self.config.path,
+            episode_lengths={e: self.adapters[e].episode_length for e in phase.envs},
+        )
+        try:
+            scheduler.load_state_dict(copy.deepcopy(payload["scheduler"]))
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+            raise SealError(
+                f"checkpoint {path}: field scheduler does not fit this run's {scheduler.kind or type(scheduler).__name__!r} "
+                f"scheduler ({type(exc).__name__}: {str(exc)[:100]})"
+            ) from None
 
     def _result(self) -> RunResult:
         """The headline numbers and the per-part timing of the finished phases."""

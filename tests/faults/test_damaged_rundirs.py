@@ -406,6 +406,13 @@ CASES = [
         "fallback",
     ),
     Case(
+        "fallback/scheduler-state-of-another-scheduler",
+        _checkpoint(_set("scheduler", {"bogus": 1})),
+        "resume",
+        "field scheduler does not fit this run's 'ratio' scheduler (KeyError: 'credit')",
+        "fallback",
+    ),
+    Case(
         "fallback/another-seed",
         _checkpoint(_set("seed", 7)),
         "resume",
