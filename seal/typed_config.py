@@ -61,6 +61,13 @@ def field_docs(cls: type) -> dict[str, str]:
     }
 
 
+def shown_key(key: object) -> str:
+    """A user's table or key name as messages show it: as written when it is printable text,
+    else as a quoted TOML key ("east\\n"), so a message stays one readable line."""
+    text = str(key)
+    return text if text and text.isprintable() and text.strip() == text else json.dumps(text)
+
+
 def _toml_to_json(value: object) -> JsonValue:
     """TOML values as JSON-ready ones: integral floats become ints (an int field takes them, a
     float field takes ints); dates and times become a table, which every typed field refuses."""
@@ -116,7 +123,7 @@ def _message(error: ErrorDetails, data: Mapping[str, object], cls: type, where: 
     owner: object = cls  # the table class that holds the bad key
     for part in loc[:-1]:
         owner = _field_type(owner, part)
-    path = where + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc)
+    path = where + "".join(f"[{p}]" if isinstance(p, int) else f".{shown_key(p)}" for p in loc)
     kind, ctx = error["type"], error.get("ctx") or {}
     if kind == "unexpected_keyword_argument":
         valid = (

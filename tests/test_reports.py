@@ -384,11 +384,16 @@ def test_single_run_writes_into_the_run(groups: dict[str, Path]) -> None:
     assert result.skipped == ["critic_loss.png: no critic_loss rows in the runs' train.csv"]
 
 
-def test_several_groups_default_to_a_comparison_directory(groups: dict[str, Path]) -> None:
-    result = report([groups["baseline_mw"], groups["high_fk"]])
-    assert (
-        result.out_dir == groups["baseline_mw"].parent.parent / "comparison" / "baseline_mw+high_fk"
-    )
+def test_several_groups_default_to_a_new_comparison_directory(groups: dict[str, Path]) -> None:
+    """Each report of several groups without --out makes a directory of its own (why it needs no
+    lock: docs/faults.md)."""
+    first = report([groups["baseline_mw"], groups["high_fk"]])
+    second = report([groups["baseline_mw"], groups["high_fk"]])
+    parent = groups["baseline_mw"].parent.parent / "comparison" / "baseline_mw+high_fk"
+    assert first.out_dir.parent == parent == second.out_dir.parent
+    assert first.out_dir != second.out_dir
+    assert (first.out_dir / "tables" / "update_counts.md").is_file()
+    assert (second.out_dir / "tables" / "update_counts.md").is_file()
 
 
 def test_two_baselines_for_one_env_is_an_error(tmp_path: Path, groups: dict[str, Path]) -> None:

@@ -54,7 +54,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except SealError as exc:
-        print(f"seal {args.command}: error: {exc}", file=sys.stderr)
+        # One line whatever the message holds (a user's key or value with a newline in it).
+        message = str(exc).strip().replace("\r", "\\r").replace("\n", "\\n")
+        print(f"seal {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"seal {args.command}: interrupted", file=sys.stderr)

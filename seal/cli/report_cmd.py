@@ -29,7 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--out",
         metavar="DIR",
         default=None,
-        help="output directory (default: the run or group when there is one, else <reports root>/comparison/<protocols>)",
+        help="output directory (default: the run or group when there is one, else a new directory <reports root>/comparison/<protocols>/<time>-<random>)",
     )
     parser.add_argument(
         "--threshold",
@@ -63,8 +63,9 @@ def run(args: argparse.Namespace) -> int:
     from seal.protocols.rundir import DirLock
     from seal.reports import report
 
-    # One writer per directory: lock the run or group the tables and plots go into (a
-    # comparison of several without --out writes a directory of its own and takes no lock).
+    # One writer per directory: lock the run or group the tables and plots go into. A comparison
+    # of several without --out takes no lock: its directory is made new and unique, so no
+    # other process writes there (seal.reports._default_out).
     single = args.paths[0] if len(args.paths) == 1 and Path(args.paths[0]).is_dir() else None
     target = args.out or single
     lock = DirLock(Path(target)) if target is not None else None

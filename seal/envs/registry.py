@@ -26,12 +26,19 @@ def adapter_class(name_or_path: str) -> type[EnvAdapter]:
     if ":" not in path:
         raise UnknownNameError("adapter", name_or_path, [*BUILTIN_ADAPTERS, "package.module:Class"])
     module_name, _, attr = path.partition(":")
+    valid = f"valid: {', '.join(BUILTIN_ADAPTERS)} or an absolute import path package.module:Class"
+    if not all(part.isidentifier() for part in module_name.split(".")):
+        # importlib would raise TypeError (".x": a relative import) or ValueError (""), not ImportError.
+        raise SealError(
+            f"adapter {name_or_path!r}: module {module_name!r} is not an absolute import path; {valid}"
+        )
+    if not attr.isidentifier():
+        raise SealError(f"adapter {name_or_path!r}: {attr!r} is not a class name; {valid}")
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise SealError(
-            f"adapter {name_or_path!r}: cannot import module {module_name!r} ({exc}); "
-            f"valid: {', '.join(BUILTIN_ADAPTERS)} or an importable package.module:Class"
+            f"adapter {name_or_path!r}: cannot import module {module_name!r} ({exc}); {valid}"
         ) from None
     cls = getattr(module, attr, None)
     if not (isinstance(cls, type) and issubclass(cls, EnvAdapter)):

@@ -182,7 +182,7 @@ class PointViewAdapter(EnvAdapter):
         """`options`: `reward` ("dense" or "success", see `REWARDS`)."""
         unknown = sorted(set(options) - {"reward"})
         reward = options.get("reward", "dense")
-        if unknown or reward not in REWARDS:
+        if unknown or not isinstance(reward, str) or reward not in REWARDS:
             raise SealError(
                 f"adapter {self.name!r}: option(s) {options} not valid; valid: reward = "
                 + " or ".join(f'"{k}" ({v})' for k, v in REWARDS.items())

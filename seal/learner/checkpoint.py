@@ -7,8 +7,11 @@ An agent with a NaN/inf parameter is never saved, so a diverged run cannot overw
 checkpoint.
 
 Checkpoints are files researchers share, so they are data: every reader goes through
-`read_checkpoint`, which uses `torch.load(weights_only=True)` (no code runs while loading) and
-refuses, with one message, a file of another format version or not made by seal.
+`read_checkpoint`, which opens only a regular file (`seal.files`: no FIFO, device or directory,
+and none in a run directory's checkpoints/ that leads out of that run directory), uses
+`torch.load(weights_only=True)` (no code runs while loading) and refuses, with one message, a
+file of another format version or not made by seal. What the fields must hold is the caller's
+to check (`seal.protocols.checkpoint_fields` for `seal run`'s).
 
 Fields: `seal_checkpoint` (the format version), `agent` (`Agent.state_dict()`), `replay`
 (`MultiTaskReplay.state_dict()` or None) and any fields of the caller (the runner adds its
@@ -20,8 +23,8 @@ existing field changes meaning.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
-import pickle
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -30,6 +33,7 @@ from typing import Any
 import torch
 
 from seal.errors import SealError, TrainingDivergedError
+from seal.files import MIB, open_data_file
 from seal.learner.replay import MultiTaskReplay
 from seal.learner.sac import Agent
 
@@ -51,7 +55,10 @@ def atomic_save(obj: object, path: str | os.PathLike[str]) -> Path:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
-            torch.save(obj, f)
+            try:
+                torch.save(obj, f)
+            except RuntimeError as exc:
+                raise _write_error(exc, path) from exc
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
@@ -71,6 +78,35 @@ def atomic_save(obj: object, path: str | os.PathLike[str]) -> Path:
         finally:
             os.close(dir_fd)
     return path
+
+
+LOW_SPACE = 64 * MIB
+"""Free space below which a write that torch reports without an OS error counts as a full disk."""
+
+
+def _write_error(exc: RuntimeError, path: Path) -> BaseException:
+    """The OSError behind a RuntimeError from torch.save's zip writer, else the RuntimeError.
+
+    torch's writer wraps a failed write of the file object in a RuntimeError ("unexpected pos",
+    "PytorchStreamWriter failed writing file ..."); the OSError it swallowed (ENOSPC, EDQUOT)
+    is its context. Without one, a stream-writer failure on a file system with less than
+    LOW_SPACE free is reported as ENOSPC: the runner then stops in one line, as for any full disk.
+    """
+    seen: BaseException | None = exc
+    while seen is not None:
+        if isinstance(seen, OSError) and seen.errno is not None:
+            return seen
+        seen = seen.__cause__ or seen.__context__
+    message = str(exc)
+    if "PytorchStreamWriter" in message or "unexpected pos" in message:
+        with contextlib.suppress(OSError):
+            fs = os.statvfs(path.parent)
+            if fs.f_bavail * fs.f_frsize < LOW_SPACE:
+                first = message.strip().splitlines()[0][:200] if message.strip() else ""
+                return OSError(
+                    errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} (torch.save: {first})", str(path)
+                )
+    return exc
 
 
 def save_checkpoint(
@@ -104,15 +140,33 @@ def save_checkpoint(
     return path
 
 
-def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
+def run_dir_of(path: str | os.PathLike[str]) -> Path | None:
+    """The run directory a checkpoint path lies in (`<run>/checkpoints/<file>`, with the run's
+    config.toml beside checkpoints/), else None."""
+    folder = Path(path).parent
+    run = folder.parent
+    is_run = folder.name == "checkpoints" and os.path.lexists(run / "config.toml")
+    return run if is_run else None
+
+
+def read_checkpoint(
+    path: str | os.PathLike[str], within: str | os.PathLike[str] | None = None
+) -> dict[str, Any]:
     """The checkpoint's fields, loaded on the CPU as data only (no code runs).
 
-    SealError if the file is missing; NotACheckpointError if it is not a seal checkpoint of
-    FORMAT_VERSION (another version, a torn file, or a pickle that would run code).
+    SealError if the file is missing, not a regular file (a FIFO, a device, a directory) or, in
+    the `within` directory (default: the run directory it lies in, `run_dir_of`), a symlink
+    leading out of it; NotACheckpointError if it is not a seal checkpoint of FORMAT_VERSION
+    (another version, a torn file, or a pickle that would run code).
     """
     path = Path(path)
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise SealError(f"checkpoint {path}: no such file")
+    within = within if within is not None else run_dir_of(path)
+    try:
+        fh = open_data_file(path, what="checkpoint", within=within)
+    except SealError as exc:
+        raise SealError(f"checkpoint {exc}") from None
 
     def refuse(found: object, why: str) -> NotACheckpointError:
         return NotACheckpointError(
@@ -120,17 +174,21 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
         )
 
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError) as exc:
+        with fh:
+            state = torch.load(fh, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - damaged bytes fail anywhere in torch's unpickler
+        # (KeyError, IndexError, TypeError, AttributeError on a flipped bit); nothing ran either way.
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise refuse(
             "unknown", f"it cannot be read as plain data ({first[:200]}); nothing in it was run"
         ) from None
     if not isinstance(state, dict) or FORMAT_KEY not in state:
         raise refuse("unknown", f"no {FORMAT_KEY!r} field; it was not written by seal")
-    if state[FORMAT_KEY] != FORMAT_VERSION:
+    version = state[FORMAT_KEY]
+    if type(version) is not int or version != FORMAT_VERSION:  # a tensor would compare elementwise
         raise refuse(
-            state[FORMAT_KEY], "written by another seal version; rerun the run that made it"
+            repr(version)[:40] if type(version) is not int else version,
+            "written by another seal version; rerun the run that made it",
         )
     if not isinstance(state.get("agent"), dict):
         raise refuse(FORMAT_VERSION, "it holds no agent state")

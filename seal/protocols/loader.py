@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from seal import typed_config
 from seal.errors import ConfigError, SealError
+from seal.files import read_data_file
 from seal.protocols import scheduling, sweep_tables
 from seal.protocols.config import (
     ALL_TABLES,
@@ -31,6 +32,7 @@ from seal.protocols.config import (
     ProtocolTable,
     TransferConfig,
 )
+from seal.typed_config import shown_key
 
 if TYPE_CHECKING:
     from seal.learner.config import AgentConfig
@@ -54,6 +56,11 @@ def parse_override(text: str, path: str = "--set") -> tuple[list[str], Any]:
         value = tomllib.loads(f"v = {raw.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw.strip()
+    except RecursionError:
+        raise ConfigError(
+            f"{path}: override {key.strip()}: the value nests arrays or inline tables more than "
+            f"{MAX_NESTING} levels deep; at most {MAX_NESTING} are valid"
+        ) from None
     return parts, value
 
 
@@ -71,24 +78,85 @@ def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], path: str) ->
     return raw
 
 
-def read_toml(path: str | Path) -> dict[str, Any]:
-    """The parsed TOML file, or ConfigError naming the file and the syntax problem."""
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"{p}: no such protocol file")
+MAX_NESTING = 32
+"""The deepest nesting of tables and arrays a protocol or run config may have (the shipped ones
+use 5): deeper input is refused in one line before anything recurses through it."""
+
+
+def _nesting(value: object) -> tuple[int, list[str]]:
+    """(how deep tables and arrays nest in `value`, the key path to the deepest), without recursion."""
+    deepest: tuple[int, list[str]] = (0, [])
+    stack: list[tuple[object, int, list[str]]] = [(value, 0, [])]
+    while stack:
+        node, depth, where = stack.pop()
+        if isinstance(node, dict):
+            items: Iterable[tuple[str, object]] = ((str(k), v) for k, v in node.items())
+        elif isinstance(node, list):
+            items = ((f"[{i}]", v) for i, v in enumerate(node))
+        else:
+            continue
+        if depth + 1 > deepest[0]:
+            deepest = (depth + 1, where)
+        if depth + 1 > MAX_NESTING:
+            break
+        stack.extend((v, depth + 1, [*where, k]) for k, v in items)
+    return deepest
+
+
+def check_nesting(raw: Mapping[str, Any], where: str) -> None:
+    """ConfigError if tables and arrays in `raw` nest deeper than MAX_NESTING."""
+    depth, path = _nesting(dict(raw))
+    if depth > MAX_NESTING:
+        key = "".join(p if p.startswith("[") else f".{shown_key(p)}" for p in path[:4])
+        key = key.removeprefix(".") + ("…" if len(path) > 4 else "")
+        raise ConfigError(
+            f"{where}: {key or 'the document'} nests tables or arrays more than {MAX_NESTING} levels "
+            f"deep; at most {MAX_NESTING} are valid"
+        )
+
+
+def parse_toml(text: str, where: str) -> dict[str, Any]:
+    """`text` parsed as TOML, or ConfigError naming `where` and the syntax problem."""
     try:
-        text = p.read_bytes().decode("utf-8")
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{where}: not valid TOML: {exc}") from None
+    except RecursionError:  # tomllib recurses once per level of nested arrays and inline tables
+        raise ConfigError(
+            f"{where}: arrays or inline tables nest more than {MAX_NESTING} levels deep; at most "
+            f"{MAX_NESTING} are valid"
+        ) from None
+    check_nesting(raw, where)
+    return raw
+
+
+def read_toml(
+    path: str | Path,
+    *,
+    what: str = "protocol file",
+    within: str | Path | None = None,
+    limit: int | None = None,
+) -> dict[str, Any]:
+    """The parsed TOML file, or ConfigError naming the file and the problem.
+
+    The file is read as data (`seal.files.read_data_file`): a regular file, inside `within` and
+    at most `limit` bytes when they are given; `what` names it in messages.
+    """
+    p = Path(path)
+    try:
+        data = read_data_file(p, what=what, within=within, limit=limit)
+    except ConfigError:
+        raise
+    except SealError as exc:
+        raise ConfigError(str(exc)) from None
+    try:
+        text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        line = p.read_bytes()[: exc.start].count(b"\n") + 1
+        line = data[: exc.start].count(b"\n") + 1
         raise ConfigError(
             f"{p}: not UTF-8 text (byte {exc.object[exc.start]:#04x} on line {line}); TOML files must be UTF-8"
         ) from None
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot be read ({exc.strerror})") from None
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    return parse_toml(text, str(p))
 
 
 # ---------------------------------------------------------------- scaling
@@ -143,7 +211,7 @@ def _build_envs(raw: object, file: str) -> dict[str, EnvConfig]:
         )
     envs: dict[str, EnvConfig] = {}
     for name, table in raw.items():
-        where = f"{file}: envs.{name}"
+        where = f"{file}: envs.{shown_key(name)}"
         if not isinstance(table, dict):
             raise ConfigError(
                 f"{where} must be a table with keys adapter, tasks, episode_length, options"
@@ -194,13 +262,13 @@ def _check_demos(config: ProtocolConfig, file: str) -> None:
         if missing:
             raise ConfigError(
                 f"{file}: training.demo_episodes = {config.training.demo_episodes} needs a scripted "
-                f"expert for every task, and adapter {env.adapter!r} (envs.{name}) has none for "
+                f"expert for every task, and adapter {env.adapter!r} (envs.{shown_key(name)}) has none for "
                 f"{', '.join(missing)}; set demo_episodes = 0 or drop those tasks"
             )
 
 
 def _check_kind(config: ProtocolConfig, file: str) -> None:
-    kind, envs = config.kind, list(config.envs)
+    kind, envs = config.kind, [shown_key(e) for e in config.envs]
     if kind == "baseline" and len(envs) != 1:
         raise ConfigError(
             f'{file}: envs has {len(envs)} environments ({", ".join(envs)}); kind = "baseline" trains on exactly one'
@@ -290,7 +358,7 @@ def _check_tables(raw: Mapping[str, Any], file: str) -> None:
     unknown = [t for t in raw if t not in ALL_TABLES]
     if unknown:
         raise ConfigError(
-            f"{file}: [{unknown[0]}] is not a valid table; valid tables: {', '.join(ALL_TABLES)}"
+            f"{file}: [{shown_key(unknown[0])}] is not a valid table; valid tables: {', '.join(ALL_TABLES)}"
         )
     for table in ALL_TABLES:
         if table in raw and not isinstance(raw[table], dict):
@@ -372,6 +440,7 @@ def load_protocol(
 ) -> ProtocolConfig:
     """Read, override, validate and scale a protocol file; nothing is written."""
     raw = apply_overrides(read_toml(path), overrides, str(path))
+    check_nesting(raw, str(path))
     config = config_from_dict(raw, str(path))
     return scale_config(config, scale) if scale is not None else config
 

@@ -113,7 +113,15 @@ def check_resources(
 
 
 def _phase_estimate(config: ProtocolConfig, phase: Phase, model: PhaseModel) -> PhaseEstimate:
-    actor, critic = _parameter_counts(config.agent, model.specs)
+    try:
+        actor, critic = _parameter_counts(config.agent, model.specs)
+    except RuntimeError as exc:  # a layer wider than torch can index, even on the meta device
+        key = _width_key(config.agent)
+        first = (str(exc).strip().splitlines() or [""])[0][:200]
+        raise ConfigError(
+            f"{config.path}: {key} = {_value_of(config, key)}: the networks are too large to "
+            f"lay out ({first}); lower {key}"
+        ) from None
     tasks = sum(s.num_tasks for s in model.replay_specs)
     batch = config.training.batch_per_task * tasks
     widest = max(2 * s.obs_dim + s.act_dim + 2 for s in model.replay_specs)

@@ -20,6 +20,13 @@ One writer at a time: `seal run`, `--resume`, sweep trials (on the seed director
 report` (on the directory it writes tables/ and plots/ into) hold an exclusive `flock` on the
 directory's `.seal.lock` while they write; a second writer is refused at once with the holder's
 pid and command. The OS drops the lock when its process dies, so a killed run never blocks.
+
+Files from elsewhere: a run directory is read as data (`seal.files`). `RunDir.open` refuses, in
+one line and before anything is written, a directory whose config.toml is not a regular file
+inside it of at most CONFIG_LIMIT bytes, whose CSVs or provenance.json are not regular files, or
+where anything seal writes through (a CSV it appends to, checkpoints/, tb/, the lock file) is a
+symlink leading out of it. JSON and TOML are replaced by rename, which replaces a link rather
+than writing through it, and the CSVs and the lock file are opened with O_NOFOLLOW.
 """
 
 from __future__ import annotations
@@ -37,6 +44,7 @@ from pathlib import Path
 from typing import Any, TypedDict
 
 from seal.errors import SealError
+from seal.files import MIB, check_inside, check_regular_file, read_data_file
 
 try:
     import fcntl
@@ -59,6 +67,20 @@ METRICS_COLUMNS: tuple[str, ...] = (
 )
 TRAIN_COLUMNS: tuple[str, ...] = ("seed", "phase", "epoch", "grad_steps", "env", "key", "value")
 CSV_FILES: tuple[str, ...] = ("metrics.csv", "train.csv", "scheduler.csv")
+CONFIG_LIMIT = MIB
+"""The largest config.toml a reader takes (a resolved protocol is a few KiB)."""
+WRITTEN_THROUGH: tuple[str, ...] = (
+    *CSV_FILES,
+    "config.toml",
+    "provenance.json",
+    "checkpoints",
+    "tb",
+    "wandb",
+    "tables",
+    "plots",
+)
+"""What a resumed run writes into or through: none may be a symlink leading out of the run."""
+NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
 
 # A row as written, one type per column ("return" is a keyword, hence the functional form).
 MetricsRow = TypedDict(
@@ -134,7 +156,13 @@ class DirLock:
         if fcntl is None or self._fd is not None:
             return self
         self.directory.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | NOFOLLOW, 0o644)
+        except OSError as exc:  # ELOOP: a symlink, which the pid would be written through
+            raise SealError(
+                f"{self.path}: the lock file cannot be opened ({exc.strerror}); seal makes it a "
+                "regular file: remove it, then try again"
+            ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -159,9 +187,9 @@ class DirLock:
     def holder(self) -> str:
         """ "pid N: command" of the process that last took the lock, as its lock file says."""
         try:
-            data = json.loads(self.path.read_text())
+            data = json.loads(read_data_file(self.path, what="lock file", limit=MIB))
             return f"pid {data['pid']}: {data['command']}"
-        except (OSError, ValueError, KeyError, TypeError):
+        except (SealError, ValueError, KeyError, TypeError):
             return "pid unknown"
 
     def __enter__(self) -> DirLock:
@@ -201,7 +229,9 @@ class CsvLog:
         if not buf.tell():
             return
         try:
-            with open(self.path, "a") as fh:
+            # O_NOFOLLOW: a CSV swapped for a symlink is refused (ELOOP), never appended through.
+            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | NOFOLLOW, 0o644)
+            with open(fd, "a") as fh:
                 fh.write(buf.getvalue())
                 fh.flush()
                 os.fsync(fh.fileno())
@@ -260,17 +290,24 @@ class RunDir:
     def open(cls, path: Path) -> RunDir:
         """An existing run directory (for resume)."""
         path = Path(path)
-        if not (path / "config.toml").is_file():
+        if not os.path.lexists(path / "config.toml"):
             raise SealError(
                 f"--resume {path}: not a run directory (no config.toml); run directories look like reports/<protocol>/<group>/seed-<n>"
             )
+        check_layout(path)
         return cls(path)
 
     # ------------------------------------------------------------ metadata
     def read_provenance(self) -> dict[str, Any]:
-        """provenance.json as a dict ({} if missing)."""
-        p = self.path / "provenance.json"
-        return json.loads(p.read_text()) if p.is_file() else {}
+        """provenance.json as a dict ({} if missing); SealError naming it if it is not a JSON
+        object (or its "resumes" not a list)."""
+        data = read_provenance(self.path)
+        if not isinstance(data.get("resumes", []), list):
+            raise SealError(
+                f"{self.path / 'provenance.json'}: field resumes = {data['resumes']!r}; expected a "
+                "list of the run's resumes"
+            )
+        return data
 
     def write_provenance(self, provenance: Mapping[str, Any]) -> None:
         """Replace provenance.json atomically."""
@@ -344,7 +381,7 @@ class RunDir:
     def epoch_checkpoints(self) -> list[Path]:
         """Epoch checkpoints, oldest first (by modification order of their names: phase, then epoch)."""
         found = [p for p in self.checkpoints.glob("ckpt-*.pt")]
-        return sorted(found, key=lambda p: p.stat().st_mtime_ns)
+        return sorted(found, key=lambda p: p.lstat().st_mtime_ns)  # lstat: a dangling link too
 
     def prune(self, keep_last: int) -> None:
         """Delete all but the newest `keep_last` epoch checkpoints."""
@@ -355,6 +392,47 @@ class RunDir:
         """The newest epoch checkpoint, or None."""
         found = self.epoch_checkpoints()
         return found[-1] if found else None
+
+
+def check_layout(run: Path) -> None:
+    """SealError, in one line, if `run` is not safe to resume into (see the module docstring):
+    config.toml a regular file inside it, at most CONFIG_LIMIT bytes; the CSVs and
+    provenance.json regular files; nothing seal writes through a symlink leading out of it."""
+    read_data_file(run / "config.toml", what="run config", within=run, limit=CONFIG_LIMIT)
+    for name in WRITTEN_THROUGH:
+        check_inside(run / name, run, what=name)
+    if (run / "tb").is_dir():  # TensorBoard writes into tb/<phase>/
+        for entry in (run / "tb").iterdir():
+            check_inside(entry, run, what=f"tb/{entry.name}")
+    if (run / "checkpoints").is_dir():
+        # A damaged checkpoint (a link out, a FIFO) is skipped by the resume and replaced by
+        # rename when written again; only a directory in its place cannot be replaced.
+        for entry in (run / "checkpoints").iterdir():
+            written = entry.name.startswith(("ckpt-", "best")) and entry.suffix == ".pt"
+            if written and entry.is_dir() and not entry.is_symlink():
+                raise SealError(
+                    f"{entry}: checkpoints/{entry.name} is a directory; seal writes checkpoints "
+                    "there as files: remove it, then try again"
+                )
+    check_inside(run / LOCK_FILE, run, what="lock file")
+    for name in (*CSV_FILES, "provenance.json"):
+        if os.path.lexists(run / name):
+            check_regular_file(run / name, what=name)
+
+
+def read_provenance(run: Path) -> dict[str, Any]:
+    """A run's provenance.json ({} if absent), read as data; SealError unless a JSON object."""
+    p = Path(run) / "provenance.json"
+    if not os.path.lexists(p):
+        return {}
+    raw = read_data_file(p, what="provenance", within=run, limit=16 * MIB)
+    try:
+        data = json.loads(raw)
+    except (ValueError, RecursionError) as exc:  # UnicodeDecodeError is a ValueError
+        raise SealError(f"{p}: not valid JSON ({str(exc)[:200]})") from None
+    if not isinstance(data, dict):
+        raise SealError(f"{p}: expected a JSON object, got {type(data).__name__}")
+    return data
 
 
 def seed_dir(group_dir: Path, seed: int) -> Path:

@@ -37,6 +37,7 @@ full disk (ENOSPC, EDQUOT) while it writes stops it with one line naming the fil
 
 from __future__ import annotations
 
+import copy
 import errno
 import json
 import math
@@ -45,7 +46,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypedDict, cast
+from typing import Any, TypedDict
 
 import torch
 
@@ -54,10 +55,17 @@ from seal.errors import ConfigError, SealError
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.sac import Agent, AgentState
 from seal.learner.transfer import transfer_from
-from seal.protocols.checkpoint_fields import EpochCheckpoint, RunCheckpoint
+from seal.protocols import scheduling
+from seal.protocols.checkpoint_fields import (
+    EpochCheckpoint,
+    RunCheckpoint,
+    check_epoch_checkpoint,
+    check_run_checkpoint,
+    saved_config_table,
+)
 from seal.protocols.checkpointing import Checkpointer
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml
+from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml, read_toml
 from seal.protocols.loggers import ScalarLogger, open_loggers
 from seal.protocols.mapped_start import mapped_start
 from seal.protocols.phase import LoopCallback, PhaseLoop, PhaseState, ProgressBar
@@ -70,7 +78,14 @@ from seal.protocols.phase_model import (
     run_agent_config,
 )
 from seal.protocols.resources import check_resources
-from seal.protocols.rundir import DirLock, RunDir, new_group_id, parse_seed_dir, seed_dir
+from seal.protocols.rundir import (
+    CONFIG_LIMIT,
+    DirLock,
+    RunDir,
+    new_group_id,
+    parse_seed_dir,
+    seed_dir,
+)
 from seal.seeding import derive_seed
 
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
@@ -122,7 +137,7 @@ def transfer_source(config: ProtocolConfig) -> AgentState | None:
             "--set transfer.checkpoint=reports/<protocol>/<group>/seed-0/checkpoints/best.pt"
         )
     try:
-        data = read_checkpoint(transfer.checkpoint)
+        data = check_run_checkpoint(read_checkpoint(transfer.checkpoint), transfer.checkpoint)
     except SealError as exc:
         raise ConfigError(f"{where} = {transfer.checkpoint!r}: {exc}") from None
     return data["agent"]
@@ -279,9 +294,11 @@ class Run:
         SealError if no checkpoint is intact.
         """
         skipped: list[dict[str, str]] = []
+        phases = [p.name for p in self.phases]
         for path in reversed(self.rundir.epoch_checkpoints()):
             try:
-                payload = cast("EpochCheckpoint", read_checkpoint(path))
+                payload = check_epoch_checkpoint(read_checkpoint(path), path, phases, self.seed)
+                self._check_scheduler_state(payload, path)
                 self.rundir.truncate_to(payload["runner"]["rows"])
             except SealError as exc:
                 skipped.append({"file": path.name, "why": str(exc)})
@@ -299,6 +316,27 @@ class Run:
             f"--resume {self.rundir.path}: no intact checkpoint to resume from ({why}); "
             f"delete {self.rundir.checkpoints} to start the run over"
         )
+
+    def _check_scheduler_state(self, payload: EpochCheckpoint, path: Path) -> None:
+        """SealError if the checkpoint's scheduler state does not load into a fresh scheduler of
+        its phase: its keys are each scheduler's own, which the checkpoint's TypedDicts leave
+        untyped, so it is loaded into a throwaway one here, before the resume changes anything."""
+        phase = self.phases[payload["runner"]["phase_index"]]
+        model = PhaseModel(self.config, phase, self.adapters, self.alignment)
+        scheduler = scheduling.build(
+            self.config.scheduler,
+            model.env_tasks,
+            {e: self.config.envs[e].adapter for e in phase.envs},
+            self.config.path,
+            episode_lengths={e: self.adapters[e].episode_length for e in phase.envs},
+        )
+        try:
+            scheduler.load_state_dict(copy.deepcopy(payload["scheduler"]))
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+            raise SealError(
+                f"checkpoint {path}: field scheduler does not fit this run's {scheduler.kind or type(scheduler).__name__!r} "
+                f"scheduler ({type(exc).__name__}: {str(exc)[:100]})"
+            ) from None
 
     def _result(self) -> RunResult:
         """The headline numbers and the per-part timing of the finished phases."""
@@ -351,7 +389,7 @@ class Run:
                 raise SealError(
                     f"{self.rundir.path}: fine-tuning needs the pre-training's best checkpoint {best}, which is missing"
                 )
-            source = read_checkpoint(best)
+            source = check_run_checkpoint(read_checkpoint(best), best)
             transfer_from(agent, source["agent"], reinit_critic=ft.reinit_critic)
             agent.set_lr_factor(ft.lr_factor)
         return agent
@@ -422,28 +460,44 @@ def resume_run(
 def load_policy(
     checkpoint: str | Path, device: str = "auto"
 ) -> tuple[ProtocolConfig, PhaseModel, Agent, RunCheckpoint]:
-    """(config, phase model, agent with the saved weights, raw checkpoint) of a run checkpoint."""
-    import tomllib
+    """(config, phase model, agent with the saved weights, raw checkpoint) of a run checkpoint.
 
-    data = cast("RunCheckpoint", read_checkpoint(checkpoint))
-    config = config_from_dict(tomllib.loads(data["config_toml"]), f"{checkpoint} (saved config)")
+    SealError naming the file and the field when a field is missing, of the wrong type, or does
+    not fit the rest (a phase its saved config has not, an agent state its networks refuse).
+    """
+    data = check_run_checkpoint(read_checkpoint(checkpoint), checkpoint)
+    table = saved_config_table(data, checkpoint)
+    config = config_from_dict(table, f"checkpoint {checkpoint}: field config_toml")
     phases = {p.name: p for p in plan_phases(config)}
+    if data["phase"] not in phases:
+        raise SealError(
+            f"checkpoint {checkpoint}: field phase = {data['phase']!r}; expected a phase of its "
+            f"saved config (kind {config.kind!r}): {', '.join(phases)}"
+        )
     phase = phases[data["phase"]]
     adapters = build_adapters(config)
     alignment = build_alignment(config, adapters) if config.kind == "finetune" else None
     model = PhaseModel(config, phase, adapters, alignment)
     agent = Agent(model.specs, run_agent_config(config, provenance.resolve_device(device)), 0)
-    agent.load_state_dict(data["agent"])
+    try:
+        agent.load_state_dict(data["agent"])
+    except (SealError, RuntimeError, ValueError, KeyError, TypeError, IndexError) as exc:
+        # The fields have their types; their values (shapes, optimiser slots) must also fit.
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:300]
+        raise SealError(
+            f"checkpoint {checkpoint}: field agent does not fit the agent its saved config "
+            f"builds: {first}"
+        ) from None
     return config, model, agent, data
 
 
 def _saved_config(path: Path) -> ProtocolConfig:
-    import tomllib
-
+    """The config a run directory saved, read as data (`seal.files`): a regular file inside it,
+    at most CONFIG_LIMIT bytes, valid TOML and a valid protocol; ConfigError naming the file."""
     RunDir.open(path)
-    return config_from_dict(
-        tomllib.loads((path / "config.toml").read_text()), str(path / "config.toml")
-    )
+    config_path = path / "config.toml"
+    raw = read_toml(config_path, what="run config", within=path, limit=CONFIG_LIMIT)
+    return config_from_dict(raw, str(config_path))
 
 
 def result_json(results: Sequence[RunResult]) -> str:

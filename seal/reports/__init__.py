@@ -19,6 +19,8 @@ tables and figures; this module holds `report`, which ties them together.
 from __future__ import annotations
 
 import os
+import tempfile
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +28,7 @@ from pathlib import Path
 import pandas as pd
 
 from seal.errors import SealError
+from seal.files import check_inside
 from seal.metrics import (
     DEFAULT_THRESHOLD,
     add_percent_change,
@@ -89,15 +92,27 @@ def _resolve_threshold(groups: Sequence[_Group], threshold: float | None) -> flo
 
 
 def _default_out(paths: Sequence[str | os.PathLike[str]], groups: Sequence[_Group]) -> Path:
-    """One run -> the run; one group -> the group; several -> <reports root>/comparison/<protocols>."""
-    if len(groups) == 1:
-        group = groups[0]
-        if len(paths) == 1 and _is_run_dir(Path(paths[0])):
-            return Path(paths[0])
-        return group.path
+    """One path, a run or a group -> itself; several (even runs of one group) -> a new directory
+    of their own, <reports root>/comparison/<protocols>/<time>-<random>, made here.
+
+    `seal report` locks the one path while it writes into it (`DirLock`); a comparison's
+    directory is made new and unique (`tempfile.mkdtemp`: an exclusive create), so no other
+    process writes into it and it needs no lock.
+    """
+    if len(paths) == 1:
+        return Path(paths[0]) if _is_run_dir(Path(paths[0])) else groups[0].path
     root = Path(os.path.commonpath([str(g.path.parent.parent) for g in groups]))
     names = "+".join(dict.fromkeys(g.runs[0].protocol for g in groups))
-    return root / "comparison" / _safe(names)[:150]
+    parent = root / "comparison" / _safe(names)[:150]
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        made = Path(tempfile.mkdtemp(prefix=time.strftime("%Y%m%d-%H%M%S-"), dir=parent))
+    except OSError as exc:
+        raise SealError(
+            f"cannot make the comparison directory in {parent}: {exc.strerror}; pass --out DIR"
+        ) from None
+    made.chmod(0o755)  # mkdtemp's 0700 would hide the report from the rest of the group
+    return made
 
 
 def _frames(groups: Sequence[_Group]) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -120,8 +135,20 @@ def _frames(groups: Sequence[_Group]) -> tuple[pd.DataFrame, pd.DataFrame]:
 
 
 def _output_dirs(out_dir: Path) -> tuple[Path, Path]:
-    """`out_dir`'s tables/ and plots/, created; SealError if they cannot be."""
+    """`out_dir`'s tables/ and plots/, created; SealError if they cannot be.
+
+    Nothing is written through a symlink: tables/ or plots/ leading out of `out_dir` is refused
+    before anything is written, and a symlinked file in them is removed, so the report writes a
+    file of its own in its place instead of overwriting where the link points.
+    """
     tables_dir, plots_dir = out_dir / "tables", out_dir / "plots"
+    for folder in (tables_dir, plots_dir):
+        check_inside(folder, out_dir, what=f"report's {folder.name}/ folder")
+    for folder in (tables_dir, plots_dir):
+        if folder.is_dir():
+            for entry in folder.iterdir():
+                if entry.is_symlink():
+                    entry.unlink()
     try:
         tables_dir.mkdir(parents=True, exist_ok=True)
         plots_dir.mkdir(parents=True, exist_ok=True)
@@ -316,8 +343,8 @@ def report(
     `tables/update_counts_per_seed.csv`, `tables/update_changes.{md,csv,tex}` (one row per task,
     column and reference, when a column has one), `tables/success.{md,csv,tex}`,
     `plots/success_<env>.png`, `plots/changes_<env>.png` and `plots/critic_loss.png` under
-    `out` (default: the run or group directory when there is one, else
-    `<reports root>/comparison/<protocols>/`). `threshold` defaults to the runs' configured
+    `out` (default: the run or group directory when there is one, else a new directory
+    `<reports root>/comparison/<protocols>/<time>-<random>/`). `threshold` defaults to the runs' configured
     [evaluation].threshold when they agree, else 0.9. `x` is the plots' x axis. `consecutive` = K
     counts a task as reached at the first of K successive evaluations >= threshold
     (`seal.metrics.first_reach`; 1, the default, is the paper's criterion).

@@ -3,16 +3,17 @@
 `RunData` holds a run's metrics.csv and train.csv as DataFrames, its config.toml and
 provenance.json as dicts, and names its protocol, kind, group, seed and environments' short
 labels; `run_dirs` resolves a run or group path into run directories. Only the files are read,
-so every malformed or missing one is a SealError naming its path.
+as data (`seal.files`): each must be a regular file inside the run directory (config.toml at
+most `CONFIG_LIMIT` bytes), and every malformed, missing or mistyped one, or a config value the
+reports read that is of the wrong type, is a one-line SealError naming the file and the field.
 """
 
 from __future__ import annotations
 
-import json
+import math
 import os
 import re
-import tomllib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,8 +21,15 @@ from typing import Any
 import pandas as pd
 
 from seal.errors import SealError
+from seal.files import check_inside, check_regular_file
 from seal.metrics import REQUIRED_METRICS_COLUMNS
-from seal.protocols.rundir import TRAIN_COLUMNS  # defined once, by the writer
+from seal.protocols.loader import read_toml
+from seal.protocols.rundir import (  # defined once, by the writer
+    CONFIG_LIMIT,
+    TRAIN_COLUMNS,
+    read_provenance,
+)
+from seal.typed_config import shown_key
 
 # Short labels the paper uses for its environments, by adapter name.
 ADAPTER_LABELS: dict[str, str] = {"metaworld": "MW", "franka_kitchen_dense": "FK"}
@@ -88,6 +96,8 @@ class RunData:
 
 
 def _read_csv(path: Path, required: Sequence[str], text_columns: Sequence[str]) -> pd.DataFrame:
+    check_inside(path, path.parent, what=path.name)  # no symlink out of the run directory
+    check_regular_file(path, what=path.name)  # a FIFO would block pandas forever
     try:
         frame = pd.read_csv(path, dtype={c: str for c in text_columns}, keep_default_na=True)
     except pd.errors.EmptyDataError:
@@ -123,13 +133,13 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
         raise SealError(f"{run} {what}; {_EXPECTED}")
     metrics_path, config_path = run / "metrics.csv", run / "config.toml"
     for needed in (metrics_path, config_path):
-        if not needed.is_file():
+        if not os.path.lexists(needed):
             raise SealError(f"{run}: no {needed.name}; {_EXPECTED}")
     metrics = _read_csv(
         metrics_path, REQUIRED_METRICS_COLUMNS, text_columns=("phase", "env", "task")
     )
     train_path = run / "train.csv"
-    if train_path.is_file():
+    if os.path.lexists(train_path):
         train = _read_csv(train_path, TRAIN_COLUMNS, text_columns=("phase", "env", "key"))
     else:
         train = pd.DataFrame(
@@ -138,22 +148,94 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
                 for c in TRAIN_COLUMNS
             }
         )
-    try:
-        config = tomllib.loads(config_path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise SealError(f"{config_path}: not valid TOML ({exc})") from None
-    provenance: dict[str, Any] = {}
-    provenance_path = run / "provenance.json"
-    if provenance_path.is_file():
-        try:
-            provenance = json.loads(provenance_path.read_text())
-        except json.JSONDecodeError as exc:
-            raise SealError(f"{provenance_path}: not valid JSON ({exc})") from None
+    config = read_toml(config_path, what="run config", within=run, limit=CONFIG_LIMIT)
+    _check_config(config, config_path)
+    provenance = read_provenance(run)
+    _check_provenance(provenance, run / "provenance.json")
     return RunData(path=run, metrics=metrics, train=train, config=config, provenance=provenance)
 
 
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _ratio_ok(value: object) -> bool:
+    """A constant schedule's ratio as the reports read it: a number, a list or table of numbers."""
+    if isinstance(value, Mapping):
+        return all(_is_number(v) for v in value.values())
+    if isinstance(value, list):
+        return all(_is_number(v) for v in value)
+    return _is_number(value)
+
+
+def _check_config(config: Mapping[str, Any], path: Path) -> None:
+    """SealError naming `path` and the field if a value the reports read has the wrong type.
+
+    Only what `seal report` reads is held here, so run directories of older seal versions,
+    whose configs the protocol schema no longer takes, still report.
+    """
+
+    def refuse(field: str, value: object, expected: str) -> SealError:
+        shown = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
+        return SealError(f"{path}: {field} = {shown}; expected {expected}")
+
+    for table, value in config.items():
+        if not isinstance(value, Mapping) and table in (
+            "protocol",
+            "envs",
+            "agent",
+            "evaluation",
+            "scheduler",
+            "schedule",
+        ):
+            raise refuse(table, value, "a table")
+    protocol = config.get("protocol", {})
+    for key in ("name", "kind"):
+        if not isinstance(protocol.get(key, ""), str):
+            raise refuse(f"protocol.{key}", protocol[key], "a string")
+    for name, env in config.get("envs", {}).items():
+        where = f"envs.{shown_key(name)}"
+        if not isinstance(env, Mapping):
+            raise refuse(where, env, "a table")
+        if not isinstance(env.get("adapter", ""), str):
+            raise refuse(f"{where}.adapter", env["adapter"], "an adapter name (a string)")
+    threshold = config.get("evaluation", {}).get("threshold", 0.9)
+    if not (_is_number(threshold) and 0 < threshold <= 1):
+        raise refuse("evaluation.threshold", threshold, "a success rate, 0 < threshold <= 1")
+    for table in ("scheduler", "schedule"):
+        scheduler = config.get(table, {})
+        for key in ("kind", "preset"):
+            if not isinstance(scheduler.get(key, ""), str):
+                raise refuse(f"{table}.{key}", scheduler[key], "a string")
+        for key in ("start", "absent"):
+            value = scheduler.get(key, {})
+            if not (isinstance(value, Mapping) and all(_is_number(v) for v in value.values())):
+                raise refuse(f"{table}.{key}", value, "a table of numbers by env")
+        for key in ("ratios", "ratio", "weights"):
+            if key in scheduler and not _ratio_ok(scheduler[key]):
+                raise refuse(f"{table}.{key}", scheduler[key], "a number, or numbers by env")
+
+
+def _check_provenance(provenance: Mapping[str, Any], path: Path) -> None:
+    """SealError naming `path` and the field if a value the reports read has the wrong type."""
+    for key, ok, expected in (
+        (
+            "seed",
+            lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+            "a seed >= 0",
+        ),
+        ("group", lambda v: isinstance(v, str), "a string"),
+        ("protocol", lambda v: isinstance(v, str), "a string"),
+        ("kind", lambda v: isinstance(v, str), "a string"),
+        ("reward_versions", lambda v: isinstance(v, Mapping), "a table of versions by adapter"),
+    ):
+        if provenance.get(key) is not None and not ok(provenance[key]):
+            raise SealError(f"{path}: field {key} = {provenance[key]!r}; expected {expected}")
+
+
 def _is_run_dir(path: Path) -> bool:
-    return (path / "metrics.csv").is_file()
+    # lexists: a damaged metrics.csv (a FIFO, a link out) still marks a run, which load_run refuses
+    return os.path.lexists(path / "metrics.csv")
 
 
 def run_dirs(path: str | os.PathLike[str]) -> list[Path]:
