@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from seal.errors import SealError, UnknownNameError
-from seal.metrics import DEFAULT_THRESHOLD, first_reach, format_count, format_number
+from seal.metrics import AT_LEAST, DEFAULT_THRESHOLD, first_reach, format_count, format_number
 
 TESTBED = Path(__file__).resolve().parents[2] / "protocols" / "testbed"
 """The testbed's protocol files."""
@@ -170,15 +170,12 @@ def target_cost(
         else first_reach(rows, threshold, consecutive=consecutive)
     )
     # A task never reached counts as all it consumed, at the run's last evaluation.
-    last = rows.sort_values(["epoch", "grad_steps"], kind="stable").groupby("task").tail(1)
-    total_updates = dict(zip(last["task"], last["updates"], strict=True))
-    total_steps = int(rows["grad_steps"].max())
     per_task: dict[str, float] = {}
     per_task_steps: dict[str, int] = {}
     for row in first.itertuples(index=False):
-        millions = float(row.updates) if row.reached else float(total_updates[row.task])
+        millions = float(row.updates) if row.reached else float(row.run_updates)
         per_task[str(row.task)] = millions * 1e6
-        per_task_steps[str(row.task)] = int(row.grad_steps) if row.reached else total_steps
+        per_task_steps[str(row.task)] = int(row.grad_steps if row.reached else row.run_grad_steps)
     return TargetCost(
         consumed=float(sum(per_task.values())),
         grad_steps=max(per_task_steps.values()),
@@ -566,9 +563,11 @@ def format_table(
                 )
                 base_mean = float(np.mean(base_values)) / 1e6
                 pct = 100.0 * (mean - base_mean) / base_mean if base_mean > 0 else None
-            # Censored seeds count their total, so every cell has a mean; [k/n] says how many reached.
+            # Censored seeds count their total, so every cell has a mean, a lower bound ("≥") where
+            # a seed is censored; [k/n] says how many reached.
             cell = format_count(mean, std, max(reached, 1), len(runs), pct, arm.alone is not None)
-            row.append(cell.rsplit(" [", 1)[0] + f" [{reached}/{len(runs)}]")
+            bound = f"{AT_LEAST} " if reached < len(runs) else ""
+            row.append(bound + cell.rsplit(" [", 1)[0] + f" [{reached}/{len(runs)}]")
         rows.append(row)
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
     lines = [
@@ -578,7 +577,8 @@ def format_table(
     ]
     lines.append(
         "M transitions of the target consumed by updates until first >= 90% success; mean ± std over seeds "
-        "(change vs. its Single Env column) [seeds that reached / seeds]; a task never reached counts its run's total."
+        "(change vs. its Single Env column) [seeds that reached / seeds]; a task never reached counts its run's total "
+        "(censored), so a cell with a censored seed is a lower bound: ≥ x."
     )
     lines += ["", *_decomposition_table(costs, chosen, tasks), ""]
     for arm in chosen:

@@ -25,7 +25,9 @@ import pandas as pd
 
 from seal.errors import SealError
 from seal.metrics import (
+    CENSORED_RULES,
     DEFAULT_THRESHOLD,
+    CensoredRule,
     add_percent_change,
     aggregate_seeds,
     decompose_first_reach,
@@ -141,12 +143,16 @@ class _Layout:
 
 
 def _update_counts(
-    metrics: pd.DataFrame, threshold: float, consecutive: int = 1
+    metrics: pd.DataFrame,
+    threshold: float,
+    consecutive: int = 1,
+    censored: CensoredRule = "run-total",
 ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
     """The update-count metric: (per seed, across seeds with changes and CIs, env totals).
 
     Per seed, `first_reach` split into gradient steps x per-step batch; across seeds, the change
-    against Single Env (and against a column's batch-matched alone arm) with bootstrap CIs.
+    against Single Env (and against a column's batch-matched alone arm) with bootstrap CIs; the
+    totals count censored tasks by the `censored` rule.
     """
     per_seed = []
     for (column, source), frame in metrics.groupby(["column", "source"], sort=False):
@@ -157,7 +163,7 @@ def _update_counts(
     per_seed_frame = pd.concat(per_seed, ignore_index=True)
     counts = aggregate_seeds(per_seed_frame, keys=("column", "env", "task"))
     counts = add_percent_change(counts, BASELINE_COLUMN, column_key="column", on=("env", "task"))
-    totals = env_totals(counts, keys=("column", "env"))
+    totals = env_totals(counts, keys=("column", "env"), censored=censored)
     counts, totals = _with_uncertainty(per_seed_frame, counts, totals)
     return per_seed_frame, counts, totals
 
@@ -169,11 +175,13 @@ def _count_notes(
     layout: _Layout,
     warnings: Sequence[str],
     consecutive: int = 1,
+    censored: CensoredRule = "run-total",
 ) -> list[str]:
     """The update-count table's notes: definitions, the paper's product where it differs, warnings."""
     notes = _notes(
         threshold,
         with_change=bool((counts["column"] == BASELINE_COLUMN).any() and len(layout.columns) > 1),
+        censored=censored,
     )
     if consecutive > 1:
         notes.insert(
@@ -243,17 +251,37 @@ def _write_tables(
     layout: _Layout,
     title: str,
     notes: list[str],
+    censored: CensoredRule = "run-total",
 ) -> dict[str, Path]:
-    """update_counts.{csv,md,tex}, update_counts_per_seed.csv and success.{csv,md,tex}."""
+    """update_counts.{csv,md,tex}, update_counts_per_seed.csv and success.{csv,md,tex}.
+
+    update_counts.csv holds a row per (column, env, task), then one per (column, env) whose task is
+    "Total", with the Markdown's total (`updates_total`), `tasks_reached`, `tasks` and `censored_tasks`.
+    """
     per_seed, aggregated, totals = counts
     tables: dict[str, Path] = {}
-    for name, frame in (("update_counts", aggregated), ("update_counts_per_seed", per_seed)):
+    total_rows = totals[["column", "env", "updates_total", "tasks_reached", "tasks"]].assign(
+        task="Total", censored_tasks=totals["censored_tasks"]
+    )
+    with_totals = pd.concat(
+        [
+            aggregated.assign(
+                censored_tasks=(aggregated["reached"] < aggregated["seeds"]).astype(int)
+            ),
+            total_rows,
+        ],
+        ignore_index=True,
+    )
+    # Counts stay whole numbers where the other kind of row leaves them empty.
+    counts_columns = ["reached", "seeds", "tasks_reached", "tasks", "censored_tasks"]
+    with_totals[counts_columns] = with_totals[counts_columns].astype("Int64")
+    for name, frame in (("update_counts", with_totals), ("update_counts_per_seed", per_seed)):
         path = tables_dir / f"{name}.csv"
         frame.to_csv(path, index=False)
         tables[path.name] = path
     cols, rows, labels = layout.columns, layout.rows, layout.labels
-    display_md = _update_count_table(aggregated, totals, cols, rows, labels, "markdown")
-    display_tex = _update_count_table(aggregated, totals, cols, rows, labels, "latex")
+    display_md = _update_count_table(aggregated, totals, cols, rows, labels, "markdown", censored)
+    display_tex = _update_count_table(aggregated, totals, cols, rows, labels, "latex", censored)
     tables.update(
         _write_table(display_md, tables_dir / "update_counts", title, notes, latex=display_tex)
     )
@@ -274,6 +302,7 @@ def report(
     threshold: float | None = None,
     x: XAxis = "grad_steps",
     consecutive: int = 1,
+    censored: CensoredRule = "run-total",
 ) -> ReportResult:
     """Merge runs and groups into the paper's tables and plots; write them under `out`.
 
@@ -284,10 +313,16 @@ def report(
     `<reports root>/comparison/<protocols>/`). `threshold` defaults to the runs' configured
     [evaluation].threshold when they agree, else 0.9. `x` is the plots' x axis. `consecutive` = K
     counts a task as reached at the first of K successive evaluations >= threshold
-    (`seal.metrics.first_reach`; 1, the default, is the paper's criterion).
+    (`seal.metrics.first_reach`; 1, the default, is the paper's criterion). `censored` is how the
+    totals count a task some seed never brought to the threshold (`seal.metrics.CensoredRule`):
+    at its run total, the total then printed as a lower bound "≥ x" (default), or as 0 ("zero").
     """
     if isinstance(paths, str | os.PathLike):
         paths = [paths]
+    if censored not in CENSORED_RULES:
+        raise SealError(
+            f"censored rule {censored!r} is not valid; expected one of {', '.join(CENSORED_RULES)}"
+        )
     if x not in ("grad_steps", "epoch"):
         raise SealError(f"x axis {x!r} is not valid; expected 'grad_steps' or 'epoch'")
     groups = _gather(paths)
@@ -296,12 +331,14 @@ def report(
     out_dir = Path(out) if out is not None else _default_out(paths, groups)
     tables_dir, plots_dir = _output_dirs(out_dir)
 
-    per_seed, counts, totals = _update_counts(metrics, threshold, consecutive)
+    per_seed, counts, totals = _update_counts(metrics, threshold, consecutive, censored)
     layout = _Layout.of(metrics)
     warnings = _comparability_warnings(groups)
-    notes = _count_notes(per_seed, counts, threshold, layout, warnings, consecutive)
+    notes = _count_notes(per_seed, counts, threshold, layout, warnings, consecutive, censored)
     title = f"Millions of updates to reach {threshold:.0%} success"
-    tables = _write_tables(tables_dir, metrics, (per_seed, counts, totals), layout, title, notes)
+    tables = _write_tables(
+        tables_dir, metrics, (per_seed, counts, totals), layout, title, notes, censored
+    )
 
     colours = _colours(layout.columns)
     skipped: list[str] = []
@@ -324,6 +361,7 @@ def report(
         groups=[g.path for g in groups],
         skipped=skipped,
         warnings=warnings,
+        censored=censored,
     )
 
 
