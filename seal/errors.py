@@ -7,6 +7,11 @@ class SealError(Exception):
     """A problem with the user's input: the message names what is wrong and what would be valid."""
 
 
+class SealWarning(UserWarning):
+    """Something a user chose that works but deserves a word (e.g. an older reward version); the
+    CLI prints it as one line, "seal: warning: ...", once per process."""
+
+
 class ConfigError(SealError):
     """A protocol file or override is invalid: names the file, the `table.key` and the valid values."""
 

@@ -27,7 +27,17 @@ DEFAULT_THRESHOLD = 0.9
 """Success rate a task must reach (Appendix B: 90%)."""
 
 NEVER_REACHED = "—"
-"""How a task that never reached the threshold is rendered; the number stays 0 in CSVs and totals."""
+"""How a task that never reached the threshold is rendered in its own cell."""
+
+AT_LEAST = "≥"
+"""Marks a total that holds a censored task: a lower bound on what reaching 90% would cost."""
+
+CensoredRule = Literal["run-total", "zero"]
+"""How a total counts a censored task (one that some seed never brought to the threshold):
+`run-total` at what that seed consumed in the whole run, a lower bound, so the total is "≥ x";
+`zero` as 0 and its other seeds' mean (Tables 4-7's rule, which makes a failed arm look cheap)."""
+
+CENSORED_RULES: tuple[str, ...] = ("run-total", "zero")
 
 
 # metrics.csv columns without which no update count can be made; `return` and `wall_s` are only shown.
@@ -95,7 +105,9 @@ def first_reach(
         run = run & later.fillna(False).astype(bool)
     hits = ordered[run]
     first = hits.groupby(keys, sort=False).head(1)[keys + values]
-    all_tasks = metrics[keys].drop_duplicates()
+    last = ordered.groupby(keys, sort=False).tail(1)[keys + ["updates", "grad_steps", "env_steps"]]
+    last = last.rename(columns={c: f"run_{c}" for c in ("updates", "grad_steps", "env_steps")})
+    all_tasks = metrics[keys].drop_duplicates().merge(last, on=keys, how="left")
     out = all_tasks.merge(first, on=keys, how="left", indicator=True)
     out["reached"] = out.pop("_merge") == "both"
     for column in values[:-1]:
@@ -104,7 +116,8 @@ def first_reach(
     out["grad_steps"] = out["grad_steps"].astype(np.int64)
     out["env_steps"] = out["env_steps"].astype(np.int64)
     out["updates"] = out["updates"].astype(float)
-    return out[[*keys, "reached", *values]].reset_index(drop=True)
+    run_totals = ["run_updates", "run_grad_steps", "run_env_steps"]
+    return out[[*keys, "reached", *values, *run_totals]].reset_index(drop=True)
 
 
 def decompose_first_reach(first: pd.DataFrame) -> pd.DataFrame:
@@ -149,6 +162,11 @@ def aggregate_seeds(
     `per_step_mean` (the task's mean per-step batch over those steps: updates_mean x 1e6 /
     grad_steps_mean; NaN if never reached), `env_steps_mean` (over reaching seeds), `reached` (k) and `seeds` (n). With k = 0 the means
     are 0 (never reached); with k < 2 the std is NaN, since one seed has no spread.
+
+    `updates_bound` is the mean over all n seeds with each censored seed (one that never reached
+    it) at its run total (`first_reach`'s `run_updates`): the task's term in a total under the
+    `run-total` rule, equal to `updates_mean` when every seed reached it, else a lower bound
+    (NaN where a censored seed's run total is unknown).
     """
     keys = list(keys)
     _require_columns(
@@ -156,9 +174,18 @@ def aggregate_seeds(
     )
     if "paper_updates" not in per_seed.columns:
         per_seed = per_seed.assign(paper_updates=math.nan)
+    run_updates = per_seed["run_updates"] if "run_updates" in per_seed.columns else math.nan
+    per_seed = per_seed.assign(
+        bound_=per_seed["updates"].where(per_seed["reached"].astype(bool), run_updates)
+    )
     groups = per_seed.groupby(keys, sort=False)
     counts = pd.DataFrame(
-        {"reached": groups["reached"].sum().astype(np.int64), "seeds": groups.size()}
+        {
+            "reached": groups["reached"].sum().astype(np.int64),
+            "seeds": groups.size(),
+            # skipna=False: a censored seed with no known run total leaves the bound unknown.
+            "updates_bound": groups["bound_"].agg(lambda v: v.mean(skipna=False)),
+        }
     )
     reached = per_seed[per_seed["reached"]]
     # Sample std (ddof=1): the spread of seeds drawn from the run's distribution, as in Fig. 2 shading.
@@ -187,26 +214,44 @@ def aggregate_seeds(
             "per_step_mean",
             "env_steps_mean",
             "paper_updates_mean",
+            "updates_bound",
             "reached",
             "seeds",
         ]
     ]
 
 
-def env_totals(aggregated: pd.DataFrame, keys: Sequence[str] = ("phase", "env")) -> pd.DataFrame:
+def env_totals(
+    aggregated: pd.DataFrame,
+    keys: Sequence[str] = ("phase", "env"),
+    censored: CensoredRule = "run-total",
+) -> pd.DataFrame:
     """Totals per environment, as the "Total Network Updates" rows of Tables 4-7.
 
-    The total is the sum of the per-task means, a never-reached task counting 0 as in the paper;
-    `tasks_reached` says how many tasks contribute (reached by at least one seed) of `tasks`.
+    The total is the sum over tasks of each task's mean. A task is censored when some seed never
+    brought it to the threshold (`reached` < `seeds`); `censored_tasks` counts them. Under the
+    `run-total` rule (`CensoredRule`) a task's term is its `updates_bound` (censored seeds at
+    their run totals), so a total with a censored task is a lower bound ("≥ x"); under `zero` it
+    is the mean over the seeds that reached it, a never-reached task counting 0 as in the paper.
+    `tasks_reached` says how many tasks were reached by at least one seed, of `tasks`.
     """
+    if censored not in CENSORED_RULES:
+        raise SealError(
+            f"censored rule {censored!r} is not valid; expected one of {', '.join(CENSORED_RULES)}"
+        )
     keys = list(keys)
-    _require_columns(aggregated, [*keys, "updates_mean", "reached"], "aggregated table")
+    term = "updates_bound" if censored == "run-total" else "updates_mean"
+    _require_columns(aggregated, [*keys, term, "reached", "seeds"], "aggregated table")
     groups = aggregated.groupby(keys, sort=False)
     out = pd.DataFrame(
         {
-            "updates_total": groups["updates_mean"].sum(),
+            "updates_total": groups[term].agg(lambda v: v.sum(skipna=False)),
             "tasks_reached": groups["reached"].apply(lambda k: int((k > 0).sum())),
             "tasks": groups.size(),
+            "censored_tasks": (aggregated["reached"] < aggregated["seeds"])
+            .groupby([aggregated[k] for k in keys], sort=False)
+            .sum()
+            .astype(np.int64),
         }
     )
     return out.reset_index()
@@ -272,6 +317,14 @@ def format_percent(pct: float | None) -> str:
     if pct is None or not math.isfinite(pct):
         return "n/a"
     return f"{pct:+.1f}%"
+
+
+def format_total(total: float, censored: bool, style: Style = "plain") -> str:
+    """A total's number, "≥ 1.23" when it holds a censored task (a lower bound), "$\\geq$ 1.23" in LaTeX."""
+    if not censored:
+        return format_number(total)
+    mark = r"$\geq$" if style == "latex" else AT_LEAST
+    return f"{mark} {format_number(total)}"
 
 
 def format_ci(ci: tuple[float, float]) -> str:

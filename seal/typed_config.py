@@ -151,6 +151,36 @@ def _message(error: ErrorDetails, data: Mapping[str, object], cls: type, where: 
     return f"{shown} is not valid: {error['msg']}"
 
 
+def _union_message(
+    errors: list[ErrorDetails], data: Mapping[str, object], where: str
+) -> str | None:
+    """One line for a value that no member of a union field takes ("an integer or 'auto'"), or
+    None when the first error is not of a union: pydantic then reports one error per member, each
+    at the field's location plus the member's tag."""
+    *field_loc, tag = errors[0]["loc"]
+    value: object = data
+    for part in field_loc:
+        value = _item(value, part)
+    if not field_loc or not isinstance(tag, str) or isinstance(value, (Mapping, list, tuple)):
+        return None
+    members = [e for e in errors if list(e["loc"][:-1]) == field_loc]
+    if len(members) < 2:
+        return None
+    expected = []
+    for error in members:
+        kind, ctx = error["type"], error.get("ctx") or {}
+        if kind == "literal_error":
+            expected.append(str(ctx.get("expected")))
+        elif kind == "greater_than_equal":
+            expected.append(f"a number >= {ctx.get('ge')}")
+        elif kind == "greater_than":
+            expected.append(f"a number > {ctx.get('gt')}")
+        else:
+            expected.append(_EXPECTED.get(kind, error["msg"]))
+    path = where + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in field_loc)
+    return f"{path} = {value!r} is not valid; expected {' or '.join(dict.fromkeys(expected))}"
+
+
 def _item(container: object, part: str | int) -> object:
     """container[part] for a table key or a list index it has, else None."""
     if isinstance(container, Mapping):
@@ -184,7 +214,8 @@ def build(
     except ValidationError as exc:
         errors = exc.errors()
         if errors and errors[0]["type"] != "value_error":
-            raise ConfigError(_message(errors[0], data, cls, where)) from None
+            message = _union_message(errors, data, where) or _message(errors[0], data, cls, where)
+            raise ConfigError(message) from None
         cause = errors[0].get("ctx", {}).get("error") if errors else exc
         raise ConfigError(f"{where}: {cause}") from None
     except (SealError, TypeError) as exc:

@@ -21,7 +21,9 @@ from seal.experiments.transfer import (
     code_versions,
     finished_run,
     format_result,
+    format_table,
     run_transfer_bench,
+    summarise,
     target_auc,
     target_budget,
     target_cost,
@@ -29,6 +31,8 @@ from seal.experiments.transfer import (
 )
 from seal.protocols import load_protocol
 from seal.protocols.loader import config_to_dict
+from seal.protocols.phase_model import build_adapters
+from seal.protocols.resources import choose_update_threads, estimate_resources
 
 
 def _metrics(rows: list[tuple[int, str, str, float, int, float]]) -> pd.DataFrame:
@@ -56,6 +60,30 @@ def test_target_cost_sums_first_crossings_and_censors_at_the_total() -> None:
     assert (cost.grad_steps, cost.censored, cost.tasks, cost.reached) == (300, 1, 2, ("t0",))
     with pytest.raises(SealError, match="no rows of env 'nowhere'"):
         target_cost(metrics, env="nowhere")
+
+
+def test_a_cell_with_a_censored_seed_is_a_lower_bound() -> None:
+    # Seed 0 reaches t0 at 1,600 transitions and never t1 (its total, 3,200); seed 1 reaches both,
+    # at 800 and 1,600. t0: (1600 + 800) / 2 = 1,200 = 0.0012 M, no seed censored; t1: (3200 +
+    # 1600) / 2 = 0.0024 M, at least; Total: (4800 + 2400) / 2 = 0.0036 M, at least.
+    seed0 = [
+        (2, "target", "t0", 0.5, 100, 0.0008),
+        (2, "target", "t1", 0.0, 100, 0.0008),
+        (4, "target", "t0", 0.9, 200, 0.0016),
+        (4, "target", "t1", 0.8, 200, 0.0016),
+        (6, "target", "t0", 0.7, 300, 0.0024),
+        (6, "target", "t1", 0.6, 300, 0.0032),
+    ]
+    seed1 = [(2, "target", "t0", 0.95, 100, 0.0008), (2, "target", "t1", 0.5, 100, 0.0008)]
+    seed1 += [(4, "target", "t0", 1.0, 200, 0.0016), (4, "target", "t1", 0.9, 200, 0.0016)]
+    alone = next(a for a in ARMS if a.name == "alone")
+    costs = {"alone": [target_cost(_metrics(seed0)), target_cost(_metrics(seed1))]}
+    table = format_table(costs, [alone], summarise(costs, [alone])).splitlines()
+    cells = [[c.strip() for c in line.strip("|").split("|")] for line in table[4:7]]
+    rows = {row[0].split()[0]: row[1] for row in cells}
+    assert rows["t0"] == "0.0012 ± 0.0005657 [2/2]"
+    assert rows["t1"] == "≥ 0.0024 ± 0.001131 [1/2]"
+    assert rows["Total"] == "≥ 0.0036 ± 0.001697 [1/2]"
 
 
 def test_updates_saved_is_per_seed() -> None:
@@ -88,7 +116,10 @@ def test_every_arm_is_a_loadable_protocol_with_the_same_network_and_batch() -> N
         env = "target" if arm.has_target else "source"
         assert list(config.envs) == (["source", "target"] if arm.alone else [env]), arm.name
         assert config.agent.architecture == "seal", arm.name
-        assert (config.training.batch_per_task, config.protocol.threads) == (40, 1), arm.name
+        assert config.training.batch_per_task == 40, arm.name
+        # Two runs at a time: protocol.threads "auto" gives each one thread, on any machine.
+        estimate = estimate_resources(config, build_adapters(config), "cpu")
+        assert choose_update_threads(config, estimate, cores=64).threads == 1, arm.name
         assert config.agent.latent_dim == 64 and config.agent.trunk_hidden == (64, 64), arm.name
         # A positive control starts from its pre-training, at the alone arm's learning rates.
         if arm.pretrain is not None:

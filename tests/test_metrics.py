@@ -21,6 +21,7 @@ from seal.metrics import (
     format_count,
     format_number,
     format_percent,
+    format_total,
     percent_change,
 )
 
@@ -177,13 +178,90 @@ def test_update_counts_restart_per_phase() -> None:
     assert per_seed.loc["finetune", "grad_steps"] == 100
 
 
-def test_env_totals_count_never_reached_as_zero() -> None:
+def test_env_totals_count_never_reached_as_zero_under_the_zero_rule() -> None:
     # drawer-close 0.192 + reach-v3 0 (never) = 0.192 total; 1 of 2 tasks reached.
-    totals = env_totals(aggregate_seeds(first_reach(_csv(CONSTANT_BATCH))))
+    totals = env_totals(aggregate_seeds(first_reach(_csv(CONSTANT_BATCH))), censored="zero")
     row = totals.iloc[0]
     assert (row["phase"], row["env"]) == ("train", "mw")
     assert row["updates_total"] == pytest.approx(0.192)
-    assert (row["tasks_reached"], row["tasks"]) == (1, 2)
+    assert (row["tasks_reached"], row["tasks"], row["censored_tasks"]) == (1, 2, 1)
+
+
+# Censoring, by hand. One env, three tasks, two seeds, 0.1 M of each task's transitions per epoch
+# (100 gradient steps); seed 0 runs 5 epochs (run total 0.5 M), seed 1 runs 4 (0.4 M).
+#   a: seed 0 reaches at epoch 2 (0.2), seed 1 at epoch 3 (0.3)  -> mean 0.25 [2/2], not censored
+#   b: seed 0 never (run total 0.5), seed 1 at epoch 4 (0.4)    -> mean over reaching 0.4 [1/2];
+#      censored: (0.5 + 0.4) / 2 = 0.45
+#   c: never in either seed (run totals 0.5 and 0.4)            -> "— [0/2]"; censored: 0.45
+# run-total rule: 0.25 + 0.45 + 0.45 = 1.15, a lower bound, 2 censored tasks, 2/3 tasks reached.
+# zero rule (the paper's): 0.25 + 0.4 + 0 = 0.65.
+CENSORED = """seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s
+0,train,1,mw,a,0.50,0,100,100,0.1,0
+0,train,1,mw,b,0.50,0,100,100,0.1,0
+0,train,1,mw,c,0.50,0,100,100,0.1,0
+0,train,2,mw,a,0.95,0,200,200,0.2,0
+0,train,2,mw,b,0.50,0,200,200,0.2,0
+0,train,2,mw,c,0.50,0,200,200,0.2,0
+0,train,3,mw,a,0.95,0,300,300,0.3,0
+0,train,3,mw,b,0.50,0,300,300,0.3,0
+0,train,3,mw,c,0.50,0,300,300,0.3,0
+0,train,4,mw,a,0.95,0,400,400,0.4,0
+0,train,4,mw,b,0.50,0,400,400,0.4,0
+0,train,4,mw,c,0.50,0,400,400,0.4,0
+0,train,5,mw,a,0.95,0,500,500,0.5,0
+0,train,5,mw,b,0.50,0,500,500,0.5,0
+0,train,5,mw,c,0.50,0,500,500,0.5,0
+1,train,1,mw,a,0.50,0,100,100,0.1,0
+1,train,1,mw,b,0.50,0,100,100,0.1,0
+1,train,1,mw,c,0.50,0,100,100,0.1,0
+1,train,2,mw,a,0.50,0,200,200,0.2,0
+1,train,2,mw,b,0.50,0,200,200,0.2,0
+1,train,2,mw,c,0.50,0,200,200,0.2,0
+1,train,3,mw,a,0.95,0,300,300,0.3,0
+1,train,3,mw,b,0.50,0,300,300,0.3,0
+1,train,3,mw,c,0.50,0,300,300,0.3,0
+1,train,4,mw,a,0.95,0,400,400,0.4,0
+1,train,4,mw,b,0.95,0,400,400,0.4,0
+1,train,4,mw,c,0.50,0,400,400,0.4,0
+"""
+
+
+def test_censored_tasks_count_at_their_run_totals() -> None:
+    per_seed = first_reach(_csv(CENSORED)).set_index(["seed", "task"])
+    assert per_seed.loc[(0, "b"), "run_updates"] == pytest.approx(0.5)
+    assert per_seed.loc[(1, "c"), "run_updates"] == pytest.approx(0.4)
+    assert per_seed.loc[(1, "c"), "run_grad_steps"] == 400
+    agg = aggregate_seeds(per_seed.reset_index()).set_index("task")
+    assert agg.loc["a", "updates_mean"] == pytest.approx(0.25)
+    assert agg.loc["a", "updates_bound"] == pytest.approx(0.25)
+    assert agg.loc["b", "updates_mean"] == pytest.approx(0.4)
+    assert agg.loc["b", "updates_bound"] == pytest.approx(0.45)
+    assert agg.loc["c", "updates_mean"] == 0.0
+    assert agg.loc["c", "updates_bound"] == pytest.approx(0.45)
+
+    (row,) = env_totals(agg.reset_index()).itertuples(index=False)
+    assert row.updates_total == pytest.approx(1.15)
+    assert (row.tasks_reached, row.tasks, row.censored_tasks) == (2, 3, 2)
+    assert format_total(row.updates_total, row.censored_tasks > 0) == "≥ 1.15"
+    assert format_total(row.updates_total, True, "latex") == r"$\geq$ 1.15"
+    assert format_total(0.25, False) == "0.25"
+
+    (zero,) = env_totals(agg.reset_index(), censored="zero").itertuples(index=False)
+    assert zero.updates_total == pytest.approx(0.65)
+    with pytest.raises(
+        SealError, match="censored rule 'max' is not valid; expected one of run-total, zero"
+    ):
+        env_totals(agg.reset_index(), censored="max")  # type: ignore[arg-type]
+
+
+def test_a_censored_seed_without_a_run_total_leaves_the_bound_unknown() -> None:
+    # A per-seed table written by hand without run totals: the bound of a censored task is NaN,
+    # and so is the total it is part of (never a silent 0).
+    per_seed = first_reach(_csv(CENSORED)).drop(columns=["run_updates"])
+    agg = aggregate_seeds(per_seed).set_index("task")
+    assert agg.loc["a", "updates_bound"] == pytest.approx(0.25)
+    assert math.isnan(agg.loc["b", "updates_bound"])
+    assert math.isnan(env_totals(agg.reset_index())["updates_total"].iloc[0])
 
 
 def test_percent_change_literal_values() -> None:

@@ -287,8 +287,22 @@ def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path
     assert rows["reach-v3 (MW)"] == ["0.192 [1/2]", "— [0/2]", "— [0/1]", ""]
     assert rows["slide-cabinet (FK)"] == ["0.192 [1/1]", "0.14 ± 0.05657 [2/2]", "", "0.128 [1/1]"]
     assert rows["microwave (FK)"] == ["— [0/1]", "0.24 [1/2]", "", "— [0/1]"]
-    assert rows["Total (MW)"] == ["0.352 (2/2 tasks)", "0.035 (1/2 tasks)", "0.064 (1/2 tasks)", ""]
-    assert rows["Total (FK)"] == ["0.192 (1/2 tasks)", "0.38 (2/2 tasks)", "", "0.128 (1/2 tasks)"]
+    # Every total holds a censored task, counted at its run total (the metrics' last `updates`):
+    # Single Env MW 0.16 + reach (0.192 + seed 1's 0.192) / 2 = 0.352; FK 0.192 + microwave's 0.192;
+    # High FK MW 0.035 + reach's 0.09; FK 0.14 + microwave (0.24 + seed 1's 0.24) / 2 = 0.38;
+    # Fine-tune 0.064 + reach's 0.128; Pre-train 0.128 + microwave's 0.128.
+    assert rows["Total (MW)"] == [
+        "≥ 0.352 (2/2 tasks, 1 censored)",
+        "≥ 0.125 (1/2 tasks, 1 censored)",
+        "≥ 0.192 (1/2 tasks, 1 censored)",
+        "",
+    ]
+    assert rows["Total (FK)"] == [
+        "≥ 0.384 (1/2 tasks, 1 censored)",
+        "≥ 0.38 (2/2 tasks, 1 censored)",
+        "",
+        "≥ 0.256 (1/2 tasks, 1 censored)",
+    ]
     # Five columns do not fit 100 characters: the table is split, the Task column in each part.
     assert md.count("| Task ") == 3 and _longest_line(out / "tables" / "update_counts.md") <= 100
     # Gradient steps x per-step batch, e.g. 750 steps x 46.67 = 35,000 transitions.
@@ -344,7 +358,9 @@ def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path
         "seeds",
         "pct_change",
     }
-    assert len(csv) == 12  # 4 Single Env + 4 High FK + 2 Pre-train + 2 Fine-tune
+    # 4 Single Env + 4 High FK + 2 Pre-train + 2 Fine-tune task rows, then a Total per (column, env).
+    assert len(csv) == 12 + 6
+    assert sorted(csv.loc[csv["task"] == "Total", "censored_tasks"]) == [1] * 6
     per_seed = pd.read_csv(out / "tables" / "update_counts_per_seed.csv")
     assert len(per_seed) == 4 + 2 + 8 + 4  # (column, seed, env, task) rows
 
@@ -744,3 +760,69 @@ def test_cli_report_prints_the_counts_and_the_changes(
     assert "# Millions of updates to reach 90% success" in printed
     assert "# Changes against the reference columns" in printed
     assert "**drawer-close-v3 (MW)**" in printed
+
+
+# Censoring through `seal report`, by hand. One Meta-World group of two seeds, three tasks, 0.1 M
+# of each task's transitions per epoch; seed 0 runs 5 epochs (run total 0.5 M), seed 1 runs 4 (0.4).
+#   drawer-close: seed 0 reaches at epoch 2 (0.2), seed 1 at epoch 3 (0.3) -> 0.25 [2/2]
+#   reach:        seed 0 never (its run total 0.5), seed 1 at epoch 4 (0.4) -> 0.4 [1/2], censored
+#   push:         never (run totals 0.5, 0.4) -> "— [0/2]", censored
+# Total = 0.25 + (0.5 + 0.4) / 2 + (0.5 + 0.4) / 2 = 1.15, a lower bound: "≥ 1.15 (2/3 tasks, 2
+# censored)". --censored zero: 0.25 + 0.4 + 0 = 0.65, "0.65 (2/3 tasks)".
+def _censored_rows(seed: int, epochs: int, reach: dict[str, int]) -> str:
+    return "".join(
+        f"{seed},train,{epoch},mw,{task}-v3,{0.95 if epoch >= reach.get(task, 99) else 0.5},0,"
+        f"{100 * epoch},{100 * epoch},{0.1 * epoch:.1f},{epoch}\n"
+        for epoch in range(1, epochs + 1)
+        for task in ("drawer-close", "reach", "push")
+    )
+
+
+def test_a_total_with_a_censored_task_is_a_lower_bound(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    runs = {
+        0: _censored_rows(0, 5, {"drawer-close": 2}),
+        1: _censored_rows(1, 4, {"drawer-close": 3, "reach": 4}),
+    }
+    group = _write_group(tmp_path / "reports", "baseline_mw", runs)
+    result = report([group], out=tmp_path / "out")
+    md = (tmp_path / "out" / "tables" / "update_counts.md").read_text()
+    rows = _first_column(md)
+    assert rows["drawer-close-v3 (MW)"].startswith("0.25 ± 0.07071 [2/2]")
+    assert rows["reach-v3 (MW)"].startswith("0.4 [1/2]")
+    assert rows["push-v3 (MW)"] == "— [0/2]"
+    assert rows["Total (MW)"] == "≥ 1.15 (2/3 tasks, 2 censored)"
+    assert "censored" in md and "lower bound" in md
+
+    csv = pd.read_csv(tmp_path / "out" / "tables" / "update_counts.csv").set_index("task")
+    assert csv.loc["Total", "updates_total"] == pytest.approx(1.15)
+    assert csv.loc["Total", "censored_tasks"] == 2
+    assert (csv.loc["Total", "tasks_reached"], csv.loc["Total", "tasks"]) == (2, 3)
+    assert csv.loc["reach-v3", "updates_bound"] == pytest.approx(0.45)
+    assert list(csv.loc[["drawer-close-v3", "reach-v3", "push-v3"], "censored_tasks"]) == [0, 1, 1]
+    assert result.to_json()["update_count_censored_tasks"] == {"Single Env": {"mw": 2}}
+    tex = (tmp_path / "out" / "tables" / "update_counts.tex").read_text()
+    assert r"$\geq$ 1.15 (2/3 tasks, 2 censored)" in tex
+
+    # The paper's rule, behind --censored zero: never-reached counts 0, no bound is claimed.
+    out = tmp_path / "zero"
+    assert main(["report", str(group), "--out", str(out), "--censored", "zero", "--json"]) == 0
+    payload = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert payload["update_count_totals"]["Single Env"]["mw"] == pytest.approx(0.65)
+    assert payload["censored_rule"] == "zero"
+    zero_md = (out / "tables" / "update_counts.md").read_text()
+    assert _first_column(zero_md)["Total (MW)"] == "0.65 (2/3 tasks)"
+    assert "≥" not in zero_md
+
+
+def _first_column(md: str) -> dict[str, str]:
+    """The first Markdown table's rows: Task -> its first column's cell."""
+    rows: dict[str, str] = {}
+    for line in md.splitlines():
+        if line.startswith("|"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            rows[cells[0]] = cells[1]
+        elif rows:
+            break
+    return rows

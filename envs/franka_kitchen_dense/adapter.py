@@ -11,6 +11,7 @@ reward or success fails the check.
 from __future__ import annotations
 
 import functools
+import warnings
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
@@ -26,7 +27,7 @@ from franka_kitchen_dense.tasks import (
     gym_id,
 )
 from seal.envs.base import EnvAdapter, ObsLayout
-from seal.errors import SealError, UnknownNameError
+from seal.errors import SealError, SealWarning, UnknownNameError
 
 OBS_DIM = 62
 ACT_DIM = 9
@@ -50,6 +51,10 @@ OPTIONS = {  # adapter options and their values
     "reward_version": " or ".join(f'"{v}"' for v in REWARD_VERSIONS)
     + f', default "{REWARD_VERSION}"',
 }
+
+
+_WARNED_VERSIONS: set[str] = set()
+"""Older reward versions this process has already warned of."""
 
 
 def interpolate_joint(start: np.ndarray, goal: np.ndarray, fraction: float) -> np.ndarray:
@@ -96,6 +101,18 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
         super().__init__(tasks=tasks, episode_length=episode_length)
         self.gravity_compensation = gravity
         self.reward_version: str = version
+        if version != REWARD_VERSION and version not in _WARNED_VERSIONS:
+            # Said here, in SEAL's words and once per process, rather than by gymnasium at every
+            # `make` of an older "-v<N>" id (see `make`). A set, not Python's "default" filter,
+            # keeps it once: that filter forgets what it showed whenever any code changes filters.
+            _WARNED_VERSIONS.add(version)
+            warnings.warn(
+                f"adapter {self.name!r}: reward_version = {version!r} is an older reward than the "
+                f"default {REWARD_VERSION!r}; its successes and update counts compare only with "
+                f"runs on {version!r}",
+                SealWarning,
+                stacklevel=2,
+            )
 
     @property
     def observation_space(self) -> gym.spaces.Box:
@@ -115,8 +132,11 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
             raise UnknownNameError(f"{self.name} task", task, list(self.tasks))
         import franka_kitchen_dense  # noqa: F401 - registers the gymnasium ids
 
+        # The registered spec, not its id: the id's "-v<N>" is the reward version, and gymnasium
+        # would call every id below the newest "out of date" at each make (the constructor has
+        # already said so, once, for a version chosen explicitly).
         return gym.make(
-            gym_id(task, self.reward_version),
+            gym.registry[gym_id(task, self.reward_version)],
             episode_length=self.episode_length,
             seed=int(seed),
             gravity_compensation=self.gravity_compensation,

@@ -33,12 +33,12 @@ All three are projections: e is assumed, not measured, and N may not be this mac
 from __future__ import annotations
 
 import math
-import os
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from seal.device import usable_cores
 from seal.errors import SealError
 from seal.protocols import load_protocol, run_seed
 from seal.protocols.config import ProtocolConfig
@@ -114,10 +114,7 @@ def measure_step_costs(
 
 def _cpu_count() -> int:
     """This machine's cores (those this process may run on)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
+    return usable_cores()
 
 
 def bench_protocol(
@@ -208,6 +205,7 @@ def bench_protocol(
         "projected_s": total,
         "projected_h": total / 3600,
         "floor": _floor(full, step_s, phases, cores or _cpu_count(), update_rate),
+        "threads": result.threads,
     }
 
 
@@ -307,6 +305,8 @@ def format_protocol_bench(result: dict[str, Any]) -> str:
             f"{p['projected_s'] / 3600:.2f} h (collect {p['share']['collect']:.0%}, update "
             f"{p['share']['update']:.0%}, evaluation {p['share']['evaluate']:.0%})"
         )
+    if result.get("threads"):
+        lines.append(f"  update threads: {result['threads']}")
     if "projected_h" in result:
         lines.append(f"  projected wall time: {result['projected_h']:.2f} h per seed")
     f = result["floor"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 from typing import NoReturn
 
 # Each module defines `register(subparsers)`, which adds its parser with `set_defaults(func=...)`.
@@ -42,10 +43,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _show_seal_warnings() -> None:
+    """Print SEAL's own warnings as one line each, "seal: warning: ...", not Python's two-line
+    "file:line: SealWarning" form; every other warning is shown as Python shows it."""
+    from seal.errors import SealWarning
+
+    show = warnings.showwarning
+    if getattr(show, "seal_one_line", False):
+        return
+
+    def one_line(message, category, filename, lineno, file=None, line=None):  # type: ignore[no-untyped-def]
+        if issubclass(category, SealWarning):
+            print(f"seal: warning: {message}", file=sys.stderr if file is None else file)
+            return
+        show(message, category, filename, lineno, file, line)
+
+    one_line.seal_one_line = True  # type: ignore[attr-defined]
+    warnings.showwarning = one_line
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one `seal` command and return its exit code."""
     from seal.errors import SealError
 
+    _show_seal_warnings()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

@@ -34,12 +34,13 @@ def run_explain(args: argparse.Namespace) -> int:
     print(dumps_toml(config_to_dict(config)) if args.toml else explain(config), end="")
     if not args.toml:
         from seal.protocols.phase_model import build_adapters
-        from seal.protocols.resources import estimate_resources
+        from seal.protocols.resources import choose_update_threads, estimate_resources
         from seal.provenance import resolve_device
 
         device = resolve_device(config.protocol.device)
         estimate = estimate_resources(config, build_adapters(config), device)
         print(f"# estimated memory: {estimate.describe()}")
+        print(f"# update threads: {choose_update_threads(config, estimate).describe()}")
     return 0
 
 

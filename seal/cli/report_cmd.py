@@ -1,4 +1,4 @@
-"""`seal report RUN_OR_GROUP... [--json] [--out DIR] [--threshold T] [--consecutive K] [--x grad_steps|epoch]`."""
+"""`seal report RUN_OR_GROUP... [--json] [--out DIR] [--threshold T] [--consecutive K] [--censored run-total|zero] [--x grad_steps|epoch]`."""
 
 from __future__ import annotations
 
@@ -45,6 +45,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="a task has reached when K successive evaluations are >= the threshold; counted at the first of them (default: 1, the paper's criterion)",
     )
     parser.add_argument(
+        "--censored",
+        choices=("run-total", "zero"),
+        default="run-total",
+        help="how a total counts a task some seed never brought to the threshold: at that seed's run "
+        'total, the total then printed as a lower bound "≥ x" (default), or as 0 (the paper\'s rule, '
+        "which makes a failed arm look cheap)",
+    )
+    parser.add_argument(
         "--x",
         choices=("grad_steps", "epoch"),
         default="grad_steps",
@@ -78,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
             threshold=args.threshold,
             x=args.x,
             consecutive=args.consecutive,
+            censored=args.censored,
         )
     finally:
         if lock is not None:

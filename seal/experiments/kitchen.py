@@ -81,9 +81,9 @@ def run_figures(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> 
     reached = bool(row.reached)
     return {
         "reached": reached,
-        "env_steps": int(row.env_steps if reached else last["env_steps"]),
-        "grad_steps": int(row.grad_steps if reached else last["grad_steps"]),
-        "updates_m": float(row.updates if reached else last["updates"]),
+        "env_steps": int(row.env_steps if reached else row.run_env_steps),
+        "grad_steps": int(row.grad_steps if reached else row.run_grad_steps),
+        "updates_m": float(row.updates if reached else row.run_updates),
         "best_success": float(metrics["success"].max()),
         "final_success": float(last["success"]),
     }

@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 
 from seal.errors import SealError, UnknownNameError
-from seal.metrics import DEFAULT_THRESHOLD, first_reach, format_count, format_number
+from seal.metrics import AT_LEAST, DEFAULT_THRESHOLD, first_reach, format_count, format_number
 
 TESTBED = Path(__file__).resolve().parents[2] / "protocols" / "testbed"
 """The testbed's protocol files."""
@@ -204,15 +204,12 @@ def target_cost(
         else first_reach(rows, threshold, consecutive=consecutive)
     )
     # A task never reached counts as all it consumed, at the run's last evaluation.
-    last = rows.sort_values(["epoch", "grad_steps"], kind="stable").groupby("task").tail(1)
-    total_updates = dict(zip(last["task"], last["updates"], strict=True))
-    total_steps = int(rows["grad_steps"].max())
     per_task: dict[str, float] = {}
     per_task_steps: dict[str, int] = {}
     for row in first.itertuples(index=False):
-        millions = float(row.updates) if row.reached else float(total_updates[row.task])
+        millions = float(row.updates) if row.reached else float(row.run_updates)
         per_task[str(row.task)] = millions * 1e6
-        per_task_steps[str(row.task)] = int(row.grad_steps) if row.reached else total_steps
+        per_task_steps[str(row.task)] = int(row.grad_steps if row.reached else row.run_grad_steps)
     return TargetCost(
         consumed=float(sum(per_task.values())),
         grad_steps=max(per_task_steps.values()),
@@ -667,11 +664,12 @@ def _counts_display(
         for arm in chosen:
             values = _values(costs[arm.name], task)
             std = float(np.std(values, ddof=1)) / 1e6 if len(values) > 1 else math.nan
-            # Censored seeds count their total, so every cell has a mean; [k/n] says how many reached.
+            # Censored seeds count their total, so every cell has a mean, a lower bound ("≥") where
+            # a seed is censored; [k/n] says how many reached.
             cell = format_count(float(np.mean(values)) / 1e6, std, 1, len(values))
-            record[arm.label] = (
-                cell.rsplit(" [", 1)[0] + f" [{_reached(costs[arm.name], task)}/{len(values)}]"
-            )
+            reached = _reached(costs[arm.name], task)
+            bound = f"{AT_LEAST} " if reached < len(values) else ""
+            record[arm.label] = bound + cell.rsplit(" [", 1)[0] + f" [{reached}/{len(values)}]"
         records.append(record)
     return pd.DataFrame.from_records(records)
 

@@ -51,8 +51,8 @@ class ProtocolTable:
     """Epochs per phase (Appendix D: 10,000). An epoch collects one episode per task, then trains."""
     device: str = "auto"
     """Torch device: "auto" (CUDA if present, else CPU), "cpu", "cuda", "cuda:1", ..."""
-    threads: Annotated[int, Field(ge=0)] = 0
-    """torch intra-op CPU threads for the gradient updates (acting always uses one: phase.ACTING_THREADS); 0 keeps torch's default. 1 is far faster for small networks on a busy machine."""
+    threads: Annotated[int, Field(ge=0)] | Literal["auto"] = "auto"
+    """torch intra-op threads for the updates: "auto" (seal.device.update_threads, on parameters x batch and usable cores), N (at most the usable cores) or 0 (torch's default); acting uses one."""
 
 
 @with_config(SCHEMA)

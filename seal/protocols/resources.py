@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import torch
 
+from seal.device import ThreadChoice, choose_threads
 from seal.envs.base import EnvAdapter
 from seal.errors import ConfigError
 from seal.learner.config import AgentConfig, EnvSpec
@@ -47,6 +48,8 @@ class PhaseEstimate:
     activations: int
     parameters: int
     """Trainable parameters of actor and critic (the target critic not counted)."""
+    batch: int = 0
+    """Transitions per gradient step over the phase's (env, task) pairs."""
 
     @property
     def total(self) -> int:
@@ -61,6 +64,13 @@ class ResourceEstimate:
     device: str
     available: int | None
     """Bytes available now on the device (None: unknown, no check)."""
+    phases: tuple[PhaseEstimate, ...] = ()
+    """Every phase's estimate, in order."""
+
+    def update_shape(self) -> tuple[int, int]:
+        """(parameters, batch) of the phase with the most update work (parameters x batch)."""
+        largest = max(self.phases or (self.peak,), key=lambda p: p.parameters * p.batch)
+        return largest.parameters, largest.batch
 
     def key(self, config: ProtocolConfig) -> str:
         """The protocol key behind the largest part, to name in a refusal."""
@@ -92,7 +102,16 @@ def estimate_resources(
         for phase in plan_phases(config)
     ]
     peak = max(phases, key=lambda p: p.total)
-    return ResourceEstimate(peak, device, _available(device))
+    return ResourceEstimate(peak, device, _available(device), tuple(phases))
+
+
+def choose_update_threads(
+    config: ProtocolConfig, estimate: ResourceEstimate, cores: int | None = None
+) -> ThreadChoice:
+    """protocol.threads resolved for this run (`seal.device.choose_threads`) on the update shape
+    of its largest phase; `cores`: a sweep trial's share (default: this process's usable cores)."""
+    parameters, batch = estimate.update_shape()
+    return choose_threads(config.protocol.threads, parameters, batch, cores)
 
 
 def check_resources(
@@ -133,6 +152,7 @@ def _phase_estimate(config: ProtocolConfig, phase: Phase, model: PhaseModel) -> 
         networks=FLOAT * (4 * actor + 5 * critic),
         activations=batch * (FLOAT * per_sample + 8),
         parameters=actor + critic,
+        batch=batch,
     )
 
 

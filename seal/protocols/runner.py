@@ -77,7 +77,7 @@ from seal.protocols.phase_model import (
     plan_phases,
     run_agent_config,
 )
-from seal.protocols.resources import check_resources
+from seal.protocols.resources import check_resources, choose_update_threads
 from seal.protocols.rundir import (
     CONFIG_LIMIT,
     DirLock,
@@ -116,6 +116,8 @@ class RunResult:
     """env -> task -> success rate at the last evaluation of the phase that trained on env."""
     timing: dict[str, PhaseTiming] = field(default_factory=dict)
     """phase -> {"seconds", "calls"} of its collect/update/evaluate/checkpoint parts, "epochs", "grad_steps" (`seal bench --protocol`)."""
+    threads: str = ""
+    """The updates' intra-op threads and what chose them (`seal.device.ThreadChoice.describe`)."""
 
 
 # ---------------------------------------------------------------- checkpoint files
@@ -156,6 +158,7 @@ class Run:
         resume: bool = False,
         command: list[str] | None = None,
         callbacks: Sequence[LoopCallback] = (),
+        cores: int | None = None,
     ) -> None:
         self.config = config
         self.callbacks = tuple(callbacks)
@@ -163,8 +166,6 @@ class Run:
         self.seed = int(seed)
         self.quiet = quiet
         self.phases = plan_phases(config)
-        if config.protocol.threads:
-            torch.set_num_threads(config.protocol.threads)
         self.device = provenance.resolve_device(config.protocol.device)
         self.adapters = build_adapters(config)
         self.alignment = (
@@ -172,7 +173,11 @@ class Run:
         )
         self.agent_cfg = run_agent_config(config, self.device)
         # Sizes the machine cannot hold fail here, in one line, before anything is allocated or written.
-        check_resources(config, self.adapters, self.device)
+        estimate = check_resources(config, self.adapters, self.device)
+        self.threads = choose_update_threads(config, estimate, cores)
+        """The updates' intra-op threads and the inputs of the rule that chose them."""
+        if self.threads.threads:
+            torch.set_num_threads(self.threads.threads)
         # [transfer]: read the source checkpoint now, so a bad path fails before anything is written
         # (a resumed run restores its own agent and does not need the source any more).
         self.transfer_state = None if resume else transfer_source(config)
@@ -221,6 +226,7 @@ class Run:
                 kind=config.kind,
                 group=Path(path).parent.name,
                 phase_names=[p.name for p in self.phases],
+                update_threads=self.threads.describe(),
             )
             self.rundir = RunDir.create(path, dumps_toml(config_to_dict(config)), prov)
 
@@ -357,7 +363,7 @@ class Run:
             }
             for name, state in self.results.items()
         }
-        return RunResult(self.rundir.path, counts, final, timing)
+        return RunResult(self.rundir.path, counts, final, timing, self.threads.describe())
 
     # ------------------------------------------------------------ building blocks
     def initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Agent:
@@ -423,8 +429,10 @@ def run_seed(
     resume: bool = False,
     command: list[str] | None = None,
     callbacks: Sequence[LoopCallback] = (),
+    cores: int | None = None,
 ) -> RunResult:
-    """Run one seed of `config` into `group_dir/seed-<seed>` (`callbacks`: see `LoopCallback`).
+    """Run one seed of `config` into `group_dir/seed-<seed>` (`callbacks`: see `LoopCallback`;
+    `cores`: the cores the run shares, a sweep trial's, which bound its update threads).
 
     With `resume=True` an existing run directory continues from its last checkpoint with the
     config saved in it (a finished run returns at once); a missing one starts fresh, so a sweep
@@ -433,9 +441,20 @@ def run_seed(
     path = seed_dir(Path(group_dir), seed)
     if resume and (path / "config.toml").is_file():
         saved = _saved_config(path)
-        run = Run(saved, seed, path, quiet=quiet, resume=True, command=command, callbacks=callbacks)
+        run = Run(
+            saved,
+            seed,
+            path,
+            quiet=quiet,
+            resume=True,
+            command=command,
+            callbacks=callbacks,
+            cores=cores,
+        )
     else:
-        run = Run(config, seed, path, quiet=quiet, command=command, callbacks=callbacks)
+        run = Run(
+            config, seed, path, quiet=quiet, command=command, callbacks=callbacks, cores=cores
+        )
     return run.run()
 
 

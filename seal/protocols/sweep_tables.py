@@ -43,13 +43,13 @@ class Resources:
     """What Ray reserves for one trial."""
 
     cpus: float = 1.0
-    """CPUs per trial (also the trial's torch thread count, rounded down, at least 1)."""
+    """CPUs per trial; rounded down (at least 1), the cores its protocol.threads is resolved on and capped at."""
     gpus: float = 0.0
     """GPUs per trial; a fraction (e.g. 0.25) lets several trials share one GPU."""
 
     @property
     def threads(self) -> int:
-        """Torch threads a trial uses: its whole CPUs, at least one (no oversubscription)."""
+        """The cores a trial's updates may use: its whole CPUs, at least one (no oversubscription)."""
         return max(1, int(self.cpus))
 
 

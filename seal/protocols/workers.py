@@ -35,6 +35,7 @@ import multiprocessing as mp
 import os
 import signal
 import traceback
+import warnings
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any, Generic, TypedDict, TypeVar, cast
@@ -42,7 +43,7 @@ from typing import TYPE_CHECKING, Any, Generic, TypedDict, TypeVar, cast
 import numpy as np
 import torch
 
-from seal.errors import SealError
+from seal.errors import SealError, SealWarning
 from seal.learner.sac import Agent, AgentState
 from seal.protocols.phase_model import (
     ACTING_THREADS,
@@ -267,6 +268,8 @@ def _worker_main(
 
     try:
         torch.set_num_threads(ACTING_THREADS)
+        # The run's own process has already said what its adapters warn of, once.
+        warnings.simplefilter("ignore", SealWarning)
         adapters = build_adapters(config)
         alignment = build_alignment(config, adapters) if config.kind == "finetune" else None
         model = PhaseModel(config, phase, adapters, alignment)

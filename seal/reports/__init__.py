@@ -30,7 +30,9 @@ import pandas as pd
 from seal.errors import SealError
 from seal.files import check_inside
 from seal.metrics import (
+    CENSORED_RULES,
     DEFAULT_THRESHOLD,
+    CensoredRule,
     add_percent_change,
     aggregate_seeds,
     decompose_first_reach,
@@ -175,12 +177,16 @@ class _Layout:
 
 
 def _update_counts(
-    metrics: pd.DataFrame, threshold: float, consecutive: int = 1
+    metrics: pd.DataFrame,
+    threshold: float,
+    consecutive: int = 1,
+    censored: CensoredRule = "run-total",
 ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
     """The update-count metric: (per seed, across seeds with changes and CIs, env totals).
 
     Per seed, `first_reach` split into gradient steps x per-step batch; across seeds, the change
-    against Single Env (and against a column's batch-matched alone arm) with bootstrap CIs.
+    against Single Env (and against a column's batch-matched alone arm) with bootstrap CIs; the
+    totals count censored tasks by the `censored` rule.
     """
     per_seed = []
     for (column, source), frame in metrics.groupby(["column", "source"], sort=False):
@@ -191,7 +197,7 @@ def _update_counts(
     per_seed_frame = pd.concat(per_seed, ignore_index=True)
     counts = aggregate_seeds(per_seed_frame, keys=("column", "env", "task"))
     counts = add_percent_change(counts, BASELINE_COLUMN, column_key="column", on=("env", "task"))
-    totals = env_totals(counts, keys=("column", "env"))
+    totals = env_totals(counts, keys=("column", "env"), censored=censored)
     counts, totals = _with_uncertainty(per_seed_frame, counts, totals)
     return per_seed_frame, counts, totals
 
@@ -201,9 +207,10 @@ def _count_notes(
     threshold: float,
     warnings: Sequence[str],
     consecutive: int = 1,
+    censored: CensoredRule = "run-total",
 ) -> list[str]:
     """The update-count tables' notes: definitions, steps x batch, the paper's product, warnings."""
-    notes = _notes(threshold, with_change=False)
+    notes = _notes(threshold, with_change=False, censored=censored)
     if consecutive > 1:
         notes.insert(
             1,
@@ -278,13 +285,33 @@ def _write_tables(
     layout: _Layout,
     title: str,
     notes: tuple[list[str], list[str]],
+    censored: CensoredRule = "run-total",
 ) -> dict[str, Path]:
     """update_counts.{csv,md,tex} (counts, then steps x batch), update_counts_per_seed.csv,
-    update_changes.{csv,md,tex} (when a column has a reference) and success.{csv,md,tex}."""
+    update_changes.{csv,md,tex} (when a column has a reference) and success.{csv,md,tex}.
+
+    update_counts.csv holds a row per (column, env, task), then one per (column, env) whose task is
+    "Total", with the Markdown's total (`updates_total`), `tasks_reached`, `tasks` and `censored_tasks`.
+    """
     per_seed, aggregated, totals = counts
     count_notes, change_notes = notes
     tables: dict[str, Path] = {}
-    frames = [("update_counts", aggregated), ("update_counts_per_seed", per_seed)]
+    total_rows = totals[["column", "env", "updates_total", "tasks_reached", "tasks"]].assign(
+        task="Total", censored_tasks=totals["censored_tasks"]
+    )
+    with_totals = pd.concat(
+        [
+            aggregated.assign(
+                censored_tasks=(aggregated["reached"] < aggregated["seeds"]).astype(int)
+            ),
+            total_rows,
+        ],
+        ignore_index=True,
+    )
+    # Counts stay whole numbers where the other kind of row leaves them empty.
+    counts_columns = ["reached", "seeds", "tasks_reached", "tasks", "censored_tasks"]
+    with_totals[counts_columns] = with_totals[counts_columns].astype("Int64")
+    frames = [("update_counts", with_totals), ("update_counts_per_seed", per_seed)]
     if len(changes):
         frames.append(("update_changes", changes))
     for name, frame in frames:
@@ -295,8 +322,10 @@ def _write_tables(
 
     def table(style: str, steps: bool = False) -> pd.DataFrame:
         if steps:  # no total: a sum of steps over tasks counts nothing
-            return _update_count_table(aggregated, None, cols, rows, labels, style, _steps_cell)
-        return _update_count_table(aggregated, totals, cols, rows, labels, style)
+            return _update_count_table(
+                aggregated, None, cols, rows, labels, style, cell=_steps_cell
+            )
+        return _update_count_table(aggregated, totals, cols, rows, labels, style, censored=censored)
 
     sections = [
         ("", table("markdown"), table("latex")),
@@ -335,6 +364,7 @@ def report(
     threshold: float | None = None,
     x: XAxis = "grad_steps",
     consecutive: int = 1,
+    censored: CensoredRule = "run-total",
 ) -> ReportResult:
     """Merge runs and groups into the paper's tables and plots; write them under `out`.
 
@@ -347,10 +377,16 @@ def report(
     `<reports root>/comparison/<protocols>/<time>-<random>/`). `threshold` defaults to the runs' configured
     [evaluation].threshold when they agree, else 0.9. `x` is the plots' x axis. `consecutive` = K
     counts a task as reached at the first of K successive evaluations >= threshold
-    (`seal.metrics.first_reach`; 1, the default, is the paper's criterion).
+    (`seal.metrics.first_reach`; 1, the default, is the paper's criterion). `censored` is how the
+    totals count a task some seed never brought to the threshold (`seal.metrics.CensoredRule`):
+    at its run total, the total then printed as a lower bound "≥ x" (default), or as 0 ("zero").
     """
     if isinstance(paths, str | os.PathLike):
         paths = [paths]
+    if censored not in CENSORED_RULES:
+        raise SealError(
+            f"censored rule {censored!r} is not valid; expected one of {', '.join(CENSORED_RULES)}"
+        )
     if x not in ("grad_steps", "epoch"):
         raise SealError(f"x axis {x!r} is not valid; expected 'grad_steps' or 'epoch'")
     groups = _gather(paths)
@@ -359,17 +395,17 @@ def report(
     out_dir = Path(out) if out is not None else _default_out(paths, groups)
     tables_dir, plots_dir = _output_dirs(out_dir)
 
-    per_seed, counts, totals = _update_counts(metrics, threshold, consecutive)
+    per_seed, counts, totals = _update_counts(metrics, threshold, consecutive, censored)
     layout = _Layout.of(metrics)
     warnings = _comparability_warnings(groups)
     changes = change_rows(per_seed, counts, totals, layout.rows, layout.columns)
     notes = (
-        _count_notes(counts, threshold, warnings, consecutive),
+        _count_notes(counts, threshold, warnings, consecutive, censored),
         _change_notes(per_seed, counts, layout.labels, threshold),
     )
     title = f"Millions of updates to reach {threshold:.0%} success"
     tables = _write_tables(
-        tables_dir, metrics, (per_seed, counts, totals), changes, layout, title, notes
+        tables_dir, metrics, (per_seed, counts, totals), changes, layout, title, notes, censored
     )
 
     colours = column_colours(layout.columns)
@@ -395,6 +431,7 @@ def report(
         skipped=skipped,
         warnings=warnings,
         changes=changes,
+        censored=censored,
     )
 
 

@@ -23,7 +23,15 @@ from typing import Any
 
 import pandas as pd
 
-from seal.metrics import NEVER_REACHED, format_ci, format_count, format_number, format_percent
+from seal.metrics import (
+    NEVER_REACHED,
+    CensoredRule,
+    format_ci,
+    format_count,
+    format_number,
+    format_percent,
+    format_total,
+)
 from seal.reports.groups import _ENV_RANK, BASELINE_COLUMN, _Group
 
 
@@ -44,7 +52,7 @@ class ReportResult:
     per_seed: pd.DataFrame
     """Per (column, env, task, seed): the first evaluation reaching the threshold (seal.metrics.first_reach)."""
     totals: pd.DataFrame
-    """Per (column, env): updates_total, tasks_reached, tasks."""
+    """Per (column, env): updates_total (under `censored`), tasks_reached, tasks, censored_tasks."""
     groups: list[Path]
     """The group directories reported on."""
     skipped: list[str] = field(default_factory=list)
@@ -53,6 +61,8 @@ class ReportResult:
     """Settings that differ between the groups compared (agent.shared_update, critic_sharing, reward versions)."""
     changes: pd.DataFrame = field(default_factory=pd.DataFrame)
     """One row per (task, column, reference): seal.reports.changes.change_rows (update_changes.csv)."""
+    censored: CensoredRule = "run-total"
+    """How the totals count a censored task (`seal.metrics.CensoredRule`)."""
 
     def to_json(self) -> dict[str, Any]:
         """Paths and update-count numbers as plain JSON values (NaN -> null)."""
@@ -83,9 +93,11 @@ class ReportResult:
                 "pct_change_ci95": [num(float(row.pct_ci_low)), num(float(row.pct_ci_high))],
                 "resolved": bool(row.resolved),
             }
-        totals: dict[str, dict[str, float]] = {}
+        totals: dict[str, dict[str, float | None]] = {}
+        censored: dict[str, dict[str, int]] = {}
         for row in self.totals.itertuples(index=False):
-            totals.setdefault(row.column, {})[row.env] = float(row.updates_total)
+            totals.setdefault(row.column, {})[row.env] = num(float(row.updates_total))
+            censored.setdefault(row.column, {})[row.env] = int(row.censored_tasks)
         return {
             "out_dir": str(self.out_dir),
             "threshold": self.threshold,
@@ -98,6 +110,8 @@ class ReportResult:
                 {k: plain(v) for k, v in record.items()}
                 for record in self.changes.to_dict(orient="records")
             ],
+            "update_count_censored_tasks": censored,
+            "censored_rule": self.censored,
             "skipped": self.skipped,
             "warnings": self.warnings,
         }
@@ -178,11 +192,15 @@ def _steps_cell(row: Any, style: str) -> str:
     return text + _paper_suffix(row.updates_mean, row.paper_updates_mean, int(row.reached), style)
 
 
-def _total_cell(total: Any, style: str) -> str:
-    """ "0.38 (2/2 tasks)", with the change of the shared tasks' total and its stratified CI."""
+def _total_cell(total: Any, style: str, censored: CensoredRule = "run-total") -> str:
+    """ "0.38 (2/2 tasks)", "≥ 0.9 (1/2 tasks, 1 censored)" where a task is censored (its run
+    total counted), with the change of the shared tasks' total and its stratified CI."""
+    n_censored = int(total.censored_tasks)
+    bound = censored == "run-total" and n_censored > 0
     text = (
-        f"{format_number(float(total.updates_total))} "
-        f"({int(total.tasks_reached)}/{int(total.tasks)} tasks)"
+        f"{format_total(float(total.updates_total), bound, 'latex' if style == 'latex' else 'plain')} "
+        f"({int(total.tasks_reached)}/{int(total.tasks)} tasks"
+        + (f", {n_censored} censored)" if bound else ")")
     )
     changes = []
     for prefix, label in (("", BASELINE_COLUMN), ("matched_", "matched")):
@@ -208,6 +226,7 @@ def _update_count_table(
     labels: dict[str, str],
     style: str,
     cell: Any = _cell,
+    censored: CensoredRule = "run-total",
 ) -> pd.DataFrame:
     """A display table: Task x columns, one `cell(row, style)` each; with `totals`, a total row per env.
 
@@ -233,7 +252,9 @@ def _update_count_table(
             record[esc(column)] = (
                 ""
                 if total is None
-                else _total_cell(total._replace(reference="", matched_reference=""), style)
+                else _total_cell(
+                    total._replace(reference="", matched_reference=""), style, censored
+                )
             )
         records.append(record)
     return pd.DataFrame.from_records(records)
@@ -344,15 +365,31 @@ def _comparability_warnings(groups: Sequence[_Group]) -> list[str]:
     ]
 
 
-def _notes(threshold: float, with_change: bool) -> list[str]:
+def _notes(threshold: float, with_change: bool, censored: CensoredRule = "run-total") -> list[str]:
     pct = f"{threshold:.0%}"
     notes = [
         f"Millions of each task's transitions consumed by gradient updates until its first evaluation "
         f"with success >= {pct} (Appendix B). Mean ± sample std over the seeds that reached it; "
         f"[k/n] = seeds that reached it / seeds run.",
-        f"{NEVER_REACHED} = never reached {pct} in any seed; counted as 0 in the totals and in update_counts.csv.",
-        "Total = sum of the per-task means (never-reached tasks count 0); (k/N tasks) = tasks reached by any seed.",
     ]
+    if censored == "run-total":
+        notes += [
+            f"{NEVER_REACHED} = never reached {pct} in any seed. A task some seed never brought to "
+            f"{pct} is censored: in that seed it counts at its run total (all it consumed), the "
+            f"least reaching {pct} would have cost.",
+            "Total = sum over tasks of the mean over all seeds, censored seeds at their run totals; "
+            "≥ x = the total holds a censored task, so it is a lower bound; (k/N tasks) = tasks "
+            "reached by any seed, c censored = tasks censored in some seed (update_counts.csv: "
+            "task Total, updates_total, censored_tasks; `seal report --censored zero` counts them as 0).",
+        ]
+    else:
+        notes += [
+            f"{NEVER_REACHED} = never reached {pct} in any seed; counted as 0 in the totals "
+            f"(--censored zero).",
+            "Total = sum of the per-task means over the seeds that reached each task (never-reached "
+            "tasks count 0, so a total with a censored task flatters it); (k/N tasks) = tasks "
+            "reached by any seed.",
+        ]
     if with_change:
         notes.insert(
             2,

@@ -120,6 +120,7 @@ def search_trainable(tune_config: Mapping[str, Any], plan: SearchPlan) -> None:
             resume=is_started(run_dir),
             command=list(plan.command),
             callbacks=[reporter],
+            cores=plan.threads,
         )
     except Exception as exc:
         _write_error(run_dir, exc)

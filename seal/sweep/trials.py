@@ -139,6 +139,9 @@ def execute_trial(
 ) -> TrialRecord:
     """Run one trial in this process (what a Ray task executes) and return its updated record.
 
+    `threads` is the trial's whole CPUs (`Resources.threads`): torch's thread count here, and the
+    cores its run's protocol.threads is resolved on and capped at, so the trials that share a
+    machine start no more intra-op threads than the cores Ray reserved for them.
     Never raises for a failing run: the error is stored in the record and in error.txt.
     """
     from seal.protocols import run_seed
@@ -160,6 +163,7 @@ def execute_trial(
             quiet=True,
             resume=record.start == "continued",
             command=list(command) if command else None,
+            cores=threads,
         )
         record.status, record.error = "finished", ""
     except Exception as exc:  # noqa: BLE001 - any failure is this trial's, recorded, never the sweep's

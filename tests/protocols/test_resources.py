@@ -98,8 +98,9 @@ def test_the_check_uses_the_memory_available(
 
 def test_explain_prints_the_estimate(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["protocol", "explain", str(POINT)]) == 0
-    last = capsys.readouterr().out.strip().splitlines()[-1]
-    assert last.startswith("# estimated memory: ") and "16,024 parameters" in last
+    memory, threads = capsys.readouterr().out.strip().splitlines()[-2:]
+    assert memory.startswith("# estimated memory: ") and "16,024 parameters" in memory
+    assert threads.startswith("# update threads: 1 (auto: 16,024 parameters x batch 256, ")
     config = load_protocol(POINT)
     assert estimate_resources(config, build_adapters(config), "cpu").peak.parameters == 16_024
 
