@@ -329,9 +329,10 @@ def test_every_arm_has_the_jsons_keys() -> None:
     assert summary["alone"]["steps_saved"] is None and summary["alone"]["ci95"] is None
     assert summary["high_source"]["steps_saved_per_seed"] == pytest.approx([0.25, -0.5])
     assert summary["high_source"]["steps_saved"] == pytest.approx(-0.125)
-    # Two resamples' means of (0.25, -0.5) lie in [-0.5, 0.25]; the CI's ends are among them.
+    # Student's t over 2 seeds: sd = 0.75 / sqrt(2) = 0.5303, sem = 0.375, t(0.975, 1) = 12.706,
+    # so -0.125 -+ 4.765.
     low, high = summary["high_source"]["ci95"]
-    assert -0.5 <= low <= high <= 0.25
+    assert (low, high) == pytest.approx((-4.890, 4.640), abs=1e-3)
     # transitions = steps x 8 per step: the same saving, and a per-step batch of 8.
     assert summary["high_source"]["transfer_updates_saved"] == pytest.approx(-0.125)
     assert summary["high_source"]["per_step_batch_mean"] == 8.0
@@ -398,7 +399,7 @@ def _cost(steps: int) -> TargetCost:
 
 def test_summary_has_each_statistics_ci_sd_mde_and_seeds_for_mde() -> None:
     from seal.experiments.transfer import summarise
-    from seal.stats import bootstrap_ci, mde, seeds_for_mde
+    from seal.stats import mde, seeds_for_mde, t_ci
 
     chosen = arms(only=["high_source"])
     alone = [_cost(2000)] * 5
@@ -424,7 +425,7 @@ def test_summary_has_each_statistics_ci_sd_mde_and_seeds_for_mde() -> None:
         assert high[f"seeds_for_mde_0p10_{name}"] == seeds_for_mde(sd)
     assert high["auc_gain_per_seed"] == pytest.approx([0.2, 0, 0, 0, 0])
     assert high["auc_gain"] == pytest.approx(0.04)
-    assert high["auc_gain_ci95"] == pytest.approx(list(bootstrap_ci([0.2, 0, 0, 0, 0])))
+    assert high["auc_gain_ci95"] == pytest.approx(list(t_ci([0.2, 0, 0, 0, 0])))
     # IQM over the 10 (seed, task) gains 0.1, 0.3 and eight 0: the middle five are 0.
     assert high["auc_gain_iqm"] == 0.0
     assert high["sd_paired_auc"] == pytest.approx(np.std([0.2, 0, 0, 0, 0], ddof=1))
@@ -533,7 +534,7 @@ def test_fpr_bench_on_ten_finished_alone_runs(tmp_path) -> None:
     assert rate["rate_ci95"] == pytest.approx(list(binomial_ci(rate["excluding_0"], 200)))
     assert result["goal"]["met"] is (rate["rate"] <= 0.10)
     text = format_fpr(result)
-    assert "200 random 5/5 splits" in text and "Student's t CI, for comparison" in text
+    assert "200 random 5/5 splits" in text and "percentile bootstrap (the arms" in text
     with pytest.raises(SealError, match="needs >= 10"):
         run_fpr_bench(seeds=9, out=tmp_path, reuse=True)
 
