@@ -45,6 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run one `seal` command and return its exit code."""
     from seal.errors import SealError
+    from seal.protocols.preemption import Preempted
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -56,6 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     except SealError as exc:
         print(f"seal {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except Preempted as stop:  # SIGTERM or SIGINT: saved at a safe point (checkpoint.on_signal)
+        print(f"seal {args.command}: {stop}", file=sys.stderr, flush=True)
+        return stop.exit_code
     except KeyboardInterrupt:
         print(f"seal {args.command}: interrupted", file=sys.stderr)
         return 130
