@@ -71,8 +71,11 @@ def protocol(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def _run_also_checkpointing_at(protocol: Path, epoch: int | None, group: Path) -> Path:
-    """An uninterrupted run of seed 0 with an extra epoch checkpoint at `epoch` (None: none)."""
+def _run_also_checkpointing_at(
+    protocol: Path, epoch: int | None, group: Path, sets: tuple[str, ...]
+) -> Path:
+    """An uninterrupted run of seed 0 (`sets`: --set overrides) with an extra epoch checkpoint
+    at `epoch` (None: none)."""
     real_close = PhaseLoop._close_epoch
 
     def close(loop: PhaseLoop, last_epoch: bool) -> None:
@@ -82,20 +85,24 @@ def _run_also_checkpointing_at(protocol: Path, epoch: int | None, group: Path) -
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(PhaseLoop, "_close_epoch", close)
-        return run_seed(load_protocol(protocol), 0, group).run_dir
+        return run_seed(load_protocol(protocol, list(sets)), 0, group).run_dir
+
+
+Reference = Callable[..., Path]
 
 
 @pytest.fixture(scope="module")
-def references(protocol: Path, tmp_path_factory: pytest.TempPathFactory) -> Callable[[int], Path]:
-    """epoch -> the run directory of an uninterrupted run that also checkpointed at that epoch."""
-    made: dict[int | None, Path] = {}
+def references(protocol: Path, tmp_path_factory: pytest.TempPathFactory) -> Reference:
+    """(epoch, *sets) -> the run directory of an uninterrupted run (with those --set overrides)
+    that also checkpointed at that epoch."""
+    made: dict[tuple[int | None, tuple[str, ...]], Path] = {}
 
-    def reference(epoch: int) -> Path:
+    def reference(epoch: int, *sets: str) -> Path:
         due = epoch % INTERVAL == 0 or epoch >= EPOCHS
-        key = None if due else epoch
+        key = (None if due else epoch, sets)
         if key not in made:
             made[key] = _run_also_checkpointing_at(
-                protocol, key, tmp_path_factory.mktemp("ref") / "g"
+                protocol, key[0], tmp_path_factory.mktemp("ref") / "g", sets
             )
         return made[key]
 
@@ -160,7 +167,7 @@ def _newest_epoch(run_dir: Path) -> int:
 def test_a_signal_at_a_seeded_moment_saves_the_last_finished_epoch_and_resume_matches(
     moment: int,
     protocol: Path,
-    references: Callable[[int], Path],
+    references: Reference,
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
@@ -227,7 +234,7 @@ def test_a_signal_at_a_seeded_moment_saves_the_last_finished_epoch_and_resume_ma
 def test_a_second_signal_during_the_save_aborts_it_and_the_previous_checkpoint_stays(
     signum: signal.Signals,
     protocol: Path,
-    references: Callable[[int], Path],
+    references: Reference,
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
@@ -257,3 +264,35 @@ def test_a_second_signal_during_the_save_aborts_it_and_the_previous_checkpoint_s
     read_checkpoint(previous)  # intact and loadable
     _resume(protocol, run_dir, capsys)
     _assert_same_rows(run_dir, references(_newest_epoch(run_dir)))
+
+
+def test_a_rollback_cancels_the_asynchronous_evaluation_and_collection_in_flight(
+    protocol: Path, references: Reference, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """evaluation.mode = "async" and training.overlap: both worker processes are busy when the
+    epoch is rolled back; the checkpoint lists the evaluation still pending, resume re-runs it.
+    (The reference evaluates synchronously: the same numbers, one worker process fewer.)"""
+    sets = ('evaluation.mode="async"', "training.overlap=true")
+    after = random.Random(MOMENTS).randint(2, EPOCHS - 3)
+    out = tmp_path / "out"
+    child = _start(protocol, out, "none", 0, 0, "checkpoint.signal_budget_s=0", *sets)
+    try:
+        _wait_for(child, lambda: _epochs_out(out) >= after)
+        child.send_signal(signal.SIGTERM)
+        err = child.communicate(timeout=120)[1]
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert child.returncode == 143, err
+    line = err.strip().splitlines()[-1]
+    assert "rolled back to its start" in line and "Traceback" not in err
+    (run_dir,) = out.glob("signals/*/seed-0")
+    newest = RunDir(run_dir).latest_checkpoint()
+    assert newest is not None
+    epoch = int(read_checkpoint(newest)["epoch"])
+    # The epoch's own evaluation was handed to the worker at its end and is not written yet.
+    (pending,) = read_checkpoint(newest)["runner"]["pending_evaluations"]
+    assert pending["epoch"] == epoch
+    _resume(protocol, run_dir, capsys)
+    _assert_same_rows(run_dir, references(epoch, "training.overlap=true"))
