@@ -37,6 +37,7 @@ from seal.protocols.phase_model import (
     derive_seed,
 )
 from seal.protocols.preemption import Preempted, RollBack, SignalStop
+from seal.protocols.rollback import EpochMark, ReplayMark, RolledBackReplay
 from seal.protocols.workers import (
     ActorWorker,
     EvaluationWorker,
@@ -51,7 +52,7 @@ if TYPE_CHECKING:
     from seal.envs.alignment import Alignment
     from seal.learner.collection import Collector, EpisodeStats
     from seal.learner.config import AgentConfig
-    from seal.learner.replay import MultiTaskReplay, ReplayState
+    from seal.learner.replay import MultiTaskReplay
     from seal.learner.sac import AgentState
     from seal.protocols.checkpoint_fields import EpochCheckpoint, PhaseStateFields
     from seal.protocols.rundir import MetricsRow, RunDir, TrainRow
@@ -120,92 +121,6 @@ class PhaseState:
         """Count one run of `part` that started at time.perf_counter() `since`."""
         self.seconds[part] = self.seconds.get(part, 0.0) + time.perf_counter() - since
         self.calls[part] = self.calls.get(part, 0) + 1
-
-
-@dataclass
-class ReplayMark:
-    """The replay at an epoch's start, as far as the epoch can change it: its counters, its
-    sampling stream, and the filled ring slots that one more episode per task would overwrite."""
-
-    size: dict[str, np.ndarray]
-    position: dict[str, np.ndarray]
-    consumed: dict[str, np.ndarray]
-    generator: torch.Tensor
-    overwritten: dict[str, tuple[np.ndarray, np.ndarray, dict[str, torch.Tensor]]]
-    """env -> (task rows, slots, field -> those slots' values on the CPU), where the ring can wrap."""
-
-    @classmethod
-    def take(cls, replay: MultiTaskReplay, steps: Mapping[str, int]) -> ReplayMark:
-        """`steps`: replay env -> the most transitions a task adds in one epoch (one episode)."""
-        overwritten = {}
-        for env, size in replay.size.items():
-            cap = replay.capacity_per_task[env]
-            span = np.arange(min(int(steps[env]), cap))
-            slots = (replay.position[env][:, None] + span[None, :]) % cap
-            tasks = np.broadcast_to(np.arange(len(size))[:, None], slots.shape)
-            filled = slots < size[:, None]
-            if filled.any():  # the ring is full, or wraps within one episode
-                rows, cols = tasks[filled], slots[filled]
-                store = replay.storage[env]
-                index = (torch.from_numpy(rows), torch.from_numpy(cols))
-                index = tuple(i.to(replay.device) for i in index)
-                values = {f: t[index].to("cpu", copy=True) for f, t in store.items()}
-                overwritten[env] = (rows, cols, values)
-        return cls(
-            size={e: v.copy() for e, v in replay.size.items()},
-            position={e: v.copy() for e, v in replay.position.items()},
-            consumed={e: v.copy() for e, v in replay.consumed.items()},
-            generator=replay.generator.get_state(),
-            overwritten=overwritten,
-        )
-
-
-class RolledBackReplay:
-    """The replay as a `ReplayMark` saw it, for the checkpoint a rollback writes (only `state_dict`).
-
-    Its `state_dict` is the one a checkpoint at the epoch's start would have held: the rows the
-    epoch added are cut (zeroed where another task's rows keep the width), the slots it
-    overwrote restored, the counters and the sampling stream the mark's.
-    """
-
-    def __init__(self, replay: MultiTaskReplay, mark: ReplayMark) -> None:
-        self.replay, self.mark = replay, mark
-
-    def state_dict(self) -> ReplayState:
-        mark = self.mark
-        state = self.replay.state_dict()  # copies, so the live replay is left as it is
-        state["generator"] = mark.generator
-        for env, saved in state["envs"].items():
-            size, patch = mark.size[env], mark.overwritten.get(env)
-            filled = int(size.max())
-            for key in [k for k in saved if k not in ("size", "position", "consumed")]:
-                rows = saved[key]
-                if patch is not None:
-                    rows[torch.from_numpy(patch[0]), torch.from_numpy(patch[1])] = patch[2][key]
-                for task, n in enumerate(size.tolist()):
-                    rows[task, n:] = 0.0
-                saved[key] = rows[:, :filled]
-            saved["size"] = torch.from_numpy(size.copy())
-            saved["position"] = torch.from_numpy(mark.position[env].copy())
-            saved["consumed"] = torch.from_numpy(mark.consumed[env].copy())
-        return state
-
-
-@dataclass
-class EpochMark:
-    """The loop at an epoch's start, kept in memory while the run handles signals
-    (`checkpoint.on_signal`): what a rollback restores, then saves as that epoch's checkpoint."""
-
-    state: PhaseState
-    agent: AgentState
-    """The agent's `state_dict`, copied to the CPU."""
-    scheduler: dict[str, Any]
-    pending: list[PendingEvaluation]
-    rows: dict[str, int]
-    """CSV rows written by then (`RunDir.row_counts`)."""
-    torch_rng: torch.Tensor
-    py_rng: tuple[Any, ...]
-    replay: ReplayMark
 
 
 class LoopCallback:
@@ -483,7 +398,8 @@ class PhaseLoop:
                 if last_epoch:
                     break
             if self.stop.requested and not self.stop.note:
-                self.stop.note = f"{self.stop.name} after epoch {self.state.epoch}, the phase's last; {self._save_for_stop()}"
+                how = f"{self.stop.name} after epoch {self.state.epoch}, the phase's last"
+                self.stop.note = f"{how}; {self._save_for_stop()}"
         finally:
             self._close_workers()
             for callback in self.callbacks:
@@ -523,12 +439,12 @@ class PhaseLoop:
     def _take_mark(self) -> EpochMark:
         """What a rollback of the coming epoch restores (the counters, agent, scheduler, RNG
         states, CSV rows and the replay's counters and overwritable slots)."""
-        state = copy.deepcopy(self.state)
-        state.wall_s = time.monotonic() - self.started
+        state = self.state.fields()  # dataclasses.asdict: a deep copy
+        state["wall_s"] = time.monotonic() - self.started
         steps = {self.model.agent_env[e]: a.episode_length for e, a in self.model.adapters.items()}
         return EpochMark(
             state=state,
-            agent=cpu_copy(self.agent.state_dict()),
+            agent=_copy_on_one_thread(self.agent.state_dict()),
             scheduler=copy.deepcopy(self.scheduler.state_dict()),
             pending=list(self.pending),
             rows=self.owner.rundir.row_counts(),
@@ -543,23 +459,23 @@ class PhaseLoop:
         assert mark is not None  # the handler rolls back only while the loop keeps marks
         self._close_workers()
         for env, adapter in self.model.adapters.items():
-            added = np.subtract(self.state.env_steps[env], mark.state.env_steps[env])
+            added = np.subtract(self.state.env_steps[env], mark.state["env_steps"][env])
             if int(added.max(initial=0)) > adapter.episode_length:
                 raise SealError(
-                    f"{self.owner.rundir.path}: cannot roll back epoch {mark.state.epoch + 1}: "
+                    f"{self.owner.rundir.path}: cannot roll back epoch {mark.state['epoch'] + 1}: "
                     f"{env} added {int(added.max())} transitions to one task, more than its episode"
                 )
         self.agent.load_state_dict(mark.agent)
         self.scheduler.load_state_dict(mark.scheduler)
-        self.state, self.pending = mark.state, list(mark.pending)
+        self.state, self.pending = PhaseState(**mark.state), list(mark.pending)
         torch.set_rng_state(mark.torch_rng)
         random.setstate(mark.py_rng)
         self.owner.rundir.truncate_to(mark.rows)
         self._rolled_back = RolledBackReplay(self.replay, mark.replay)
         self._stop(
-            f"{self.stop.name} during epoch {mark.state.epoch + 1}: rolled back to its start "
+            f"{self.stop.name} during epoch {mark.state['epoch'] + 1}: rolled back to its start "
             f"({self.stop.rollback_reason})",
-            wall_s=mark.state.wall_s,
+            wall_s=mark.state["wall_s"],
         )
 
     def _stop(self, how: str, wall_s: float | None = None) -> NoReturn:
@@ -578,7 +494,10 @@ class PhaseLoop:
             latest = rundir.latest_checkpoint()
             if latest is None:
                 return "no epoch had finished: nothing saved, the run starts over when resumed"
-            return f"no epoch of phase {self.phase.name} had finished: nothing new saved; the newest checkpoint is {latest}"
+            return (
+                f"no epoch of phase {self.phase.name} had finished: nothing new saved; "
+                f"the newest checkpoint is {latest}"
+            )
         if self.saved_epoch == state.epoch:
             text = f"{where}'s checkpoint {rundir.latest_checkpoint()} is on disk"
         else:
@@ -1085,6 +1004,13 @@ class PhaseLoop:
             # training.overlap, from the anchor it is sent). The rebuild keeps the backend "auto"
             # resolved to (no second probe of step costs); results never depend on the backend.
             self._close_collector()
+
+
+def _copy_on_one_thread(state: AgentState) -> AgentState:
+    """`cpu_copy(state)` on one torch thread: the copy is memory-bound, and a second thread on a
+    busy machine only makes it wait (docs/faults.md has the figures)."""
+    with torch_threads(1):
+        return cpu_copy(state)
 
 
 def _size(nbytes: int) -> str:

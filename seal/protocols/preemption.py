@@ -128,15 +128,18 @@ class SignalStop:
     def handling(self) -> Iterator[SignalStop]:
         """Hold the SIGTERM and SIGINT handlers for the block, then restore the previous ones.
 
-        Outside the main thread nothing is installed (Python allows handlers only there).
+        Outside the main thread nothing is installed (Python allows handlers only there), and a
+        signal the process was started ignoring stays ignored (a shell's background job's SIGINT).
         """
         if threading.current_thread() is not threading.main_thread():
             yield self
             return
-        previous = {s: signal.getsignal(s) for s in SIGNALS}
-        for s in SIGNALS:
+        previous = {
+            s: signal.getsignal(s) for s in SIGNALS if signal.getsignal(s) is not signal.SIG_IGN
+        }
+        for s in previous:
             signal.signal(s, self._on_signal)
-        self.active = True
+        self.active = bool(previous)
         try:
             yield self
         finally:
@@ -257,7 +260,8 @@ class SignalStop:
     def _default_actions(self) -> None:
         if threading.current_thread() is threading.main_thread():
             for s in SIGNALS:
-                signal.signal(s, signal.SIG_DFL)
+                if signal.getsignal(s) == self._on_signal:
+                    signal.signal(s, signal.SIG_DFL)
 
 
 def ignore_signals() -> None:

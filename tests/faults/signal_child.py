@@ -6,6 +6,8 @@ WHERE is where the child creates MARKER and sleeps SECONDS (a signal interrupts 
 handler that lets the run go on sleeps out the rest):
 
 - ``none``: nowhere, `seal run` runs unchanged;
+- ``paced``: nowhere, but every epoch sleeps SECONDS after its collection and again before its
+  evaluation, so that a test's seeded delay lands inside the epoch it aims at on any machine;
 - ``evaluation``: at the start of the N-th evaluation;
 - ``checkpoint``: inside the N-th epoch checkpoint's atomic write, its temporary file written
   and fsynced, before the rename;
@@ -27,8 +29,25 @@ from seal.cli.main import main
 
 
 def _hold(marker: Path, seconds: float, text: str) -> None:
-    marker.write_text(text)
+    staged = marker.with_name(marker.name + ".tmp")
+    staged.write_text(text)
+    os.replace(staged, marker)  # the marker appears with its text
     time.sleep(seconds)
+
+
+def _paced(seconds: float) -> None:
+    real_evaluate, real_train = phase.evaluate, phase.PhaseLoop._train
+
+    def evaluate(*args: object, **kwargs: object) -> object:
+        time.sleep(seconds)
+        return real_evaluate(*args, **kwargs)  # type: ignore[arg-type]
+
+    def train(loop: phase.PhaseLoop, *args: object) -> None:
+        time.sleep(seconds)
+        real_train(loop, *args)  # type: ignore[arg-type]
+
+    phase.evaluate = evaluate  # type: ignore[assignment]
+    phase.PhaseLoop._train = train  # type: ignore[method-assign]
 
 
 def _in_evaluation(marker: Path, nth: int, seconds: float) -> None:
@@ -76,6 +95,8 @@ if __name__ == "__main__":
     )
     if where == "evaluation":
         _in_evaluation(marker, nth, seconds)
+    elif where == "paced":
+        _paced(seconds)
     elif where in ("checkpoint", "signal-save"):
         _in_checkpoint_write(marker, nth, seconds, after_signal=where == "signal-save")
     elif where != "none":

@@ -62,6 +62,8 @@ CHILD = Path(__file__).with_name("signal_child.py")
 MOMENTS = 10
 HOLD_S = 1.0
 """How long the child holds still inside an evaluation or a checkpoint write for the signal."""
+PACE_S = 0.03
+"""The child's sleeps after each epoch's collection and before its evaluation (`paced`)."""
 
 
 @pytest.fixture(scope="module")
@@ -171,24 +173,25 @@ def test_a_signal_at_a_seeded_moment_saves_the_last_finished_epoch_and_resume_ma
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    """Moments 0-5: a seeded time into a seeded epoch; 6-7: inside a seeded epoch's evaluation;
+    """Moments 0-5: a seeded time into a seeded epoch (the child paced so that an epoch takes
+    at least 2 x PACE_S); 6-7: inside a seeded epoch's evaluation;
     8-9: inside the atomic write of a seeded epoch checkpoint. SIGTERM at even moments, SIGINT at
     odd ones; checkpoint.signal_budget_s seeded, 0 (roll the epoch back) or 10 (finish it)."""
     rng = random.Random(moment)
     signum = (signal.SIGTERM, signal.SIGINT)[moment % 2]
     budget = rng.choice([0, 10])
-    where, nth = "none", 0
+    where, nth, hold = "paced", 0, PACE_S
     if moment in (6, 7):
-        where, nth = "evaluation", rng.randint(2, EPOCHS - 1)
+        where, nth, hold = "evaluation", rng.randint(2, EPOCHS - 1), HOLD_S
     elif moment in (8, 9):
-        where, nth = "checkpoint", rng.randint(1, EPOCHS // INTERVAL - 1)
+        where, nth, hold = "checkpoint", rng.randint(1, EPOCHS // INTERVAL - 1), HOLD_S
     out = tmp_path / "out"
-    child = _start(protocol, out, where, nth, HOLD_S, f"checkpoint.signal_budget_s={budget}")
+    child = _start(protocol, out, where, nth, hold, f"checkpoint.signal_budget_s={budget}")
     try:
-        if where == "none":
-            after = rng.randint(1, EPOCHS - 2)
+        if where == "paced":
+            after = rng.randint(1, EPOCHS - 3)
             _wait_for(child, lambda: _epochs_out(out) >= after)
-            delay = rng.uniform(0.0, 0.1)  # an epoch takes about 0.05-0.2 s here
+            delay = rng.uniform(0.0, 2 * PACE_S)
             print(f"moment {moment}: {signum.name} {delay:.3f} s after epoch {after}'s rows")
             time.sleep(delay)
         else:
@@ -210,16 +213,16 @@ def test_a_signal_at_a_seeded_moment_saves_the_last_finished_epoch_and_resume_ma
 
     # The newest checkpoint is the last finished epoch's, and the CSVs hold exactly its rows.
     epoch = _newest_epoch(run_dir)
-    assert f"saved epoch {epoch} to " in line or f"epoch {epoch}'s checkpoint " in line
+    assert f"saved epoch {epoch} to " in line or f"epoch {epoch}'s checkpoint " in line, line
     metrics = pd.read_csv(run_dir / "metrics.csv")
     assert metrics["epoch"].tolist() == [e for e in range(1, epoch + 1) for _ in range(2)]
     if where == "evaluation":  # held in epoch nth's evaluation
-        assert epoch == (nth if budget else nth - 1)
+        assert epoch == (nth if budget else nth - 1), line
         assert ("finished it" if budget else "rolled back to its start") in line
     elif where == "checkpoint":  # held in the write of epoch nth * INTERVAL's checkpoint
         assert epoch == nth * INTERVAL and f"after epoch {epoch}" in line
     else:
-        assert before - 1 <= epoch <= before + 1
+        assert before - 1 <= epoch <= before + 1, line
         if epoch == before + 1:
             assert "finished it" in line
         if epoch == before - 1:  # its rows were out, its end not reached
@@ -266,16 +269,16 @@ def test_a_second_signal_during_the_save_aborts_it_and_the_previous_checkpoint_s
     _assert_same_rows(run_dir, references(_newest_epoch(run_dir)))
 
 
-def test_a_rollback_cancels_the_asynchronous_evaluation_and_collection_in_flight(
+def test_a_rollback_cancels_the_asynchronous_evaluation_in_flight(
     protocol: Path, references: Reference, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """evaluation.mode = "async" and training.overlap: both worker processes are busy when the
-    epoch is rolled back; the checkpoint lists the evaluation still pending, resume re-runs it.
-    (The reference evaluates synchronously: the same numbers, one worker process fewer.)"""
-    sets = ('evaluation.mode="async"', "training.overlap=true")
+    """evaluation.mode = "async": the worker is busy when the epoch is rolled back; the checkpoint
+    lists the evaluation still pending and resume re-runs it. (The reference evaluates
+    synchronously: the same numbers, without a worker process to start.)"""
+    sets = ('evaluation.mode="async"',)
     after = random.Random(MOMENTS).randint(2, EPOCHS - 3)
     out = tmp_path / "out"
-    child = _start(protocol, out, "none", 0, 0, "checkpoint.signal_budget_s=0", *sets)
+    child = _start(protocol, out, "paced", 0, PACE_S, "checkpoint.signal_budget_s=0", *sets)
     try:
         _wait_for(child, lambda: _epochs_out(out) >= after)
         child.send_signal(signal.SIGTERM)
@@ -295,4 +298,4 @@ def test_a_rollback_cancels_the_asynchronous_evaluation_and_collection_in_flight
     (pending,) = read_checkpoint(newest)["runner"]["pending_evaluations"]
     assert pending["epoch"] == epoch
     _resume(protocol, run_dir, capsys)
-    _assert_same_rows(run_dir, references(epoch, "training.overlap=true"))
+    _assert_same_rows(run_dir, references(epoch))
