@@ -11,7 +11,7 @@ point with a checkpoint of the last finished epoch:
   (the longest recent epoch minus what this one has taken) fits `checkpoint.signal_budget_s`,
   and rolls back to the epoch's start otherwise, or as soon as the budget runs out
   (`RollBack`, raised from the handler). The loop keeps what a rollback needs of every epoch
-  start in memory (`seal.protocols.phase.EpochMark`).
+  start in memory (`seal.protocols.rollback.EpochMark`).
 
 Callbacks and CSV writes inside an epoch run `protected`: a rollback decided meanwhile is raised
 when they return, so no logger is left half way. The save is the ordinary atomic checkpoint
@@ -24,12 +24,13 @@ signal's number, what a shell reports for a process the signal killed).
 Worker processes forked by the run (collection backends) inherit the handler, which does nothing
 in them: the run stops them. The spawned evaluation and actor workers ignore both signals
 (`seal.protocols.workers`). Handlers can only be installed from the main thread; elsewhere
-(e.g. a Ray Tune function trainable's thread) a run keeps the process's own handling.
+(e.g. a Ray Tune function trainable's thread) a run keeps the process's own handling, and a
+signal the process was started ignoring stays ignored. A sweep's gentle `ray.cancel` reaches a
+trial as a SIGINT (Ray's `_thread.interrupt_main`), so the trial stops as on Ctrl-C.
 """
 
 from __future__ import annotations
 
-import _thread
 import collections
 import contextlib
 import os
@@ -239,14 +240,18 @@ class SignalStop:
         return max(0.0, self._estimate_s - (time.monotonic() - self._epoch_started))
 
     def _arm_timer(self) -> None:
-        """Roll back when the budget runs out before the epoch ends (the handler, run again)."""
+        """Roll back when the budget runs out before the epoch ends: the timer sends the signal
+        again to the main thread, whose handler then raises `RollBack`. A real signal, unlike
+        `_thread.interrupt_main`, also cuts short a blocking call (a sleep, a pipe read)."""
+        main = threading.main_thread().ident
+        assert main is not None
 
         def expire() -> None:
-            with self._lock:
+            with self._lock:  # epoch_done takes it too: no signal once the epoch is done
                 if not self._in_epoch or self._saving or self.signum is None:
                     return
                 self._expired = True
-                _thread.interrupt_main(self.signum)
+                signal.pthread_kill(main, self.signum)
 
         self._timer = threading.Timer(self.budget_s, expire)
         self._timer.daemon = True

@@ -233,6 +233,30 @@ def test_a_signal_at_a_seeded_moment_saves_the_last_finished_epoch_and_resume_ma
     assert not list((run_dir / "checkpoints").glob(".*"))
 
 
+def test_an_epoch_that_outlasts_the_budget_is_rolled_back_when_it_runs_out(
+    protocol: Path, references: Reference, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The epoch looked short enough to finish, but its evaluation is held 5 s, past
+    checkpoint.signal_budget_s = 1: the budget's timer rolls it back from inside the hold."""
+    out = tmp_path / "out"
+    child = _start(protocol, out, "evaluation", 5, 5.0, "checkpoint.signal_budget_s=1")
+    try:
+        _wait_for(child, (out / "held").exists)
+        child.send_signal(signal.SIGTERM)
+        err = child.communicate(timeout=120)[1]
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert child.returncode == 143, err
+    line = err.strip().splitlines()[-1]
+    assert "during epoch 5: rolled back to its start (it was not finished within" in line
+    (run_dir,) = out.glob("signals/*/seed-0")
+    assert _newest_epoch(run_dir) == 4
+    _resume(protocol, run_dir, capsys)
+    _assert_same_rows(run_dir, references(4))
+
+
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_a_second_signal_during_the_save_aborts_it_and_the_previous_checkpoint_stays(
     signum: signal.Signals,
