@@ -272,7 +272,9 @@ class Run:
     def _preempted(self, stop: Preempted) -> Preempted:
         """The stop recorded in provenance.json, its line ending with how to resume."""
         record = {"time": provenance.utc_now(), "signal": self.stop.name, "what": stop.line}
-        with contextlib.suppress(OSError):  # the checkpoint is saved; the record is a courtesy
+        with contextlib.suppress(
+            OSError, ValueError
+        ):  # the checkpoint is saved; this is a courtesy
             previous = self.rundir.read_provenance().get("preemptions", [])
             self.rundir.update_provenance(preemptions=[*previous, record])
         line = f"{stop.line} ({self.rundir.path})"

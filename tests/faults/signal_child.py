@@ -9,6 +9,8 @@ handler that lets the run go on sleeps out the rest):
 - ``paced``: nowhere, but every epoch sleeps SECONDS after its collection and again before its
   evaluation, so that a test's seeded delay lands inside the epoch it aims at on any machine;
 - ``evaluation``: at the start of the N-th evaluation;
+- ``epoch-end``: at the end of the N-th epoch's work, its collection in the replay (with
+  `training.overlap` too), before its training curves and evaluation;
 - ``checkpoint``: inside the N-th epoch checkpoint's atomic write, its temporary file written
   and fsynced, before the rename;
 - ``signal-save``: inside the write of the checkpoint saved after a signal (the one a second
@@ -33,6 +35,19 @@ def _hold(marker: Path, seconds: float, text: str) -> None:
     staged.write_text(text)
     os.replace(staged, marker)  # the marker appears with its text
     time.sleep(seconds)
+
+
+def _at_epoch_end(marker: Path, nth: int, seconds: float) -> None:
+    real_end, seen = phase.PhaseLoop._end_epoch, 0
+
+    def end_epoch(loop: phase.PhaseLoop) -> bool:
+        nonlocal seen
+        seen += 1
+        if seen == nth:
+            _hold(marker, seconds, f"end of epoch {nth}")
+        return real_end(loop)
+
+    phase.PhaseLoop._end_epoch = end_epoch  # type: ignore[method-assign]
 
 
 def _paced(seconds: float) -> None:
@@ -95,6 +110,8 @@ if __name__ == "__main__":
     )
     if where == "evaluation":
         _in_evaluation(marker, nth, seconds)
+    elif where == "epoch-end":
+        _at_epoch_end(marker, nth, seconds)
     elif where == "paced":
         _paced(seconds)
     elif where in ("checkpoint", "signal-save"):

@@ -293,18 +293,23 @@ def test_a_second_signal_during_the_save_aborts_it_and_the_previous_checkpoint_s
     _assert_same_rows(run_dir, references(_newest_epoch(run_dir)))
 
 
-def test_a_rollback_cancels_the_asynchronous_evaluation_in_flight(
+def test_a_rollback_with_both_workers_busy_and_the_ring_full_resumes_exactly(
     protocol: Path, references: Reference, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """evaluation.mode = "async": the worker is busy when the epoch is rolled back; the checkpoint
-    lists the evaluation still pending and resume re-runs it. (The reference evaluates
-    synchronously: the same numbers, without a worker process to start.)"""
-    sets = ('evaluation.mode="async"',)
-    after = random.Random(MOMENTS).randint(2, EPOCHS - 3)
+    """evaluation.mode = "async" and training.overlap: both worker processes are busy when the
+    epoch is rolled back. The checkpoint lists the evaluation still pending (resume re-runs it),
+    and with 30 transitions per task the ring is full from epoch 3, so the checkpoint must hold
+    the slots the rolled-back epoch overwrote: the actor's episodes, added at the end of the
+    epoch held, come before the next epoch's updates sample (without that restore this test
+    fails). The reference evaluates
+    synchronously: the same numbers, one worker process fewer."""
+    ring = "replay.capacity_per_env=60"
+    sets = ('evaluation.mode="async"', "training.overlap=true", ring)
+    nth = random.Random(MOMENTS).randint(4, EPOCHS - 1)  # the epoch held at its end
     out = tmp_path / "out"
-    child = _start(protocol, out, "paced", 0, PACE_S, "checkpoint.signal_budget_s=0", *sets)
+    child = _start(protocol, out, "epoch-end", nth, HOLD_S, "checkpoint.signal_budget_s=0", *sets)
     try:
-        _wait_for(child, lambda: _epochs_out(out) >= after)
+        _wait_for(child, (out / "held").exists)
         child.send_signal(signal.SIGTERM)
         err = child.communicate(timeout=120)[1]
     finally:
@@ -317,9 +322,11 @@ def test_a_rollback_cancels_the_asynchronous_evaluation_in_flight(
     (run_dir,) = out.glob("signals/*/seed-0")
     newest = RunDir(run_dir).latest_checkpoint()
     assert newest is not None
-    epoch = int(read_checkpoint(newest)["epoch"])
+    saved = read_checkpoint(newest)
+    epoch = int(saved["epoch"])
+    assert epoch == nth - 1 and int(saved["replay"]["envs"]["pt"]["size"].min()) == 30
     # The epoch's own evaluation was handed to the worker at its end and is not written yet.
-    (pending,) = read_checkpoint(newest)["runner"]["pending_evaluations"]
+    (pending,) = saved["runner"]["pending_evaluations"]
     assert pending["epoch"] == epoch
     _resume(protocol, run_dir, capsys)
-    _assert_same_rows(run_dir, references(epoch))
+    _assert_same_rows(run_dir, references(epoch, "training.overlap=true", ring))
