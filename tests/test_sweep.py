@@ -13,10 +13,13 @@ not), at 40 epochs 10 of 10 at both epoch 30 and epoch 40; a test that needs a s
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -543,3 +546,100 @@ def test_resume_of_a_missing_sweep_dir_is_a_user_error(tmp_path: Path) -> None:
 
     with pytest.raises(SealError, match="not a sweep directory"):
         sweep(resume=tmp_path)
+
+
+def _wait_until(ready, child: subprocess.Popen[str], what: str) -> None:  # noqa: ANN001
+    deadline = time.monotonic() + 180  # only a hung sweep gets there
+    while not ready():
+        assert child.poll() is None, f"the sweep ended before {what}: {child.communicate()[1]}"
+        assert time.monotonic() < deadline, f"never {what}"
+        time.sleep(0.05)
+
+
+def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
+    ray_session, tmp_path: Path
+) -> None:  # noqa: ANN001
+    """One trial's worker gets SIGTERM itself, then the driver does: both trials save their last
+    finished epoch as `seal run` would, sweep.json marks them preempted, the driver exits 143
+    with the resume command, and `--resume` finishes them with the rows of uninterrupted runs
+    that also checkpointed where they stopped."""
+    from seal.protocols import run_seed
+    from seal.protocols.phase import PhaseLoop
+    from seal.sweep.grid import sweep
+
+    protocol = write_protocol(tmp_path, "stop")
+    sets = ["checkpoint.save_replay=true", "protocol.epochs=40", "evaluation.interval=2"]
+    args = ["sweep", str(protocol), "--seeds", "0-1", "--out", str(tmp_path / "out")]
+    args += ["--num-cpus", "2"] + [a for s in sets for a in ("--set", s)]
+    driver = subprocess.Popen(
+        [sys.executable, "-m", "seal.cli.main", *args],
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        runs = tmp_path / "out" / "stop"
+        _wait_until(
+            lambda: (
+                all(len(read_evaluations(r)) >= 1 for r in runs.glob("*/seed-[01]"))
+                and len(list(runs.glob("*/seed-[01]"))) == 2
+            ),
+            driver,
+            "both trials evaluated",
+        )
+        (group,) = runs.iterdir()
+        worker = json.loads((group / "seed-1" / ".seal.lock").read_text())["pid"]
+        os.kill(worker, signal.SIGTERM)  # a trial's worker gets the signal itself
+
+        def seed_1_preempted() -> bool:
+            trials = json.loads((group / "sweep.json").read_text())["trials"]
+            return trials[1]["status"] == "preempted"
+
+        _wait_until(seed_1_preempted, driver, "seed 1 was recorded preempted")
+        driver.send_signal(signal.SIGTERM)
+        err = driver.communicate(timeout=180)[1]
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+            driver.wait()
+    assert driver.returncode == 143, err
+    assert err.strip().splitlines()[-1] == (
+        f"seal sweep: SIGTERM: stopped the sweep (2 preempted); resume with: seal sweep --resume {group}"
+    )
+    trials = json.loads((group / "sweep.json").read_text())["trials"]
+    assert [t["status"] for t in trials] == ["preempted", "preempted"]
+    # seed 1 got SIGTERM; seed 0 the driver's gentle ray.cancel, which a trial sees as SIGINT.
+    assert trials[0]["note"].startswith("SIGINT ") and trials[1]["note"].startswith("SIGTERM ")
+    stopped = {}
+    for t in trials:
+        run = Path(t["run_dir"])
+        newest = max((run / "checkpoints").glob("ckpt-*.pt"), key=lambda p: p.stat().st_mtime_ns)
+        stopped[t["seed"]] = int(newest.stem.split("-")[1])
+        assert (
+            f"epoch {stopped[t['seed']]} " in t["note"]
+            or f"epoch {stopped[t['seed']]}'s" in t["note"]
+        )
+        assert not is_finished(run)
+
+    again = sweep(resume=group)
+    assert [(t.start, t.status) for t in again.trials] == [("continued", "finished")] * 2
+    real_close = PhaseLoop._close_epoch
+    for t in again.trials:
+        epoch = stopped[t.seed]
+
+        def close(loop: PhaseLoop, last: bool, epoch: int = epoch) -> None:
+            real_close(loop, last)
+            if loop.state.epoch == epoch and loop.saved_epoch != epoch:
+                loop._checkpoint(reseed=True)  # the reference checkpoints where the trial stopped
+
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(PhaseLoop, "_close_epoch", close)
+            # One torch thread, as the trial's (execute_trial sets [resources]'s threads).
+            config = load_protocol(protocol, [*sets, "protocol.threads=1"])
+            ref = run_seed(config, t.seed, tmp_path / f"ref{t.seed}").run_dir
+        for name in ("metrics.csv", "train.csv"):
+            got, want = ((Path(d) / name).read_text().splitlines() for d in (t.run_dir, ref))
+            if name == "metrics.csv":  # the wall-clock column aside
+                got, want = ([r.rsplit(",", 1)[0] for r in rows] for rows in (got, want))
+            assert got == want

@@ -65,6 +65,7 @@ def _show_seal_warnings() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run one `seal` command and return its exit code."""
     from seal.errors import SealError
+    from seal.protocols.preemption import Preempted
 
     _show_seal_warnings()
     parser = build_parser()
@@ -79,6 +80,9 @@ def main(argv: list[str] | None = None) -> int:
         message = str(exc).strip().replace("\r", "\\r").replace("\n", "\\n")
         print(f"seal {args.command}: error: {message}", file=sys.stderr)
         return 2
+    except Preempted as stop:  # SIGTERM or SIGINT: saved at a safe point (checkpoint.on_signal)
+        print(f"seal {args.command}: {stop}", file=sys.stderr, flush=True)
+        return stop.exit_code
     except KeyboardInterrupt:
         print(f"seal {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -87,6 +87,7 @@ def parse_seeds(text: str) -> list[int]:
 def run(args: argparse.Namespace) -> int:
     """Load (validating before anything is written), run every seed, report, print JSON."""
     from seal.protocols import load_protocol
+    from seal.protocols.preemption import Preempted
     from seal.protocols.runner import new_group_dir, result_json, resume_run, run_seed
 
     config = load_protocol(args.file, args.overrides, args.scale)
@@ -97,7 +98,19 @@ def run(args: argparse.Namespace) -> int:
     else:
         seeds = parse_seeds(args.seeds) if args.seeds else config.seeds
         group = new_group_dir(config, args.out)
-        results = [run_seed(config, s, group, quiet=args.quiet, command=command) for s in seeds]
+        results = []
+        for i, s in enumerate(seeds):
+            try:
+                results.append(run_seed(config, s, group, quiet=args.quiet, command=command))
+            except Preempted as stop:
+                if i + 1 < len(seeds):
+                    later = ", ".join(map(str, seeds[i + 1 :]))
+                    raise Preempted(
+                        stop.signum,
+                        f"{stop}; seeds {later} of {group} did not start",
+                        resumable=stop.resumable,
+                    ) from None
+                raise
     table = None if args.no_report else _report(group)
     if not args.quiet and not args.json:
         if table is not None:

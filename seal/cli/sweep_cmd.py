@@ -75,6 +75,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="continue an earlier sweep (or, with --search, search) directory: finished trials are kept, others continue or start",
     )
     parser.add_argument(
+        "--grace-s",
+        type=float,
+        default=None,
+        metavar="S",
+        help="on SIGTERM or SIGINT, wait up to S seconds for the running trials to save their last finished epoch (default: 60); set it a little under the grace period the cluster gives (Slurm KillWait, Kubernetes terminationGracePeriodSeconds)",
+    )
+    parser.add_argument(
         "--search",
         action="store_true",
         help="random search over the protocol's [search] table with Ray Tune",
@@ -121,6 +128,10 @@ def run(args: argparse.Namespace) -> int:
             raise SealError(
                 f"--search takes one protocol FILE, got {len(args.files)}: {' '.join(args.files)}"
             )
+        if args.grace_s is not None:
+            raise SealError(
+                "--grace-s is for sweeps; a search stops its trials through Ray Tune, which keeps its own state"
+            )
         if seeds is not None and len(seeds) != 1:
             raise SealError(
                 f"--seeds {args.seeds}: a search runs one seed per sample; search with one seed, then run "
@@ -137,8 +148,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         if args.samples is not None:
             raise SealError("--samples is only used with --search")
+        if args.grace_s is not None and not args.grace_s >= 0:
+            raise SealError(f"--grace-s {args.grace_s:g}: expected seconds >= 0")
+        grace = {} if args.grace_s is None else {"grace_s": args.grace_s}
         result = sweep(
-            args.files, seeds=seeds, overrides=args.overrides, scale=args.scale, **common
+            args.files, seeds=seeds, overrides=args.overrides, scale=args.scale, **common, **grace
         )
     for note in result.notes:
         say(f"note: {note}")

@@ -10,7 +10,10 @@ The `PhaseLoop` decides when a checkpoint is due and the `Checkpointer` writes i
   loggers flush, so a resume purges exactly what comes after the checkpoint), then
   `write_checkpoint`: ckpt-<epoch>.pt (ckpt-<phase>-<epoch>.pt) with the agent, the replay and
   the fields below, keeping the last `checkpoint.keep_last`; then the loop re-seeds its env
-  instances (see `seal.protocols.runner`). All of it counts as the loop's "checkpoint" time.
+  instances (see `seal.protocols.runner`). All of it counts as the loop's "checkpoint" time;
+- on SIGTERM or SIGINT, the loop calls for the checkpoint of the last finished epoch
+  (`seal.protocols.preemption`); after a rollback it holds the epoch start's agent, counters and
+  RNG states, and the replay as it was then (`PhaseLoop.checkpoint_replay`).
 
 The file format is `seal.learner.checkpoint`'s: an atomic, data-only `torch.save`; the fields
 are the TypedDicts of `seal.protocols.checkpoint_fields`.
@@ -67,7 +70,7 @@ class Checkpointer(LoopCallback):
                 "pending_evaluations": [p.fields() for p in loop.pending],
             },
         }
-        replay = loop.replay if checkpoint.save_replay else None
+        replay = loop.checkpoint_replay if checkpoint.save_replay else None
         save_checkpoint(
             self.rundir.checkpoint_path(state.epoch, self._label(loop)), loop.agent, replay, fields
         )

@@ -233,6 +233,10 @@ class CheckpointConfig:
     """Keep the last K epoch checkpoints (ckpt-<epoch>.pt); best.pt is kept besides."""
     save_replay: bool = True
     """Store the replay in epoch checkpoints; resume needs it (best.pt never holds it)."""
+    on_signal: bool = True
+    """On SIGTERM or SIGINT, stop at a safe point: save the last finished epoch's checkpoint, print it with the --resume command, exit 143 or 130 (docs/faults.md). Keeps a CPU copy of the agent's state from every epoch's start. Turn it off where something else owns the signals (a debugger; a harness that stops and checkpoints the run itself) or where that copy does not fit in host memory."""
+    signal_budget_s: Annotated[float, Field(ge=0.0)] = 10.0
+    """After a signal, finish the epoch under way if its remaining work fits in this many seconds, else roll back to its start. Ask the cluster for a grace period of 2 x (this + the save's seconds); docs/faults.md measures the save."""
 
 
 @with_config(SCHEMA)

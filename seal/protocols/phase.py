@@ -11,13 +11,14 @@ this module and the callbacks' need not import the runner.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import random
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol, cast
+from typing import TYPE_CHECKING, Any, NoReturn, Protocol, cast
 
 import numpy as np
 import torch
@@ -34,6 +35,8 @@ from seal.protocols.phase_model import (
     PhaseModel,
     build_eval_collector,
 )
+from seal.protocols.preemption import Preempted, RollBack, SignalStop
+from seal.protocols.rollback import EpochMark, ReplayMark, RolledBackReplay
 from seal.protocols.workers import (
     ActorWorker,
     EvaluationWorker,
@@ -50,6 +53,7 @@ if TYPE_CHECKING:
     from seal.learner.collection import Collector, EpisodeStats
     from seal.learner.config import AgentConfig
     from seal.learner.replay import MultiTaskReplay
+    from seal.learner.sac import AgentState
     from seal.protocols.checkpoint_fields import EpochCheckpoint, PhaseStateFields
     from seal.protocols.rundir import MetricsRow, RunDir, TrainRow
     from seal.schedulers.base import Plan, Scheduler, ScoreRequest
@@ -224,11 +228,14 @@ class PhaseLoop:
         phase: Phase,
         payload: EpochCheckpoint | None,
         callbacks: Sequence[LoopCallback] = (),
+        stop: SignalStop | None = None,
     ) -> None:
         from seal.schedulers.ratio import UniformConfig
 
         cfg = self.cfg = run.config
         self.owner, self.phase = run, phase
+        self.stop = stop if stop is not None else SignalStop()
+        """The run's SIGTERM and SIGINT handling (`seal.protocols.preemption`)."""
         model = self.model = PhaseModel(cfg, phase, run.adapters, run.alignment)
         self.agent: Agent = run.initial_agent(phase, model, resuming=payload is not None)
         self.replay: MultiTaskReplay = cfg.replay.build(
@@ -294,6 +301,10 @@ class PhaseLoop:
         """Sums on the device of the agent's log values (by name tuple) since `_read_logs`."""
         self.pending_since = self.agent.num_updates
         self.callbacks = tuple(callbacks)
+        self.saved_epoch: int | None = None if payload is None else self.state.epoch
+        """The epoch of this phase's newest epoch checkpoint on disk (None: none yet)."""
+        self._mark: EpochMark | None = None
+        self._rolled_back: RolledBackReplay | None = None
 
     @property
     def collector(self) -> Collector:
@@ -301,6 +312,12 @@ class PhaseLoop:
         if self._collector is None:
             self._collector = self._new_collector(self.state.anchor_epoch, self._backend)
         return self._collector
+
+    @property
+    def checkpoint_replay(self) -> MultiTaskReplay:
+        """What an epoch checkpoint saves of the replay: the replay, or after a rollback its
+        state at the epoch's start (a `RolledBackReplay`, which has the one method a save calls)."""
+        return cast("MultiTaskReplay", self._rolled_back or self.replay)
 
     def _close_collector(self) -> None:
         if self._collector is not None:
@@ -348,7 +365,12 @@ class PhaseLoop:
         )
 
     def run(self) -> PhaseState:
-        """Run the phase's remaining epochs; its counters."""
+        """Run the phase's remaining epochs; its counters.
+
+        A signal (`seal.protocols.preemption`) stops the loop at a safe point with the checkpoint
+        of the last finished epoch and raises `Preempted`; after the phase's last epoch it only
+        notes what was saved (`SignalStop.note`) and returns, and the run stops.
+        """
         for callback in self.callbacks:
             callback.on_phase_start(self)
         try:
@@ -362,32 +384,135 @@ class PhaseLoop:
             if self.cfg.training.overlap:
                 self.actor = ActorWorker(self.cfg, self.phase, self.owner.seed, self.owner.device)
             while self.state.epoch < self.phase.epochs and not self.all_reached():
-                plan = self._plan()
-                if plan.reset_agent:
-                    self.agent.reset_parameters()
-                if self.actor is None:
-                    self._train(plan, self._collect(plan))
-                else:
-                    # Actor-learner: this epoch's episodes are collected with the policy as it
-                    # is now while the updates train on the replay up to the last epoch's.
-                    self._start_collection(plan)
-                    self._train(plan, self.state.collected_lengths)
-                    self.state.collected_lengths = self._finish_collection()
-                last_epoch = self._end_epoch()
+                if self.stop.requested:  # came between epochs: stop after the last one
+                    self._stop(f"{self.stop.name} after epoch {self.state.epoch}")
+                self._mark = self._take_mark() if self.stop.active else None
+                try:
+                    with self.stop.epoch():
+                        last_epoch = self._epoch()
+                except RollBack:
+                    self._roll_back()
+                self._close_epoch(last_epoch)
                 for callback in self.callbacks:
                     callback.on_epoch_end(self)
                 if last_epoch:
                     break
+            if self.stop.requested and not self.stop.note:
+                how = f"{self.stop.name} after epoch {self.state.epoch}, the phase's last"
+                self.stop.note = f"{how}; {self._save_for_stop()}"
         finally:
-            self._close_collector()
-            if self.eval_collector is not None:
-                self.eval_collector.close()
-            for worker in (self.evaluator, self.actor):
-                if worker is not None:
-                    worker.close()
+            self._close_workers()
             for callback in self.callbacks:
                 callback.on_phase_end(self)
         return self.state
+
+    def _epoch(self) -> bool:
+        """One epoch's work, up to its checkpoint: plan, collect, train, then `_end_epoch`;
+        whether the phase ends with it."""
+        plan = self._plan()
+        if plan.reset_agent:
+            self.agent.reset_parameters()
+        if self.actor is None:
+            self._train(plan, self._collect(plan))
+        else:
+            # Actor-learner: this epoch's episodes are collected with the policy as it
+            # is now while the updates train on the replay up to the last epoch's.
+            self._start_collection(plan)
+            self._train(plan, self.state.collected_lengths)
+            self.state.collected_lengths = self._finish_collection()
+        return self._end_epoch()
+
+    def _close_workers(self) -> None:
+        """Close the training and evaluation instances and the worker processes (idempotent);
+        after a signal a worker's request in flight is abandoned at once."""
+        self._close_collector()
+        if self.eval_collector is not None:
+            self.eval_collector.close()
+            self.eval_collector = None
+        wait_s = 0.5 if self.stop.requested else 10.0
+        for worker in (self.evaluator, self.actor):
+            if worker is not None:
+                worker.close(timeout_s=wait_s)
+        self.evaluator = self.actor = None
+
+    # ------------------------------------------------------------ stopping on a signal
+    def _take_mark(self) -> EpochMark:
+        """What a rollback of the coming epoch restores (the counters, agent, scheduler, RNG
+        states, CSV rows and the replay's counters and overwritable slots)."""
+        state = self.state.fields()  # dataclasses.asdict: a deep copy
+        state["wall_s"] = time.monotonic() - self.started
+        steps = {self.model.agent_env[e]: a.episode_length for e, a in self.model.adapters.items()}
+        return EpochMark(
+            state=state,
+            agent=_copy_on_one_thread(self.agent.state_dict()),
+            scheduler=copy.deepcopy(self.scheduler.state_dict()),
+            pending=list(self.pending),
+            rows=self.owner.rundir.row_counts(),
+            torch_rng=torch.get_rng_state(),
+            py_rng=random.getstate(),
+            replay=ReplayMark.take(self.replay, steps),
+        )
+
+    def _roll_back(self) -> NoReturn:
+        """Abandon the epoch under way: its workers' requests, its rows; restore its start and save it."""
+        mark = self._mark
+        assert mark is not None  # the handler rolls back only while the loop keeps marks
+        self._close_workers()
+        for env, adapter in self.model.adapters.items():
+            added = np.subtract(self.state.env_steps[env], mark.state["env_steps"][env])
+            if int(added.max(initial=0)) > adapter.episode_length:
+                raise SealError(
+                    f"{self.owner.rundir.path}: cannot roll back epoch {mark.state['epoch'] + 1}: "
+                    f"{env} added {int(added.max())} transitions to one task, more than its episode"
+                )
+        self.agent.load_state_dict(mark.agent)
+        self.scheduler.load_state_dict(mark.scheduler)
+        self.state, self.pending = PhaseState(**mark.state), list(mark.pending)
+        torch.set_rng_state(mark.torch_rng)
+        random.setstate(mark.py_rng)
+        self.owner.rundir.truncate_to(mark.rows)
+        self._rolled_back = RolledBackReplay(self.replay, mark.replay)
+        self._stop(
+            f"{self.stop.name} during epoch {mark.state['epoch'] + 1}: rolled back to its start "
+            f"({self.stop.rollback_reason})",
+            wall_s=mark.state["wall_s"],
+        )
+
+    def _stop(self, how: str, wall_s: float | None = None) -> NoReturn:
+        """Save the last finished epoch unless it is on disk, then raise `Preempted`."""
+        assert self.stop.signum is not None
+        self.stop.note = f"{how}; {self._save_for_stop(wall_s)}"
+        raise Preempted(self.stop.signum, self.stop.note, resumable=self.cfg.checkpoint.save_replay)
+
+    def _save_for_stop(self, wall_s: float | None = None) -> str:
+        """The checkpoint of the last finished epoch, written unless it is on disk; what it is."""
+        state, rundir = self.state, self.owner.rundir
+        where = f"epoch {state.epoch}"
+        if len(self.owner.phases) > 1:
+            where += f" of phase {self.phase.name}"
+        if state.epoch == 0:
+            latest = rundir.latest_checkpoint()
+            if latest is None:
+                return "no epoch had finished: nothing saved, the run starts over when resumed"
+            return (
+                f"no epoch of phase {self.phase.name} had finished: nothing new saved; "
+                f"the newest checkpoint is {latest}"
+            )
+        if self.saved_epoch == state.epoch:
+            text = f"{where}'s checkpoint {rundir.latest_checkpoint()} is on disk"
+        else:
+            since = time.perf_counter()
+            self._checkpoint(reseed=False, wall_s=wall_s)
+            seconds = time.perf_counter() - since
+            path = rundir.latest_checkpoint()
+            assert path is not None
+            text = f"saved {where} to {path} ({_size(path.stat().st_size)} in {seconds:.1f} s)"
+        if not self.cfg.checkpoint.save_replay:
+            text += (
+                "; it holds no replay (checkpoint.save_replay = false), so --resume cannot "
+                "continue the run exactly and refuses it; its agent serves seal eval and [transfer]"
+            )
+        return text
 
     def _plan(self) -> Plan:
         from seal.schedulers import Progress
@@ -642,8 +767,9 @@ class PhaseLoop:
             self.evaluated = Evaluated(state.epoch, state.grad_steps, agent)
             self._record_evaluation(self._eval_rows(), results)
             state.add_time("evaluate", since)
-            for callback in self.callbacks:
-                callback.on_evaluation(self)
+            with self.stop.protected():
+                for callback in self.callbacks:
+                    callback.on_evaluation(self)
             return
         self._finish_evaluations(wait=True)  # one in flight at most, so rows stay in order
         since = time.perf_counter()  # the wait counted itself
@@ -673,8 +799,9 @@ class PhaseLoop:
             self.state.seconds["evaluate"] = (
                 self.state.seconds.get("evaluate", 0.0) + time.perf_counter() - since
             )
-            for callback in self.callbacks:
-                callback.on_evaluation(self)
+            with self.stop.protected():
+                for callback in self.callbacks:
+                    callback.on_evaluation(self)
 
     def _load_snapshot(self, pending: PendingEvaluation) -> Agent:
         """An agent (one per phase, reused) holding an asynchronous evaluation's snapshot."""
@@ -688,7 +815,8 @@ class PhaseLoop:
         """Write an evaluation's rows and pass it on: first crossings, scheduler, best.pt."""
         state, model, phase = self.state, self.model, self.phase
         rows = self._fill_rows(rows, results)
-        self.owner.rundir.log_eval(rows)
+        with self.stop.protected():
+            self.owner.rundir.log_eval(rows)
         self.last_rows = rows
         state.last_success = {
             e: {t: results[e][t]["success"] for t in model.env_tasks[e]} for e in phase.envs
@@ -700,8 +828,9 @@ class PhaseLoop:
         mean = mean_success(results)
         if mean > state.best_mean_success:
             state.best_mean_success = mean
-            for callback in self.callbacks:
-                callback.write_best(self)  # best.pt (the Checkpointer): evaluation time
+            with self.stop.protected():
+                for callback in self.callbacks:
+                    callback.write_best(self)  # best.pt (the Checkpointer): evaluation time
 
     def _eval_rows(self) -> list[MetricsRow]:
         """metrics.csv rows of an evaluation of the agent as it is now, success and return to come."""
@@ -795,7 +924,8 @@ class PhaseLoop:
         return totals
 
     def _end_epoch(self) -> bool:
-        """Training curves, evaluation, scheduler scores and timeline, checkpoint; whether the phase ends."""
+        """Training curves, evaluation and scheduler scores; whether the phase ends (then
+        `_close_epoch` writes the timeline and the checkpoint)."""
         run, state, cfg, scheduler = self.owner, self.state, self.cfg, self.scheduler
         self._finish_evaluations(wait=False)
         state.epoch += 1
@@ -805,9 +935,10 @@ class PhaseLoop:
         if state.log_updates and (epoch % cfg.logging.train_interval == 0 or last_epoch):
             means = {k: v / state.log_updates for k, v in state.log_sums.items()}
             rows = self._train_rows(epoch, state.grad_steps, means)
-            run.rundir.log_train(rows)
-            for callback in self.callbacks:
-                callback.on_train_log(self, rows)
+            with self.stop.protected():
+                run.rundir.log_train(rows)
+                for callback in self.callbacks:
+                    callback.on_train_log(self, rows)
             state.log_sums, state.log_updates = {}, 0
         # Evaluation (Appendix B): every `interval` epochs, or every K gradient steps (in _train).
         every = cfg.evaluation.every_grad_steps
@@ -820,26 +951,52 @@ class PhaseLoop:
         if last_epoch or self.all_reached():
             self._finish_evaluations(wait=True)  # the phase's results are complete at its end
         last_epoch = last_epoch or self.all_reached()
+        self.stop.epoch_done()  # finished: a signal from here on stops after it, never rolls it back
+        return last_epoch
+
+    def _close_epoch(self, last_epoch: bool) -> None:
+        """The epoch's scheduler timeline and its checkpoint, when one is due or a signal came.
+
+        A signal during the epoch's work that let it finish (`seal.protocols.preemption`)
+        stops the loop here, after the epoch's checkpoint.
+        """
+        run, state, scheduler = self.owner, self.state, self.scheduler
         timeline = scheduler.timeline()
         if len(timeline) > state.timeline_rows:
             run.rundir.log_scheduler(
                 [{"phase": self.phase.name, **r} for r in timeline[state.timeline_rows :]]
             )
             state.timeline_rows = len(timeline)
-        if epoch % cfg.checkpoint.interval == 0 or last_epoch:
+        if self.stop.requested:
+            budget = self.cfg.checkpoint.signal_budget_s
+            how = (
+                f"{self.stop.name} during epoch {state.epoch}: finished it "
+                f"{self.stop.time_since_signal():.1f} s after the signal "
+                f"(checkpoint.signal_budget_s = {budget:g})"
+                if self.stop.during_epoch
+                else f"{self.stop.name} after epoch {state.epoch}"
+            )
+            if not last_epoch:
+                self._stop(how)
+            self.stop.note = f"{how}; it was the phase's last; {self._save_for_stop()}"
+        elif state.epoch % self.cfg.checkpoint.interval == 0 or last_epoch:
             self._checkpoint(reseed=not last_epoch)
-        return last_epoch
 
-    def _checkpoint(self, reseed: bool) -> None:
-        """An epoch checkpoint: `on_checkpoint` (loggers flush), then `write_checkpoint` (the Checkpointer)."""
+    def _checkpoint(self, reseed: bool, wall_s: float | None = None) -> None:
+        """An epoch checkpoint: `on_checkpoint` (loggers flush), then `write_checkpoint` (the Checkpointer).
+
+        `wall_s`: the run's wall time to record (default: now); a rollback records its epoch start's.
+        """
         state = self.state
-        state.wall_s = time.monotonic() - self.started
+        state.wall_s = time.monotonic() - self.started if wall_s is None else wall_s
         state.anchor_epoch = state.epoch
         since = time.perf_counter()
-        for callback in self.callbacks:
-            callback.on_checkpoint(self)
-        for callback in self.callbacks:
-            callback.write_checkpoint(self)
+        with self.stop.saving():  # a signal now lets the write finish; a second one kills at once
+            for callback in self.callbacks:
+                callback.on_checkpoint(self)
+            for callback in self.callbacks:
+                callback.write_checkpoint(self)
+        self.saved_epoch = state.epoch
         state.add_time("checkpoint", since)
         if reseed:
             # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly:
@@ -847,6 +1004,18 @@ class PhaseLoop:
             # training.overlap, from the anchor it is sent). The rebuild keeps the backend "auto"
             # resolved to (no second probe of step costs); results never depend on the backend.
             self._close_collector()
+
+
+def _copy_on_one_thread(state: AgentState) -> AgentState:
+    """`cpu_copy(state)` on one torch thread: the copy is memory-bound, and a second thread on a
+    busy machine only makes it wait (docs/faults.md has the figures)."""
+    with torch_threads(1):
+        return cpu_copy(state)
+
+
+def _size(nbytes: int) -> str:
+    """A file size for a message: "0.82 GB", "3.1 MB"."""
+    return f"{nbytes / 1e9:.2f} GB" if nbytes >= 1e8 else f"{nbytes / 1e6:.1f} MB"
 
 
 def _tuple_state(state: Any) -> Any:

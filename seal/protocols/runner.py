@@ -30,6 +30,12 @@ A resume starts from the newest intact checkpoint: one that does not read as a s
 (torn, zero bytes) or whose CSV rows are no longer all there is skipped, named on stderr with the
 reason and in provenance.json's "resumes"; none intact is a one-line refusal that changes nothing.
 
+On SIGTERM or SIGINT (`checkpoint.on_signal`) a run stops at a safe point with the checkpoint of
+its last finished epoch, records the stop in provenance.json's "preemptions" and raises
+`seal.protocols.preemption.Preempted`, whose line ends with the --resume command. A checkpoint
+written at a signal re-seeds the collectors from its epoch like any other, so the resumed run
+repeats what an uninterrupted run that also checkpointed at that epoch does.
+
 Before anything is created, a run checks its estimated memory (`seal.protocols.resources`) and
 takes its directory's lock (`seal.protocols.rundir.DirLock`), which it holds until it ends; a
 full disk (ENOSPC, EDQUOT) while it writes stops it with one line naming the file.
@@ -37,6 +43,7 @@ full disk (ENOSPC, EDQUOT) while it writes stops it with one line naming the fil
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import errno
 import json
@@ -77,6 +84,7 @@ from seal.protocols.phase_model import (
     plan_phases,
     run_agent_config,
 )
+from seal.protocols.preemption import Preempted, SignalStop
 from seal.protocols.resources import check_resources, choose_update_threads
 from seal.protocols.rundir import (
     CONFIG_LIMIT,
@@ -210,6 +218,8 @@ class Run:
         """The run's TensorBoard and wandb loggers while it runs (`seal.protocols.loggers`)."""
         self.checkpointer = Checkpointer(self)
         """Writes best.pt and the epoch checkpoints (`seal.protocols.checkpointing`)."""
+        self.stop = SignalStop(config.checkpoint.signal_budget_s)
+        """SIGTERM and SIGINT while `run()` runs, with checkpoint.on_signal (`seal.protocols.preemption`)."""
 
     def _open_rundir(
         self, config: ProtocolConfig, path: Path, resume: bool, command: list[str] | None
@@ -234,8 +244,12 @@ class Run:
     def run(self) -> RunResult:
         """Run (or resume) every phase, holding the directory's lock; returns the headline numbers."""
         self.lock.acquire()  # a no-op unless run() is called again after it released the lock
+        handling = self.stop.handling() if self.config.checkpoint.on_signal else None
         try:
-            return self._run()
+            with handling or contextlib.nullcontext():
+                return self._run()
+        except Preempted as stop:
+            raise self._preempted(stop) from None
         except OSError as exc:
             if exc.errno not in DISK_FULL:
                 raise
@@ -265,12 +279,36 @@ class Run:
             for phase in self.phases[start_phase:]:
                 payload = resume_payload if phase.index == start_phase else None
                 self.results[phase.name] = self._run_phase(phase, payload)
+                if self.stop.requested and phase is not self.phases[-1]:
+                    later = self.phases[phase.index + 1].name
+                    raise Preempted(
+                        self.stop.signum or 0, f"{self.stop.note}; phase {later} did not start"
+                    )
         finally:
             for logger in self.loggers:
                 logger.close()
             self.loggers = []
         self.rundir.update_provenance(end_time=provenance.utc_now())
+        if self.stop.requested:
+            raise Preempted(
+                self.stop.signum or 0, f"{self.stop.note}; the run is complete", resumable=False
+            )
         return self._result()
+
+    def _preempted(self, stop: Preempted) -> Preempted:
+        """The stop recorded in provenance.json, its line ending with how to resume."""
+        record = {"time": provenance.utc_now(), "signal": self.stop.name, "what": stop.line}
+        with contextlib.suppress(
+            OSError, ValueError
+        ):  # the checkpoint is saved; this is a courtesy
+            previous = self.rundir.read_provenance().get("preemptions", [])
+            self.rundir.update_provenance(preemptions=[*previous, record])
+        line = f"{stop.line} ({self.rundir.path})"
+        if stop.resumable:
+            line = (
+                f"{stop.line}; resume with: seal run {self.config.path} --resume {self.rundir.path}"
+            )
+        return Preempted(stop.signum, line, resumable=stop.resumable, what=stop.line)
 
     def _resume_point(self) -> EpochCheckpoint | None:
         """The latest epoch checkpoint, with the CSVs cut back to it and the resume recorded; None: start over."""
@@ -409,7 +447,7 @@ class Run:
             *self.callbacks,
             self.checkpointer,
         ]
-        return PhaseLoop(self, phase, payload, callbacks).run()
+        return PhaseLoop(self, phase, payload, callbacks, self.stop).run()
 
 
 # ---------------------------------------------------------------- public API

@@ -18,6 +18,10 @@ At most one evaluation is in flight: a second waits for the first. An epoch chec
 evaluations still pending (`PendingEvaluation.fields`) and its CSV row counts exclude their rows,
 so a run killed during an evaluation re-runs it on resume and loses nothing.
 
+A SIGTERM or SIGINT sent to the whole process group (a terminal's Ctrl-C, Slurm) is ignored by
+the workers: the run decides (`seal.protocols.preemption`) and closes them, abandoning a request
+in flight; they die with the run if it is killed.
+
 Collection beside the updates (`training.overlap`, `ActorWorker`): while the loop runs epoch k's
 gradient steps, the worker collects epoch k's episodes with the policy the agent had before them
 (the policy after epoch k - 1's updates) on the training instances, which it builds from the same
@@ -54,6 +58,7 @@ from seal.protocols.phase_model import (
     build_eval_collector,
     run_agent_config,
 )
+from seal.protocols.preemption import ignore_signals
 from seal.seeding import derive_seed
 
 if TYPE_CHECKING:
@@ -178,11 +183,11 @@ class PolicyWorker(Generic[Answer]):
             self._ready = True
         return kind, answer
 
-    def close(self) -> None:
-        """Stop the worker (a request in flight is abandoned)."""
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Stop the worker, killing it after `timeout_s` (a request in flight is abandoned)."""
         with contextlib.suppress(OSError, ValueError):
             self._conn.send(("close", b""))
-        self._process.join(timeout=10)
+        self._process.join(timeout=timeout_s)
         if self._process.is_alive():
             self._process.kill()
             self._process.join()
@@ -265,6 +270,7 @@ def _worker_main(
 ) -> None:
     """The worker: build the phase's side of `role`, then answer ("request", payload) messages."""
     _exit_with_parent(parent)
+    ignore_signals()  # a SIGTERM or Ctrl-C reaches the run, which closes its workers
 
     try:
         torch.set_num_threads(ACTING_THREADS)

@@ -3,11 +3,18 @@
 `sweep` makes (or, with `--resume`, re-reads) the sweep directory, sends each unfinished trial to
 Ray as one `execute_trial` task, records each trial in sweep.json as it ends, and then writes the
 trials table and the aggregated `seal report` tables of the finished runs.
+
+A SIGTERM or SIGINT to the driver cancels the trials gently (`ray.cancel(ref, force=False)`,
+which runs the trial's SIGINT handler), so each saves its last finished epoch as `seal run`
+does (`seal.protocols.preemption`); the driver waits up to the grace period, marks them
+preempted in sweep.json and raises `Preempted` with the `seal sweep --resume` command.
 """
 
 from __future__ import annotations
 
 import json
+import time
+from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
@@ -16,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 from seal.errors import SealError
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_to_dict, dumps_toml, load_protocol
+from seal.protocols.preemption import Preempted, SignalStop
 from seal.protocols.rundir import new_group_id, seed_dir
 from seal.sweep.manifest import (
     SweepResult,
@@ -29,7 +37,15 @@ from seal.sweep.manifest import (
 )
 from seal.sweep.ray_session import RaySession, check_address, check_feasible, parse_resources
 from seal.sweep.tables import _aggregate, _write_trials_table
-from seal.sweep.trials import TrialRecord, _outcome, _write_error, execute_trial, is_finished
+from seal.sweep.trials import (
+    TrialRecord,
+    _outcome,
+    _write_error,
+    execute_trial,
+    is_finished,
+    is_started,
+    last_preemption,
+)
 
 if TYPE_CHECKING:  # Ray is imported only where it is used (see the package docstring)
     from ray import ObjectRef
@@ -95,6 +111,10 @@ def _new_sweep(
     return sweep_dir, manifest, trials, {c.name: c for c in loaded}
 
 
+DEFAULT_GRACE_S = 60.0
+"""How long a stopped sweep waits for its trials to save (`seal sweep --grace-s`)."""
+
+
 def _run_trials(
     ray: ModuleType,
     configs: Mapping[str, ProtocolConfig],
@@ -102,8 +122,12 @@ def _run_trials(
     save: Callable[[], None],
     command: Sequence[str],
     say: Callable[[str], None],
-) -> None:
-    """Each unfinished trial as its own Ray task; `trials` updated and `save`d as they end."""
+    grace_s: float = DEFAULT_GRACE_S,
+) -> SignalStop | None:
+    """Each unfinished trial as its own Ray task; `trials` updated and `save`d as they end.
+
+    A SIGTERM or SIGINT stops the sweep (`_stop_trials`); then the stop is returned, else None.
+    """
     remote = ray.remote(execute_trial)
     pending: dict[ObjectRef[TrialRecord], TrialRecord] = {}
     for record in trials:
@@ -121,27 +145,89 @@ def _run_trials(
         pending[
             task.remote(configs[record.protocol], record, threads=res.threads, command=command)
         ] = record
-    done_count, total = len(trials) - len(pending), len(trials)
-    try:
-        while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1)
-            ref = ready[0]
-            record = pending.pop(ref)
-            try:
-                result: TrialRecord = ray.get(ref)
-                trials[trials.index(record)] = result
-                record = result
-            except Exception as exc:  # noqa: BLE001 - a crashed worker is this trial's failure
+    done = [len(trials) - len(pending)]
+
+    def finish(ref: ObjectRef[TrialRecord], stopping: bool = False) -> None:
+        record = pending.pop(ref)
+        try:
+            result: TrialRecord = ray.get(ref)
+            trials[trials.index(record)] = result
+            record = result
+        except Exception as exc:  # noqa: BLE001 - a crashed worker is this trial's failure
+            if stopping:  # cancelled: before it started, or while it saved
+                _mark_stopped(record)
+            else:
                 record.status, record.error = "failed", _write_error(Path(record.run_dir), exc)
                 record.refresh()
-            done_count += 1
-            say(f"[{done_count}/{total}] {record.trial}: {_outcome(record)}")
-            save()
-    except KeyboardInterrupt:
-        for ref in pending:
-            ray.cancel(ref, force=True)
+        done[0] += 1
+        say(f"[{done[0]}/{len(trials)}] {record.trial}: {_outcome(record)}")
         save()
-        raise
+
+    stop = SignalStop()
+    with stop.handling():
+        try:
+            while pending and not stop.requested:
+                ready, _ = ray.wait(list(pending), num_returns=1, timeout=0.5)
+                for ref in ready:
+                    finish(ref)
+        except KeyboardInterrupt:  # no handlers outside the main thread: Ctrl-C stops at once
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            save()
+            raise
+        if not stop.requested:
+            return None
+        _stop_trials(ray, pending, stop, grace_s, say, finish)
+        save()
+    return stop
+
+
+def _stop_trials(
+    ray: ModuleType,
+    pending: Mapping[ObjectRef[TrialRecord], TrialRecord],
+    stop: SignalStop,
+    grace_s: float,
+    say: Callable[[str], None],
+    finish: Callable[[ObjectRef[TrialRecord], bool], None],
+) -> None:
+    """Cancel the running trials gently, so each saves as `seal run` does on SIGINT, and wait up
+    to `grace_s` for them (until a second signal); force-cancel the rest."""
+    say(
+        f"{stop.name}: stopping {len(pending)} running or waiting trials; each saves its last "
+        f"finished epoch (waiting up to {grace_s:g} s; a second signal stops waiting)"
+    )
+    for ref in pending:
+        ray.cancel(ref, force=False)  # a KeyboardInterrupt there: the run's SIGINT handler
+    deadline = time.monotonic() + grace_s
+    while pending and stop.count < 2 and (left := deadline - time.monotonic()) > 0:
+        ready, _ = ray.wait(list(pending), num_returns=1, timeout=min(0.5, left))
+        for ref in ready:
+            finish(ref, True)
+    for ref, record in list(pending.items()):
+        ray.cancel(ref, force=True)
+        _mark_stopped(record)
+        record.note = f"still running after {grace_s:g} s: cut off, its newest checkpoint stays"
+        say(f"{record.trial}: {_outcome(record)}")
+
+
+def _mark_stopped(record: TrialRecord) -> None:
+    """A trial whose task was cancelled: finished, preempted (it has a run directory to continue), or pending."""
+    if is_finished(record.run_dir):
+        record.status = "finished"
+    elif is_started(record.run_dir):
+        record.status, record.note = "preempted", last_preemption(record.run_dir)
+    else:
+        record.status = "pending"
+    record.refresh()
+
+
+def _stopped_line(stop: SignalStop, trials: Sequence[TrialRecord], sweep_dir: Path) -> str:
+    """The line a stopped sweep ends with: how its trials ended and the command that resumes them."""
+    counts = Counter(t.status for t in trials)
+    parts = [
+        f"{counts[s]} {s}" for s in ("preempted", "finished", "failed", "pending") if counts[s]
+    ]
+    return f"{stop.name}: stopped the sweep ({', '.join(parts)}); resume with: seal sweep --resume {sweep_dir}"
 
 
 def sweep(
@@ -156,12 +242,17 @@ def sweep(
     resume: str | Path | None = None,
     command: Sequence[str] | None = None,
     progress: Callable[[str], None] | None = None,
+    grace_s: float = DEFAULT_GRACE_S,
 ) -> SweepResult:
     """Run every (protocol, seed) pair as its own Ray task; each writes the run directory `seal run` writes.
 
     `seeds` default to each protocol's own. All seeds of a protocol go into one new group
     `<out>/<protocol>/<group-id>/`. `resume` continues an earlier sweep directory instead (paths,
     seeds, overrides and scale are then taken from it). Failing trials are recorded, not raised.
+
+    On SIGTERM or SIGINT the running trials are cancelled gently and save their last finished
+    epoch (waiting up to `grace_s`); sweep.json marks them preempted and `Preempted` is raised
+    with the command that resumes them.
     """
     command = _command(command)
     check_address(address)
@@ -183,10 +274,13 @@ def sweep(
     with RaySession(address, num_cpus) as ray:
         for config in configs.values():
             check_feasible(ray, config, parse_resources(config))
-        _run_trials(ray, configs, trials, save, command, say)
+        stop = _run_trials(ray, configs, trials, save, command, say, grace_s)
 
     notes: list[str] = []
     trials_table = _write_trials_table(sweep_dir / "trials", trials, ranked=False)
+    if stop is not None:
+        assert stop.signum is not None
+        raise Preempted(stop.signum, _stopped_line(stop, trials, sweep_dir))
     table = _aggregate(sweep_dir, trials, notes) or trials_table
     save()
     return SweepResult(

@@ -92,7 +92,7 @@ def rank_trials(trials: Iterable[TrialRecord]) -> list[TrialRecord]:
     Short searches often leave every trial at 0 success, so mean return breaks ties; a trial that
     ASHA stopped saw less training, so it never ranks above one that ran to the end.
     """
-    order = {"finished": 0, "stopped": 1, "pending": 2, "failed": 3}
+    order = {"finished": 0, "stopped": 1, "preempted": 2, "pending": 2, "failed": 3}
 
     def key(t: TrialRecord) -> tuple[float, float, float]:
         success = t.mean_success if t.mean_success is not None else -math.inf

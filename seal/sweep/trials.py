@@ -20,7 +20,7 @@ from typing import Any, Literal
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.rundir import atomic_write_text
 
-Status = Literal["finished", "failed", "stopped", "pending"]
+Status = Literal["finished", "failed", "stopped", "pending", "preempted"]
 
 
 def is_finished(run_dir: str | Path) -> bool:
@@ -90,7 +90,8 @@ class TrialRecord:
     seed: int
     run_dir: str
     status: Status = "pending"
-    """finished, failed, stopped (ASHA stopped it early) or pending (not run yet)."""
+    """finished, failed, stopped (ASHA stopped it early), pending (not run yet) or preempted (a
+    SIGTERM or SIGINT stopped it after saving its last finished epoch; --resume continues it)."""
     start: Literal["new", "continued", "kept"] = "new"
     """new: a fresh run; continued: resumed from its last checkpoint; kept: already finished, not run again."""
     error: str = ""
@@ -104,6 +105,8 @@ class TrialRecord:
     """Seconds this trial ran in this invocation (0 for kept trials)."""
     sample: dict[str, Any] = field(default_factory=dict)
     """A search trial's sampled config values (empty in a sweep)."""
+    note: str = ""
+    """A preempted trial: what it did at the signal and what it saved, one line."""
 
     def refresh(self) -> None:
         """Re-read the last evaluation from the run directory."""
@@ -145,6 +148,7 @@ def execute_trial(
     Never raises for a failing run: the error is stored in the record and in error.txt.
     """
     from seal.protocols import run_seed
+    from seal.protocols.preemption import Preempted
 
     run_dir = Path(record.run_dir)
     started = time.monotonic()
@@ -166,6 +170,9 @@ def execute_trial(
             cores=threads,
         )
         record.status, record.error = "finished", ""
+    except Preempted as stop:  # a SIGTERM or SIGINT here, or the sweep's gentle ray.cancel
+        record.status = "finished" if is_finished(run_dir) else "preempted"
+        record.error, record.note = "", stop.what
     except Exception as exc:  # noqa: BLE001 - any failure is this trial's, recorded, never the sweep's
         record.status, record.error = "failed", _write_error(run_dir, exc)
     record.wall_s = round(time.monotonic() - started, 3)
@@ -173,9 +180,20 @@ def execute_trial(
     return record
 
 
+def last_preemption(run_dir: str | Path) -> str:
+    """What the run's last stop on a signal saved (provenance.json's "preemptions"), else ""."""
+    try:
+        data = json.loads((Path(run_dir) / "provenance.json").read_text())
+        return str(data.get("preemptions", [{}])[-1].get("what", ""))
+    except (OSError, json.JSONDecodeError, AttributeError, IndexError, TypeError):
+        return ""
+
+
 def _outcome(record: TrialRecord) -> str:
     if record.status == "failed":
         return f"FAILED ({record.error})"
+    if record.status == "preempted":
+        return f"preempted ({record.note or 'stopped before it saved anything new'})"
     score = (
         f"mean success {record.mean_success:.2f}"
         if record.mean_success is not None
