@@ -51,6 +51,16 @@ def seeds_reached(run_dirs: Mapping[int, Path]) -> dict[int, dict[str, bool]]:
     return out
 
 
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo on Linux), else what `platform` knows."""
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.exists():
+        for line in cpuinfo.read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    return platform.processor() or platform.machine()
+
+
 def k_of_n_line(reached: Mapping[int, Mapping[str, bool]], where: str) -> str:
     """'Both tasks reached 90% in k of n seeds (...)' with the seeds that did not."""
     both = [s for s, tasks in reached.items() if tasks and all(tasks.values())]
@@ -99,10 +109,7 @@ def run_quickstart_bench(
     threads = next(
         (o.split("=", 1)[1] for o in overrides if o.startswith("protocol.threads=")), None
     )
-    where = (
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-        f"protocol.threads = {threads or 'as shipped'}"
-    )
+    where = f"{cpu_model()}, {os.cpu_count()} CPUs, protocol.threads = {threads or 'as shipped'}"
     line = k_of_n_line(reached, where)
     table = result.tables["update_counts.md"].read_text()
     seed0_table = seed0.tables["update_counts.md"].read_text()
