@@ -34,36 +34,10 @@ import seal
 from seal.cli.main import main
 from seal.errors import SealError
 from seal.protocols import load_protocol, run_seed
+from tests.faults.point_protocol import point_protocol
 
 EPOCHS = 4
-PROTOCOL = f"""
-[protocol]
-name = "faults"
-kind = "baseline"
-epochs = {EPOCHS}
-seeds = 1
-device = "cpu"
-threads = 1
-[envs.pt]
-adapter = "point"
-tasks = ["east", "north"]
-episode_length = 10
-[agent]
-hidden = [8, 8]
-[training]
-warmup_steps = 10
-batch_per_task = 8
-collector = "sync"
-[evaluation]
-interval = 1
-episodes = 1
-[checkpoint]
-interval = 2
-keep_last = 2
-[logging]
-train_interval = 3
-tensorboard = false
-"""
+PROTOCOL = point_protocol("faults", EPOCHS)
 NEWEST, OLDER = "ckpt-0000004.pt", "ckpt-0000002.pt"
 OUTSIDE_TOML = '[protocol]\nname = "elsewhere"\n'
 

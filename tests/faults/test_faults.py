@@ -26,36 +26,10 @@ from seal.cli.main import main
 from seal.learner.checkpoint import read_checkpoint
 from seal.protocols import load_protocol, run_seed
 from seal.protocols.rundir import DirLock
+from tests.faults.point_protocol import point_protocol
 
 EPOCHS = 12
-PROTOCOL = f"""
-[protocol]
-name = "faults"
-kind = "baseline"
-epochs = {EPOCHS}
-seeds = 1
-device = "cpu"
-threads = 1
-[envs.pt]
-adapter = "point"
-tasks = ["east", "north"]
-episode_length = 10
-[agent]
-hidden = [8, 8]
-[training]
-warmup_steps = 10
-batch_per_task = 8
-collector = "sync"
-[evaluation]
-interval = 1
-episodes = 1
-[checkpoint]
-interval = 2
-keep_last = 2
-[logging]
-train_interval = 3
-tensorboard = false
-"""
+PROTOCOL = point_protocol("faults", EPOCHS)
 CHILD = Path(__file__).with_name("pausing_child.py")
 KILL_MOMENTS = 10
 

@@ -27,37 +27,11 @@ from seal.learner.checkpoint import read_checkpoint
 from seal.protocols import load_protocol, run_seed
 from seal.protocols.phase import PhaseLoop
 from seal.protocols.rundir import RunDir
+from tests.faults.point_protocol import point_protocol
 
 EPOCHS = 12
 INTERVAL = 4
-PROTOCOL = f"""
-[protocol]
-name = "signals"
-kind = "baseline"
-epochs = {EPOCHS}
-seeds = 1
-device = "cpu"
-threads = 1
-[envs.pt]
-adapter = "point"
-tasks = ["east", "north"]
-episode_length = 10
-[agent]
-hidden = [8, 8]
-[training]
-warmup_steps = 10
-batch_per_task = 8
-collector = "sync"
-[evaluation]
-interval = 1
-episodes = 1
-[checkpoint]
-interval = {INTERVAL}
-keep_last = 2
-[logging]
-train_interval = 3
-tensorboard = false
-"""
+PROTOCOL = point_protocol("signals", EPOCHS, interval=INTERVAL)
 CHILD = Path(__file__).with_name("signal_child.py")
 MOMENTS = 10
 HOLD_S = 1.0

@@ -18,34 +18,9 @@ from seal.learner import checkpoint
 from seal.learner.checkpoint import atomic_save, read_checkpoint
 from seal.protocols import load_protocol, run_seed
 from seal.protocols.rundir import DirLock
+from tests.faults.point_protocol import point_protocol
 
-PROTOCOL = """
-[protocol]
-name = "disk"
-kind = "baseline"
-epochs = 6
-seeds = 1
-device = "cpu"
-threads = 1
-[envs.pt]
-adapter = "point"
-tasks = ["east", "north"]
-episode_length = 10
-[agent]
-hidden = [8, 8]
-[training]
-warmup_steps = 10
-batch_per_task = 8
-collector = "sync"
-[evaluation]
-interval = 1
-episodes = 1
-[checkpoint]
-interval = 2
-keep_last = 3
-[logging]
-tensorboard = false
-"""
+PROTOCOL = point_protocol("disk", 6, keep_last=3, train_interval=None)
 STREAM_WRITER = (
     "[enforce fail at inline_container.cc:672] . PytorchStreamWriter failed writing file "
     "data/0: file write failed"
