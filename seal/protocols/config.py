@@ -68,6 +68,12 @@ class EnvConfig:
     """Steps per episode (truncation); 0 means the adapter's default (Meta-World 500, kitchen 280)."""
     options: dict[str, Any] = field(default_factory=dict)
     """Adapter options, validated by the adapter, e.g. { gravity_compensation = true } for the kitchen."""
+    demo_episodes: Annotated[int, Field(ge=0)] | None = None
+    """This env's scripted-expert episodes per task in the replay; unset = `training.demo_episodes`.
+
+    E.g. demonstrations for the kitchen only, so a Meta-World task's learning is not mostly its
+    expert's (protocols/table1_small).
+    """
 
 
 @with_config(SCHEMA)
@@ -291,6 +297,11 @@ class ProtocolConfig:
     def seeds(self) -> list[int]:
         """The seeds this protocol runs."""
         return list(range(self.protocol.first_seed, self.protocol.first_seed + self.protocol.seeds))
+
+    def demo_episodes(self, env: str) -> int:
+        """Scripted-expert episodes per task that env `env` puts in the replay (`EnvConfig.demo_episodes`)."""
+        own = self.envs[env].demo_episodes
+        return self.training.demo_episodes if own is None else own
 
     def replace(self, **changes: Any) -> ProtocolConfig:
         """A copy with some top-level fields changed."""

@@ -214,7 +214,7 @@ def _build_envs(raw: object, file: str) -> dict[str, EnvConfig]:
         where = f"{file}: envs.{shown_key(name)}"
         if not isinstance(table, dict):
             raise ConfigError(
-                f"{where} must be a table with keys adapter, tasks, episode_length, options"
+                f"{where} must be a table with keys adapter, tasks, episode_length, options, demo_episodes"
             )
         if isinstance(table.get("tasks"), str):  # one task or set name: a one-element list
             table = {**table, "tasks": [table["tasks"]]}
@@ -239,7 +239,8 @@ def _build_envs(raw: object, file: str) -> dict[str, EnvConfig]:
                 key = "episode_length"
             raise ConfigError(f"{where}.{key}: {exc}") from None
         # Resolved: set names expanded and the adapter's default episode length filled in.
-        envs[name] = EnvConfig(
+        envs[name] = dataclasses.replace(
+            env,
             adapter=adapter_name,
             tasks=tuple(adapter.tasks),
             episode_length=adapter.episode_length,
@@ -249,21 +250,27 @@ def _build_envs(raw: object, file: str) -> dict[str, EnvConfig]:
 
 
 def _check_demos(config: ProtocolConfig, file: str) -> None:
-    """training.demo_episodes > 0 needs a scripted expert for every task of every env."""
-    if config.training.demo_episodes == 0:
-        return
+    """An env with demonstrations (`demo_episodes` > 0) needs a scripted expert for every task."""
     from seal.envs import adapter_class
 
     for name, env in config.envs.items():
+        episodes = config.demo_episodes(name)
+        if episodes == 0:
+            continue
         adapter = adapter_class(env.adapter)(
             tasks=list(env.tasks), episode_length=env.episode_length, **env.options
         )
         missing = [t for t in adapter.tasks if adapter.expert(t) is None]
         if missing:
+            key = (
+                "training.demo_episodes"
+                if env.demo_episodes is None
+                else f"envs.{shown_key(name)}.demo_episodes"
+            )
             raise ConfigError(
-                f"{file}: training.demo_episodes = {config.training.demo_episodes} needs a scripted "
-                f"expert for every task, and adapter {env.adapter!r} (envs.{shown_key(name)}) has none for "
-                f"{', '.join(missing)}; set demo_episodes = 0 or drop those tasks"
+                f"{file}: {key} = {episodes} needs a scripted expert for every task, and adapter "
+                f"{env.adapter!r} (envs.{shown_key(name)}) has none for {', '.join(missing)}; "
+                "set demo_episodes = 0 or drop those tasks"
             )
 
 

@@ -279,7 +279,7 @@ class PhaseLoop:
         # A scheduler that reads evaluations sees each one before its next plan, as it would
         # synchronously (asynchronous evaluation then waits for results before planning).
         self._reads_eval = type(self.scheduler).observe_eval is not SchedulerBase.observe_eval
-        if payload is None and cfg.training.demo_episodes:
+        if payload is None and any(cfg.demo_episodes(e) for e in model.env_tasks):
             since = time.perf_counter()
             self.state.demos = self._demonstrations()
             self.state.add_time("demos", since)
@@ -679,29 +679,37 @@ class PhaseLoop:
             )
 
     def _demonstrations(self) -> dict[str, dict[str, float]]:
-        """Put `training.demo_episodes` episodes per task of each adapter's scripted expert in the replay."""
+        """Put `demo_episodes` episodes per task of each env's scripted expert in the replay (`ProtocolConfig.demo_episodes`)."""
         model = self.model
+        episodes = {e: self.cfg.demo_episodes(e) for e in model.env_tasks}
         experts = {
-            e: [model.adapters[e].expert(t) for t in tasks] for e, tasks in model.env_tasks.items()
+            e: [model.adapters[e].expert(t) for t in tasks]
+            for e, tasks in model.env_tasks.items()
+            if episodes[e]
         }
 
         def act(env: str, obs: np.ndarray, task_ids: np.ndarray) -> np.ndarray:
             return np.stack([experts[env][i](o) for o, i in zip(obs, task_ids, strict=True)])
 
-        episodes = self.cfg.training.demo_episodes
         steps = {e: 0 for e in experts}
         successes = {e: 0.0 for e in experts}
         sink = _ReplaySink(self.replay, model)
-        for _ in range(episodes):
-            stats = self.collector.collect_episodes(act, sink=sink)
+        for i in range(max(episodes.values())):
+            # Only the envs with demonstrations left step: an env without any keeps its reset
+            # sequence, so its warm-up matches a run of the same seed that has no demonstrations.
+            active = {
+                e: np.full(len(ts), i < episodes[e]) for e, ts in model.env_tasks.items()
+            }
+            stats = self.collector.collect_episodes(act, active=active, sink=sink)
             for e in experts:
-                steps[e] += int(stats.lengths[e].sum())
-                successes[e] += float(stats.successes[e].sum())
+                if i < episodes[e]:
+                    steps[e] += int(stats.lengths[e].sum())
+                    successes[e] += float(stats.successes[e].sum())
         figures = {
             e: {
-                "episodes": episodes * len(experts[e]),
+                "episodes": episodes[e] * len(experts[e]),
                 "env_steps": steps[e],
-                "expert_success": successes[e] / (episodes * len(experts[e])),
+                "expert_success": successes[e] / (episodes[e] * len(experts[e])),
             }
             for e in experts
         }

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 
 from seal.cli.main import main
 from seal.envs import make_adapter
@@ -132,3 +133,31 @@ def test_stop_when_reached_ends_the_phase_at_the_first_evaluation_where_all_task
 
         resume_run(run)
         assert int(pd.read_csv(run / "metrics.csv")["epoch"].max()) == 2
+
+
+JOINT = REACH.replace('kind = "baseline"', 'kind = "joint"') + """
+[envs.other]
+adapter = "metaworld"
+tasks = ["drawer-close-v3"]
+episode_length = 20
+"""
+
+
+def test_an_env_without_demonstrations_warms_up_as_in_a_run_without_any(tmp_path: Path) -> None:
+    # mw puts 2 expert episodes in its replay (training.demo_episodes), other none
+    # (envs.other.demo_episodes = 0). Set against a run with no demonstrations at all, other's
+    # replay holds the very same warm-up transitions: its resets were not spent on mw's experts.
+    with_demos = tmp_path / "with.toml"
+    with_demos.write_text(JOINT + "demo_episodes = 0\n")
+    without = tmp_path / "without.toml"
+    without.write_text(JOINT.replace("demo_episodes = 2", "demo_episodes = 0"))
+    replays = {}
+    for path in (with_demos, without):
+        run = run_seed(load_protocol(path), 0, tmp_path / path.stem).run_dir
+        payload = read_checkpoint(run / "checkpoints" / "ckpt-0000001.pt")
+        replays[path.stem] = payload["replay"]["envs"]
+    assert list(payload["runner"]["state"]["demos"]) == []
+    assert replays["with"]["mw"]["size"].tolist() == [60]
+    assert replays["with"]["other"]["size"].tolist() == [20]
+    for key in ("obs", "actions", "rewards"):
+        assert torch.equal(replays["with"]["other"][key], replays["without"]["other"][key])
