@@ -41,7 +41,11 @@ def test_every_arm_resolves_with_one_network_budget_and_evaluation() -> None:
             e: TASKS[e] for e in config.envs
         }
         tables[arm.name] = {k: raw[k] for k in ("agent", "training", "evaluation")}
-        # Every kitchen gets the same reward version and every env the same demonstrations.
+        # Demonstrations for the kitchen only: 30 episodes; drawer-close learns from none.
+        assert {e: config.demo_episodes(e) for e in config.envs} == {
+            e: {"mw": 0, "fk": 30}[e] for e in config.envs
+        }
+        # Every kitchen gets the same reward version.
         if "fk" in config.envs:
             assert raw["envs"]["fk"]["options"] == tables.get("_fk", raw["envs"]["fk"]["options"])
             tables["_fk"] = raw["envs"]["fk"]["options"]
@@ -132,8 +136,8 @@ def test_tiny_end_to_end(tmp_path: Path) -> None:
     assert "# Changes against the reference columns" in result["table"]
     assert {Path(p).name for p in result["plots"]} >= {"changes_mw.png", "success_mw.png"}
     text = format_result(result)
-    assert "1 seeds of 5 arms" in text and "budget 5400 s with >= 3 seeds: not met" in text
-    assert result["budget"]["met"] is False  # one seed is fewer than the budget's three
+    assert "1 seeds of 5 arms" in text and "budget 5400 s with >= 5 seeds: not met" in text
+    assert result["budget"]["met"] is False  # one seed is fewer than the budget's five
 
 
 def test_cli_rejects_set_outside_protocol_and_table1(capsys) -> None:
