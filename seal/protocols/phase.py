@@ -697,9 +697,7 @@ class PhaseLoop:
         for i in range(max(episodes.values())):
             # Only the envs with demonstrations left step: an env without any keeps its reset
             # sequence, so its warm-up matches a run of the same seed that has no demonstrations.
-            active = {
-                e: np.full(len(ts), i < episodes[e]) for e, ts in model.env_tasks.items()
-            }
+            active = {e: np.full(len(ts), i < episodes[e]) for e, ts in model.env_tasks.items()}
             stats = self.collector.collect_episodes(act, active=active, sink=sink)
             for e in experts:
                 if i < episodes[e]:

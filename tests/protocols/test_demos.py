@@ -135,12 +135,15 @@ def test_stop_when_reached_ends_the_phase_at_the_first_evaluation_where_all_task
         assert int(pd.read_csv(run / "metrics.csv")["epoch"].max()) == 2
 
 
-JOINT = REACH.replace('kind = "baseline"', 'kind = "joint"') + """
+JOINT = (
+    REACH.replace('kind = "baseline"', 'kind = "joint"')
+    + """
 [envs.other]
 adapter = "metaworld"
 tasks = ["drawer-close-v3"]
 episode_length = 20
 """
+)
 
 
 def test_an_env_without_demonstrations_warms_up_as_in_a_run_without_any(tmp_path: Path) -> None:
