@@ -42,6 +42,7 @@ from seal.device import usable_cores
 from seal.errors import SealError
 from seal.protocols import load_protocol, run_seed
 from seal.protocols.config import ProtocolConfig
+from seal.protocols.phase import LOOP_PARTS
 from seal.protocols.phase_model import build_adapters, plan_phases
 
 PARTS = ("collect", "update", "evaluate", "checkpoint")
@@ -195,7 +196,9 @@ def bench_protocol(
                 "evaluate": evaluations * per_eval / projected if projected else 0.0,
             },
         }
-    window_s = sum(sum(t["seconds"].values()) for t in result.timing.values())
+    window_s = sum(
+        t["seconds"].get(p, 0.0) for t in result.timing.values() for p in (*LOOP_PARTS, "demos")
+    )
     return {
         "protocol": str(path),
         "epochs": epochs,

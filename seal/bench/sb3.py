@@ -1,6 +1,6 @@
 """``sac_vs_sb3``: gradient updates/s of our single-task SAC / stable-baselines3 SAC.
 
-Widths (400, 400), batch 256, CPU, same torch threads, both including replay sampling, from
+Widths (400, 400) (`e2e_vs_sb3` adds (256, 256)), batch 256, CPU, same torch threads, both including replay sampling, from
 identical weights (`_twin_sacs`); each side's matmul FLOPs per update are counted too. That the two
 compute the same update is a test (tests/learner/test_sb3_parity.py), which uses `_twin_sacs` and
 `_rel` from here.
@@ -64,8 +64,10 @@ def _require_sb3() -> ModuleType:
     return stable_baselines3
 
 
-def _twin_sacs(seed: int, batch_size: int, buffer_size: int) -> tuple[Agent, SAC]:
-    """Our single-task SAC and an SB3 SAC with identical weights, (400, 400), on CPU."""
+def _twin_sacs(
+    seed: int, batch_size: int, buffer_size: int, widths: tuple[int, ...] = SB3_WIDTHS
+) -> tuple[Agent, SAC]:
+    """Our single-task SAC and an SB3 SAC with identical weights, `widths` wide, on CPU."""
     _require_sb3()
     from stable_baselines3 import SAC
     from stable_baselines3.common.logger import Logger
@@ -75,7 +77,7 @@ def _twin_sacs(seed: int, batch_size: int, buffer_size: int) -> tuple[Agent, SAC
     # One task, no one-hot: the plain single-task SAC that SB3 implements (no gradient clipping,
     # torch's Adam eps).
     config = AgentConfig(
-        hidden=SB3_WIDTHS,
+        hidden=widths,
         one_hot=False,
         multi_head_policy=False,
         max_grad_norm=0.0,
@@ -89,7 +91,7 @@ def _twin_sacs(seed: int, batch_size: int, buffer_size: int) -> tuple[Agent, SAC
         batch_size=batch_size,
         buffer_size=buffer_size,
         learning_starts=0,
-        policy_kwargs={"net_arch": list(SB3_WIDTHS)},
+        policy_kwargs={"net_arch": list(widths)},
         device="cpu",
         seed=seed,
     )
@@ -135,15 +137,18 @@ class SacVsSb3(TypedDict):
     sb3_gflops: float
     updates_timed: int
     repeats: int
+    widths: list[int]
 
 
-def bench_sac_vs_sb3(updates: int = 300, repeats: int = 3, seed: int = 0) -> SacVsSb3:
+def bench_sac_vs_sb3(
+    updates: int = 300, repeats: int = 3, seed: int = 0, widths: tuple[int, ...] = SB3_WIDTHS
+) -> SacVsSb3:
     """Gradient updates/s of our SAC and SB3's, each sampling batch 256 from its own filled replay."""
     from seal.learner import MultiTaskReplay
     from seal.learner.config import EnvSpec
 
     batch_size, filled = 256, 20_000
-    ours, sb3 = _twin_sacs(seed, batch_size, buffer_size=filled)
+    ours, sb3 = _twin_sacs(seed, batch_size, buffer_size=filled, widths=widths)
     rng = np.random.default_rng(seed)
     data = {
         "obs": rng.normal(size=(filled, SB3_OBS_DIM)).astype(np.float32),
@@ -204,4 +209,5 @@ def bench_sac_vs_sb3(updates: int = 300, repeats: int = 3, seed: int = 0) -> Sac
         "sb3_gflops": flops["sb3"] * updates / t_sb3 / 1e9,
         "updates_timed": updates,
         "repeats": repeats,
+        "widths": list(widths),
     }

@@ -22,6 +22,10 @@ machine load affects both sides (the load is recorded with the results):
 - ``paper_update_rate`` (only with ``--only``: slow on a CPU): updates/s of the paper-scale SEAL
   update (protocols/high_fk.toml's agent: MT10 and the 10 kitchens, batch 2,560, 400-wide) on the
   default device, eager and compiled (CUDA graphs on CUDA); its goal is for one H100.
+- ``e2e_vs_sb3`` (only with ``--only``: minutes per env): wall time of the same learning work,
+  stable-baselines3's `SAC.learn` / `seal run`'s loop, per env (reach-v3, the kitchen's
+  slide-cabinet), with each side's env steps/s and updates/s, SEAL's shares of its wall and
+  ``sac_vs_sb3`` at (256, 256) beside it (`seal.bench.e2e`).
 - ``collect_mt10_speedup`` / ``collect_fk_speedup``: env steps/s of `Collector` over the 10 tasks /
   a plain single-process loop over envs built by the same adapter (same wrappers), with the same
   actions; both must end on identical observations.
@@ -38,6 +42,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from seal.bench.collection import bench_collection
+from seal.bench.e2e import E2E_PROTOCOLS, bench_e2e
 from seal.bench.flops import (
     agent_flop_formula_check,
     bench_mt10_flops,
@@ -67,6 +72,8 @@ class BenchSettings:
     """Episodes of all 10 tasks per timed collection run (MT10: 5,000 env steps; kitchens: 2,800)."""
     mt10_episode_length: int | None = None  # None: the adapter's 500
     fk_episode_length: int | None = None  # None: the adapter's 280
+    e2e_steps: int = 20_000
+    """Env steps with updates in each side's e2e_vs_sb3 window (whole episodes)."""
 
     @classmethod
     def quick(cls) -> BenchSettings:
@@ -78,6 +85,7 @@ class BenchSettings:
             collect_episodes=1,
             mt10_episode_length=100,
             fk_episode_length=60,
+            e2e_steps=2_000,
         )
 
 
@@ -96,7 +104,7 @@ def run_bench(
         "collect_fk_speedup",
         "ratio_lever",
     )
-    opt_in = ("paper_update_rate",)  # minutes per repeat on a CPU: only when asked for
+    opt_in = ("paper_update_rate", "e2e_vs_sb3")  # minutes on a CPU: only when asked for
     chosen = list(only or keys)
     unknown = [k for k in chosen if k not in keys + opt_in]
     if unknown:
@@ -144,6 +152,15 @@ def run_bench(
         else:
             out["details"]["paper_update_rate"] = d
             out["paper_update_rate"] = d["paper_update_rate"]
+    if "e2e_vs_sb3" in chosen:
+        figures = {}
+        for name in E2E_PROTOCOLS:
+            log(f"e2e_vs_sb3: {name}, {settings.e2e_steps} env steps each side")
+            figures[name] = bench_e2e(name, settings.e2e_steps)
+        log("e2e_vs_sb3: sac_vs_sb3 at (256, 256)")
+        beside = bench_sac_vs_sb3(settings.sac_updates, settings.repeats, widths=(256, 256))
+        out["details"]["e2e_vs_sb3"] = {**figures, "sac_vs_sb3_256": beside}
+        out["e2e_vs_sb3"] = {name: f["e2e_vs_sb3"] for name, f in figures.items()}
     for key, adapter, length in (
         ("collect_mt10_speedup", "metaworld", settings.mt10_episode_length),
         ("collect_fk_speedup", "franka_kitchen_dense", settings.fk_episode_length),
@@ -182,6 +199,8 @@ GOALS = {
     "ratio_lever": 0.8,
     "paper_update_rate": 1000,  # on one H100 (issue 13)
 }
+E2E_GOALS = {"reach-v3": 1.3, "slide-cabinet": 1.2}
+"""e2e_vs_sb3's goal per env: the kitchen's heavier physics dilutes any update gain."""
 
 
 def _paths_detail(timed: Mapping[str, Any], key: str, check: Mapping[str, Any], note: str) -> str:
@@ -200,6 +219,18 @@ def _paths_detail(timed: Mapping[str, Any], key: str, check: Mapping[str, Any], 
     return (
         f"{timed['headline_path']} shown; {', '.join(parts)}; mm {timed['matmul_gflops_same_shapes']:.1f} GFLOP/s, "
         f"{timed['ideal_flops_per_update'] / 1e6:.0f} MFLOP{note}; formula==FlopCounter: {check['equal']}"
+    )
+
+
+def _e2e_detail(figure: Mapping[str, Any], beside: Mapping[str, Any]) -> str:
+    """Each side's rates, SEAL's shares and sac_vs_sb3 at (256, 256)."""
+    seal, sb3 = figure["seal"], figure["sb3"]
+    shares = ", ".join(f"{p} {s:.0%}" for p, s in seal["shares"].items() if p != "evaluate")
+    return (
+        f"seal {seal['env_steps_per_s']:.0f} env steps/s, {seal['updates_per_s']:.0f} upd/s; "
+        f"sb3 {sb3['env_steps_per_s']:.0f}, {sb3['updates_per_s']:.0f}; {seal['env_steps']} steps "
+        f"each, {figure['threads']} threads; seal's wall: {shares}; "
+        f"sac_vs_sb3 (256, 256) {beside['sac_vs_sb3']:.2f}"
     )
 
 
@@ -279,6 +310,11 @@ def format_table(result: Mapping[str, Any]) -> str:
         value = result[key]
         shown = "n/a" if value is None else f"{value:.2f}"
         lines.append(f"{key:<28} {shown:>8} {'>=' + str(goal):>7}  {detail[key]()}")
+    for name, value in result.get("e2e_vs_sb3", {}).items():
+        lines.append(
+            f"{'e2e_vs_sb3 ' + name:<28} {value:>8.2f} {'>=' + str(E2E_GOALS[name]):>7}  "
+            + _e2e_detail(d["e2e_vs_sb3"][name], d["e2e_vs_sb3"]["sac_vs_sb3_256"])
+        )
     load = result["load_before"]
     lines.append(
         f"load before: {load['loadavg_1m']} (1 min) on {load['cpus']} CPUs, torch threads {load['torch_threads']}; after: {result['load_after']['loadavg_1m']}"

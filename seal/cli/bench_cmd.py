@@ -17,6 +17,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "side by side in one run and prints a table (or one JSON object with --json). "
             "--only paper_update_rate (not in the default run: slow on a CPU) times the paper-scale "
             "SEAL update (MT10 + 10 kitchens, batch 2,560) eager and compiled, CUDA graphs on a GPU. "
+            "--only e2e_vs_sb3 (not in the default run: minutes per env) times the same learning work "
+            "under stable-baselines3's SAC.learn and seal run's loop on reach-v3 and slide-cabinet "
+            "(--e2e-steps env steps each). "
             "--learn adds the slow learning checks (point with/without one-hot, reach-v3); "
             "--learn transfer runs only the cross-environment transfer testbed (protocols/testbed, "
             "docs/transfer_testbed.md): every arm, the positive controls included, against its alone arm, "
@@ -97,6 +100,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--repeats", type=int, default=None, help="timing repeats (best of N); overrides the preset"
+    )
+    parser.add_argument(
+        "--e2e-steps",
+        type=int,
+        default=None,
+        metavar="N",
+        help="with --only e2e_vs_sb3: env steps with updates timed on each side, per env (default 20,000; whole episodes)",
     )
     parser.add_argument(
         "--protocol",
@@ -237,6 +247,10 @@ def run(args: argparse.Namespace) -> int:
         if args.repeats < 1:
             raise SealError(f"--repeats must be >= 1, got {args.repeats}")
         settings = dataclasses.replace(settings, repeats=args.repeats)
+    if args.e2e_steps is not None:
+        if args.e2e_steps < 1:
+            raise SealError(f"--e2e-steps must be >= 1, got {args.e2e_steps}")
+        settings = dataclasses.replace(settings, e2e_steps=args.e2e_steps)
     result = run_bench(
         settings,
         only=args.only,

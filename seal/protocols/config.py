@@ -174,6 +174,12 @@ class EvaluationConfig:
     plan. With `stop_when_reached` the phase ends at the first epoch end after the deciding
     result comes back, so it trains a little longer than a synchronous run (its rows and update
     counts are the same).
+
+    The paper's criterion, the first evaluation at >= `threshold`, keeps its meaning: a row
+    carries the snapshot's gradient steps, env steps and consumed updates, and a first crossing
+    records the snapshot's updates, never those made while it was evaluated, so the update count
+    is the one a synchronous run of the same snapshots records. `seal run`'s time line then
+    counts as evaluation only the loop's waiting on it, the worker's CPU seconds apart.
     """
 
 

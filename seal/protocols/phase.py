@@ -11,12 +11,13 @@ this module and the callbacks' need not import the runner.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import random
 import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NoReturn, Protocol, cast
 
@@ -80,6 +81,15 @@ class Evaluated:
 
 # ---------------------------------------------------------------- one phase
 
+LOOP_PARTS = ("collect", "update", "evaluate", "checkpoint", "log")
+"""The parts of a phase loop's wall that `PhaseLoop.timed` counts; the rest of it is "other".
+
+evaluate: the loop's wall spent on evaluation (best.pt included). Synchronous, the evaluation
+itself; asynchronous, only the loop's waiting on it (the snapshot, waiting for the previous
+result, recording it), the worker's CPU seconds counted apart ("evaluate_worker_cpu"). log: the
+CSV rows, the loggers' and progress bar's callbacks (TensorBoard, wandb, Tune), their flushes.
+"""
+
 
 @dataclass
 class PhaseState:
@@ -102,7 +112,8 @@ class PhaseState:
     log_updates: int = 0
     """Updates since the last train.csv row (a checkpoint between two rows keeps both)."""
     seconds: dict[str, float] = field(default_factory=dict)
-    """Wall seconds spent in each part of the loop: collect, update, evaluate, checkpoint."""
+    """Wall seconds of each part of the loop (`LOOP_PARTS`; `PhaseLoop.timed`), "demos" (before
+    the loop) and "evaluate_worker_cpu" (evaluation.mode = "async": the worker's CPU seconds)."""
     calls: dict[str, int] = field(default_factory=dict)
     """How many times each part ran (update: gradient steps; evaluate: evaluations)."""
     demos: dict[str, dict[str, float]] = field(default_factory=dict)
@@ -117,10 +128,11 @@ class PhaseState:
         """The counters as a checkpoint holds them (`dataclasses.asdict`)."""
         return cast("PhaseStateFields", dataclasses.asdict(self))
 
-    def add_time(self, part: str, since: float) -> None:
-        """Count one run of `part` that started at time.perf_counter() `since`."""
-        self.seconds[part] = self.seconds.get(part, 0.0) + time.perf_counter() - since
-        self.calls[part] = self.calls.get(part, 0) + 1
+    def add_time(self, part: str, seconds: float, calls: int = 0) -> None:
+        """Count `seconds` of wall time and `calls` runs to `part`."""
+        self.seconds[part] = self.seconds.get(part, 0.0) + seconds
+        if calls:
+            self.calls[part] = self.calls.get(part, 0) + calls
 
 
 class LoopCallback:
@@ -236,6 +248,8 @@ class PhaseLoop:
         self.owner, self.phase = run, phase
         self.stop = stop if stop is not None else SignalStop()
         """The run's SIGTERM and SIGINT handling (`seal.protocols.preemption`)."""
+        self._clock: list[tuple[str, float]] = []
+        """`timed`'s open parts, innermost last, each with the time its count resumed."""
         model = self.model = PhaseModel(cfg, phase, run.adapters, run.alignment)
         self.agent: Agent = run.initial_agent(phase, model, resuming=payload is not None)
         self.replay: MultiTaskReplay = cfg.replay.build(
@@ -280,9 +294,8 @@ class PhaseLoop:
         # synchronously (asynchronous evaluation then waits for results before planning).
         self._reads_eval = type(self.scheduler).observe_eval is not SchedulerBase.observe_eval
         if payload is None and any(cfg.demo_episodes(e) for e in model.env_tasks):
-            since = time.perf_counter()
-            self.state.demos = self._demonstrations()
-            self.state.add_time("demos", since)
+            with self.timed("demos"):
+                self.state.demos = self._demonstrations()
             if cfg.training.overlap:
                 self._close_collector()  # the actor has training instances of its own
         self.id_maps = {
@@ -364,6 +377,29 @@ class PhaseLoop:
             t in reached.get(e, {}) for e, ts in self.model.env_tasks.items() for t in ts
         )
 
+    @contextlib.contextmanager
+    def timed(self, part: str, count: bool = True) -> Iterator[None]:
+        """Count the block's wall seconds to `part` in `state.seconds` (`count`: and one run in
+        `state.calls`).
+
+        A part timed within another counts to itself alone (the rows an evaluation writes are
+        "log", not "evaluate"), so the parts never overlap and the loop's other = its wall -
+        their sum (`LOOP_PARTS`).
+        """
+        clock, now = self._clock, time.perf_counter()
+        if clock:
+            outer, since = clock[-1]
+            self.state.add_time(outer, now - since)
+        clock.append((part, now))
+        try:
+            yield
+        finally:
+            _, since = clock.pop()
+            now = time.perf_counter()
+            self.state.add_time(part, now - since, calls=int(count))
+            if clock:
+                clock[-1] = (clock[-1][0], now)
+
     def run(self) -> PhaseState:
         """Run the phase's remaining epochs; its counters.
 
@@ -375,14 +411,18 @@ class PhaseLoop:
             callback.on_phase_start(self)
         try:
             if self.cfg.evaluation.mode == "async" or self.pending:
-                self.evaluator = EvaluationWorker(
-                    self.cfg, self.phase, self.owner.seed, self.owner.device
-                )
-                # A resumed run re-runs the evaluations its checkpoint left pending.
-                for pending in self.pending:
-                    self.evaluator.submit(pending.draw, pending.agent)
+                with self.timed("evaluate", count=False):
+                    self.evaluator = EvaluationWorker(
+                        self.cfg, self.phase, self.owner.seed, self.owner.device
+                    )
+                    # A resumed run re-runs the evaluations its checkpoint left pending.
+                    for pending in self.pending:
+                        self.evaluator.submit(pending.draw, pending.agent)
             if self.cfg.training.overlap:
-                self.actor = ActorWorker(self.cfg, self.phase, self.owner.seed, self.owner.device)
+                with self.timed("collect", count=False):
+                    self.actor = ActorWorker(
+                        self.cfg, self.phase, self.owner.seed, self.owner.device
+                    )
             while self.state.epoch < self.phase.epochs and not self.all_reached():
                 if self.stop.requested:  # came between epochs: stop after the last one
                     self._stop(f"{self.stop.name} after epoch {self.state.epoch}")
@@ -393,10 +433,13 @@ class PhaseLoop:
                 except RollBack:
                     self._roll_back()
                 self._close_epoch(last_epoch)
-                for callback in self.callbacks:
-                    callback.on_epoch_end(self)
+                with self.timed("log", count=False):
+                    for callback in self.callbacks:
+                        callback.on_epoch_end(self)
                 if last_epoch:
                     break
+            # The loop's wall (`LOOP_PARTS` and other); closing its workers is start-up's.
+            self.state.wall_s = time.monotonic() - self.started
             if self.stop.requested and not self.stop.note:
                 how = f"{self.stop.name} after epoch {self.state.epoch}, the phase's last"
                 self.stop.note = f"{how}; {self._save_for_stop()}"
@@ -539,18 +582,17 @@ class PhaseLoop:
 
         Returns env -> the longest episode it collected (envs that collected nothing are absent).
         """
-        since = time.perf_counter()
         lengths: dict[str, int] = {}
-        for random_actions, active in self._passes(plan):
-            with torch_threads(ACTING_THREADS):
-                stats = self.collector.collect_episodes(
-                    None if random_actions else self.train_policy,
-                    active=active,
-                    random_actions=random_actions,
-                    sink=_ReplaySink(self.replay, self.model),
-                )
-            self._observe_episodes(active, stats, lengths)
-        self.state.add_time("collect", since)
+        with self.timed("collect"):
+            for random_actions, active in self._passes(plan):
+                with torch_threads(ACTING_THREADS):
+                    stats = self.collector.collect_episodes(
+                        None if random_actions else self.train_policy,
+                        active=active,
+                        random_actions=random_actions,
+                        sink=_ReplaySink(self.replay, self.model),
+                    )
+                self._observe_episodes(active, stats, lengths)
         return lengths
 
     def _passes(self, plan: Plan) -> list[tuple[bool, dict[str, np.ndarray]]]:
@@ -604,16 +646,15 @@ class PhaseLoop:
         """training.overlap: wait for the actor's episodes, add them to the replay in order and
         count them; env -> the longest episode collected (the next epoch's updates train on them)."""
         assert self.actor is not None
-        since = time.perf_counter()
         sink = _ReplaySink(self.replay, self.model)
         lengths: dict[str, int] = {}
-        for (_, active), (steps, stats) in zip(
-            self._actor_passes, self.actor.result(), strict=True
-        ):
-            for step in steps:
-                sink(*step)
-            self._observe_episodes(active, stats, lengths)
-        self.state.add_time("collect", since)
+        with self.timed("collect"):
+            for (_, active), (steps, stats) in zip(
+                self._actor_passes, self.actor.result(), strict=True
+            ):
+                for step in steps:
+                    sink(*step)
+                self._observe_episodes(active, stats, lengths)
         return lengths
 
     def _train(self, plan: Plan, lengths: Mapping[str, int]) -> None:
@@ -631,28 +672,28 @@ class PhaseLoop:
         }
         self.batch_now = {e: np.asarray(c, dtype=np.int64) for e, c in counts.items()}
         every = cfg.evaluation.every_grad_steps
-        for _ in range(self._grad_steps(plan, lengths)):
-            since = time.perf_counter()
-            batches = self.replay.sample(sample_counts)
-            if model.alignment is not None:
-                batches = {
-                    k: b._replace(task_ids=self.id_maps[k].to(b.task_ids.device)[b.task_ids])
-                    for k, b in batches.items()
-                }
-            names, values = self.agent.update_on_device(batches)
-            sums = self.pending_logs.get(names)
-            self.pending_logs[names] = values if sums is None else sums + values
-            state.grad_steps += 1
-            state.log_updates += 1
-            if self.agent.last_ratio_lever is not None:
-                lever = self.agent.last_ratio_lever
-                state.log_sums["charts/ratio_lever"] = (
-                    state.log_sums.get("charts/ratio_lever", 0.0) + lever
-                )
-            state.add_time("update", since)
-            if every and state.grad_steps % every == 0:
-                self._evaluate()  # mid-epoch: the update-count grid is K x batch
-        self._read_logs()
+        with self.timed("update", count=False):  # a mid-epoch evaluation counts to itself
+            for _ in range(self._grad_steps(plan, lengths)):
+                batches = self.replay.sample(sample_counts)
+                if model.alignment is not None:
+                    batches = {
+                        k: b._replace(task_ids=self.id_maps[k].to(b.task_ids.device)[b.task_ids])
+                        for k, b in batches.items()
+                    }
+                names, values = self.agent.update_on_device(batches)
+                sums = self.pending_logs.get(names)
+                self.pending_logs[names] = values if sums is None else sums + values
+                state.grad_steps += 1
+                state.log_updates += 1
+                state.calls["update"] = state.calls.get("update", 0) + 1
+                if self.agent.last_ratio_lever is not None:
+                    lever = self.agent.last_ratio_lever
+                    state.log_sums["charts/ratio_lever"] = (
+                        state.log_sums.get("charts/ratio_lever", 0.0) + lever
+                    )
+                if every and state.grad_steps % every == 0:
+                    self._evaluate()  # mid-epoch: the update-count grid is K x batch
+            self._read_logs()
 
     def _read_logs(self) -> None:
         """Fetch the updates' log sums from the device (one sync) into `state.log_sums`.
@@ -660,23 +701,21 @@ class PhaseLoop:
         Runs at the end of every epoch's updates and before every evaluation, so a diverged run
         stops before it evaluates or writes a checkpoint; the sync's wait counts as update time.
         """
-        since = time.perf_counter()
         pending, self.pending_logs = self.pending_logs, {}
         first, self.pending_since = self.pending_since, self.agent.num_updates
-        for names, sums in pending.items():
-            try:
-                values = self.agent.read_logs(names, sums, first_update=first)
-            except TrainingDivergedError as exc:
-                rundir = self.owner.rundir
-                raise SealError(
-                    f"{rundir.path}: training diverged in phase {self.phase.name!r} by gradient step {self.state.grad_steps} ({exc}); last good checkpoint: {rundir.latest_checkpoint() or 'none yet'}"
-                ) from None
-            for k, v in values.items():
-                self.state.log_sums[k] = self.state.log_sums.get(k, 0.0) + v
-        if pending:
-            self.state.seconds["update"] = (
-                self.state.seconds.get("update", 0.0) + time.perf_counter() - since
-            )
+        if not pending:
+            return
+        with self.timed("update", count=False):
+            for names, sums in pending.items():
+                try:
+                    values = self.agent.read_logs(names, sums, first_update=first)
+                except TrainingDivergedError as exc:
+                    rundir = self.owner.rundir
+                    raise SealError(
+                        f"{rundir.path}: training diverged in phase {self.phase.name!r} by gradient step {self.state.grad_steps} ({exc}); last good checkpoint: {rundir.latest_checkpoint() or 'none yet'}"
+                    ) from None
+                for k, v in values.items():
+                    self.state.log_sums[k] = self.state.log_sums.get(k, 0.0) + v
 
     def _demonstrations(self) -> dict[str, dict[str, float]]:
         """Put `demo_episodes` episodes per task of each env's scripted expert in the replay (`ProtocolConfig.demo_episodes`)."""
@@ -757,11 +796,10 @@ class PhaseLoop:
         when they come back (`_finish_evaluations`); the loop waits only for the previous one.
         """
         self._read_logs()
-        since = time.perf_counter()
         state, agent = self.state, self.agent
         state.evaluated_at = state.grad_steps
         if self.evaluator is None:
-            with torch_threads(ACTING_THREADS):
+            with self.timed("evaluate"), torch_threads(ACTING_THREADS):
                 results = evaluate(
                     self.eval_policy,
                     self.model.adapters,
@@ -770,44 +808,42 @@ class PhaseLoop:
                     collector=self._eval_collector(),
                     draw=state.grad_steps,  # one evaluation per grad-step count: its own episode seeds
                 )
-            self.evaluated = Evaluated(state.epoch, state.grad_steps, agent)
-            self._record_evaluation(self._eval_rows(), results)
-            state.add_time("evaluate", since)
-            with self.stop.protected():
-                for callback in self.callbacks:
-                    callback.on_evaluation(self)
+                self.evaluated = Evaluated(state.epoch, state.grad_steps, agent)
+                self._record_evaluation(self._eval_rows(), results)
+            self._on_evaluation()
             return
         self._finish_evaluations(wait=True)  # one in flight at most, so rows stay in order
-        since = time.perf_counter()  # the wait counted itself
-        if not self.all_reached():  # a synchronous run would have stopped at that result
-            pending = PendingEvaluation(
-                draw=state.grad_steps,
-                epoch=state.epoch,
-                grad_steps=state.grad_steps,
-                rows=self._eval_rows(),
-                agent=cpu_copy(agent.state_dict()),
-            )
-            self.pending.append(pending)
-            self.evaluator.submit(pending.draw, pending.agent)
-        state.add_time("evaluate", since)
+        with self.timed("evaluate"):
+            if not self.all_reached():  # a synchronous run would have stopped at that result
+                pending = PendingEvaluation(
+                    draw=state.grad_steps,
+                    epoch=state.epoch,
+                    grad_steps=state.grad_steps,
+                    rows=self._eval_rows(),
+                    agent=cpu_copy(agent.state_dict()),
+                )
+                self.pending.append(pending)
+                self.evaluator.submit(pending.draw, pending.agent)
+
+    def _on_evaluation(self) -> None:
+        """The callbacks' `on_evaluation` (the loggers: "log" time)."""
+        with self.timed("log"), self.stop.protected():
+            for callback in self.callbacks:
+                callback.on_evaluation(self)
 
     def _finish_evaluations(self, wait: bool) -> None:
         """Record the asynchronous evaluations whose results are in (all of them with `wait`), oldest first."""
         evaluator = self.evaluator
         while self.pending and evaluator is not None and (wait or evaluator.done()):
-            since = time.perf_counter()
-            results = evaluator.result()
-            pending = self.pending.pop(0)
-            self.evaluated = Evaluated(
-                pending.epoch, pending.grad_steps, lambda p=pending: self._load_snapshot(p)
-            )
-            self._record_evaluation(pending.rows, results)
-            self.state.seconds["evaluate"] = (
-                self.state.seconds.get("evaluate", 0.0) + time.perf_counter() - since
-            )
-            with self.stop.protected():
-                for callback in self.callbacks:
-                    callback.on_evaluation(self)
+            with self.timed("evaluate", count=False):  # the loop waiting on evaluation
+                results = evaluator.result()
+                self.state.add_time("evaluate_worker_cpu", evaluator.last_cpu_s)
+                pending = self.pending.pop(0)
+                self.evaluated = Evaluated(
+                    pending.epoch, pending.grad_steps, lambda p=pending: self._load_snapshot(p)
+                )
+                self._record_evaluation(pending.rows, results)
+            self._on_evaluation()
 
     def _load_snapshot(self, pending: PendingEvaluation) -> Agent:
         """An agent (one per phase, reused) holding an asynchronous evaluation's snapshot."""
@@ -821,7 +857,7 @@ class PhaseLoop:
         """Write an evaluation's rows and pass it on: first crossings, scheduler, best.pt."""
         state, model, phase = self.state, self.model, self.phase
         rows = self._fill_rows(rows, results)
-        with self.stop.protected():
+        with self.timed("log"), self.stop.protected():
             self.owner.rundir.log_eval(rows)
         self.last_rows = rows
         state.last_success = {
@@ -941,7 +977,7 @@ class PhaseLoop:
         if state.log_updates and (epoch % cfg.logging.train_interval == 0 or last_epoch):
             means = {k: v / state.log_updates for k, v in state.log_sums.items()}
             rows = self._train_rows(epoch, state.grad_steps, means)
-            with self.stop.protected():
+            with self.timed("log"), self.stop.protected():
                 run.rundir.log_train(rows)
                 for callback in self.callbacks:
                     callback.on_train_log(self, rows)
@@ -953,7 +989,8 @@ class PhaseLoop:
             self._evaluate()
         request = scheduler.wants_scores()
         if request is not None:
-            scheduler.observe_scores(self._scores(request, epoch))
+            with self.timed("collect", count=False):  # SMT's scoring episodes
+                scheduler.observe_scores(self._scores(request, epoch))
         if last_epoch or self.all_reached():
             self._finish_evaluations(wait=True)  # the phase's results are complete at its end
         last_epoch = last_epoch or self.all_reached()
@@ -969,9 +1006,10 @@ class PhaseLoop:
         run, state, scheduler = self.owner, self.state, self.scheduler
         timeline = scheduler.timeline()
         if len(timeline) > state.timeline_rows:
-            run.rundir.log_scheduler(
-                [{"phase": self.phase.name, **r} for r in timeline[state.timeline_rows :]]
-            )
+            with self.timed("log", count=False):
+                run.rundir.log_scheduler(
+                    [{"phase": self.phase.name, **r} for r in timeline[state.timeline_rows :]]
+                )
             state.timeline_rows = len(timeline)
         if self.stop.requested:
             budget = self.cfg.checkpoint.signal_budget_s
@@ -996,20 +1034,21 @@ class PhaseLoop:
         state = self.state
         state.wall_s = time.monotonic() - self.started if wall_s is None else wall_s
         state.anchor_epoch = state.epoch
-        since = time.perf_counter()
-        with self.stop.saving():  # a signal now lets the write finish; a second one kills at once
-            for callback in self.callbacks:
-                callback.on_checkpoint(self)
+        # A signal now lets the write finish; a second one kills at once.
+        with self.timed("checkpoint"), self.stop.saving():
+            with self.timed("log", count=False):
+                for callback in self.callbacks:
+                    callback.on_checkpoint(self)
             for callback in self.callbacks:
                 callback.write_checkpoint(self)
         self.saved_epoch = state.epoch
-        state.add_time("checkpoint", since)
         if reseed:
             # Re-seed env streams at every checkpoint so a resumed run repeats this run exactly:
             # the instances are rebuilt from the new anchor epoch when next used (by the actor,
             # training.overlap, from the anchor it is sent). The rebuild keeps the backend "auto"
             # resolved to (no second probe of step costs); results never depend on the backend.
-            self._close_collector()
+            with self.timed("collect", count=False):
+                self._close_collector()
 
 
 def _copy_on_one_thread(state: AgentState) -> AgentState:

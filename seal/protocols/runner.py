@@ -50,6 +50,7 @@ import json
 import math
 import shutil
 import sys
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -75,7 +76,7 @@ from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml, read_toml
 from seal.protocols.loggers import ScalarLogger, open_loggers
 from seal.protocols.mapped_start import mapped_start
-from seal.protocols.phase import LoopCallback, PhaseLoop, PhaseState, ProgressBar
+from seal.protocols.phase import LOOP_PARTS, LoopCallback, PhaseLoop, PhaseState, ProgressBar
 from seal.protocols.phase_model import (
     Phase,
     PhaseModel,
@@ -106,11 +107,65 @@ class PhaseTiming(TypedDict):
     """Where one phase's wall time went (`RunResult.timing`, `seal bench --protocol`)."""
 
     seconds: dict[str, float]
-    """Part -> wall seconds: collect, update, evaluate (best.pt included), checkpoint, demos."""
+    """Part -> wall seconds: `seal.protocols.phase.LOOP_PARTS`, demos, evaluate_worker_cpu."""
     calls: dict[str, int]
     """Part -> how many times it ran (update: gradient steps; evaluate: evaluations)."""
     epochs: int
     grad_steps: int
+
+
+class TimeShares(TypedDict):
+    """Where a run's wall time went (`time_shares`; provenance.json's "time_shares", `RunResult`).
+
+    loop_s is the phases' epoch loops (across resumes); parts_s splits it into `LOOP_PARTS`
+    and other_s is the rest (planning, the epoch's bookkeeping, a signal's rollback marks).
+    startup_s is this process's wall outside the loops: building the run and each phase (agent,
+    replay, demonstrations), then closing the phase's env instances and workers.
+    """
+
+    wall_s: float
+    startup_s: float
+    loop_s: float
+    parts_s: dict[str, float]
+    other_s: float
+    evaluate_worker_cpu_s: float
+    """evaluation.mode = "async": the evaluation worker's CPU seconds (parts_s's evaluate is then
+    the loop's waiting on it); 0 for synchronous evaluation."""
+
+
+def time_shares(states: Sequence[PhaseState], startup_s: float) -> TimeShares:
+    """The phases' loop time by part (`PhaseState.seconds`), other and `startup_s` beside it."""
+    loop_s = sum(s.wall_s for s in states)
+    parts = {p: sum(s.seconds.get(p, 0.0) for s in states) for p in LOOP_PARTS}
+    return {
+        "wall_s": startup_s + loop_s,
+        "startup_s": startup_s,
+        "loop_s": loop_s,
+        "parts_s": parts,
+        "other_s": loop_s - sum(parts.values()),
+        "evaluate_worker_cpu_s": sum(s.seconds.get("evaluate_worker_cpu", 0.0) for s in states),
+    }
+
+
+def time_line(shares: TimeShares) -> str:
+    """`shares` in one line: start-up, then the loop's wall by part with its percentage."""
+    loop = shares["loop_s"]
+
+    def part(name: str, seconds: float) -> str:
+        return f"{name} {seconds:.1f} s ({100 * seconds / loop if loop else 0.0:.0f}%)"
+
+    parts = dict(shares["parts_s"])
+    cpu = shares["evaluate_worker_cpu_s"]
+    if cpu:
+        parts["evaluate (waiting)"] = parts.pop("evaluate")
+    text = (
+        f"time: wall {shares['wall_s']:.1f} s = start-up {shares['startup_s']:.1f} s + loop "
+        f"{loop:.1f} s: "
+        + ", ".join(part(n, s) for n, s in [*parts.items(), ("other", shares["other_s"])])
+    )
+    if cpu:
+        text += f"; evaluation worker CPU {cpu:.1f} s"
+    return text
 
 
 @dataclass(frozen=True)
@@ -126,6 +181,8 @@ class RunResult:
     """phase -> {"seconds", "calls"} of its collect/update/evaluate/checkpoint parts, "epochs", "grad_steps" (`seal bench --protocol`)."""
     threads: str = ""
     """The updates' intra-op threads and what chose them (`seal.device.ThreadChoice.describe`)."""
+    time_shares: TimeShares | None = None
+    """Where the run's wall time went (`time_shares`)."""
 
 
 # ---------------------------------------------------------------- checkpoint files
@@ -168,6 +225,9 @@ class Run:
         callbacks: Sequence[LoopCallback] = (),
         cores: int | None = None,
     ) -> None:
+        self.created = time.perf_counter()
+        self.loop_s = 0.0
+        """This process's wall in the phases' epoch loops (the rest of its wall is start-up)."""
         self.config = config
         self.callbacks = tuple(callbacks)
         """Called by every phase's loop, after the progress bar (e.g. a sweep's Ray Tune reporter)."""
@@ -288,12 +348,15 @@ class Run:
             for logger in self.loggers:
                 logger.close()
             self.loggers = []
-        self.rundir.update_provenance(end_time=provenance.utc_now())
+        startup_s = time.perf_counter() - self.created - self.loop_s
+        shares = time_shares([self.results[p.name] for p in self.phases], startup_s)
+        self.rundir.update_provenance(end_time=provenance.utc_now(), time_shares=shares)
+        print(f"[seal] {self.rundir.path}: {time_line(shares)}", file=sys.stderr)
         if self.stop.requested:
             raise Preempted(
                 self.stop.signum or 0, f"{self.stop.note}; the run is complete", resumable=False
             )
-        return self._result()
+        return self._result(shares)
 
     def _preempted(self, stop: Preempted) -> Preempted:
         """The stop recorded in provenance.json, its line ending with how to resume."""
@@ -382,7 +445,7 @@ class Run:
                 f"scheduler ({type(exc).__name__}: {str(exc)[:100]})"
             ) from None
 
-    def _result(self) -> RunResult:
+    def _result(self, shares: TimeShares) -> RunResult:
         """The headline numbers and the per-part timing of the finished phases."""
         counts: dict[str, dict[str, float]] = {}
         final: dict[str, dict[str, float]] = {}
@@ -401,7 +464,7 @@ class Run:
             }
             for name, state in self.results.items()
         }
-        return RunResult(self.rundir.path, counts, final, timing, self.threads.describe())
+        return RunResult(self.rundir.path, counts, final, timing, self.threads.describe(), shares)
 
     # ------------------------------------------------------------ building blocks
     def initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Agent:
@@ -447,7 +510,12 @@ class Run:
             *self.callbacks,
             self.checkpointer,
         ]
-        return PhaseLoop(self, phase, payload, callbacks, self.stop).run()
+        loop = PhaseLoop(self, phase, payload, callbacks, self.stop)
+        wall_before = loop.state.wall_s
+        try:
+            return loop.run()
+        finally:
+            self.loop_s += loop.state.wall_s - wall_before
 
 
 # ---------------------------------------------------------------- public API

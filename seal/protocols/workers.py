@@ -38,6 +38,7 @@ import io
 import multiprocessing as mp
 import os
 import signal
+import time
 import traceback
 import warnings
 from dataclasses import dataclass
@@ -145,6 +146,8 @@ class PolicyWorker(Generic[Answer]):
         child.close()
         self._ready = False
         self.in_flight = 0
+        self.last_cpu_s = 0.0
+        """CPU seconds the worker (and its env processes) spent on the last answer `result` returned."""
 
     def _submit(self, request: EvaluationRequest | CollectionRequest) -> None:
         buffer = io.BytesIO()
@@ -168,6 +171,7 @@ class PolicyWorker(Generic[Answer]):
             kind, answer = self._receive()
             if kind == "ok":
                 self.in_flight -= 1
+                answer, self.last_cpu_s = answer
                 return cast("Answer", answer)
 
     def _receive(self) -> tuple[str, Any]:  # Any: whatever the pipe unpickles
@@ -248,6 +252,19 @@ class ActorWorker(PolicyWorker[list[Collected]]):
         )
 
 
+def _cpu_seconds() -> float:
+    """CPU seconds of this process and of its live child processes (a collector's env workers;
+    read from /proc, so on Linux only)."""
+    total = time.process_time()
+    tick = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    for child in mp.active_children():
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            with open(f"/proc/{child.pid}/stat") as f:
+                fields = f.read().rpartition(")")[2].split()
+            total += (int(fields[11]) + int(fields[12])) / tick  # utime, stime
+    return total
+
+
 def _exit_with_parent(parent: int) -> None:
     """Have the kernel kill this process when its parent dies (Linux), so a kill -9 leaves no orphan."""
     with contextlib.suppress(OSError, AttributeError):
@@ -296,7 +313,10 @@ def _worker_main(
             if kind == "close":
                 return
             try:
-                conn.send(("ok", handler(torch.load(io.BytesIO(payload), weights_only=True))))
+                request = torch.load(io.BytesIO(payload), weights_only=True)
+                since = _cpu_seconds()
+                answer = handler(request)
+                conn.send(("ok", (answer, _cpu_seconds() - since)))
             except BaseException:  # noqa: BLE001
                 conn.send(("error", traceback.format_exc()))
     finally:
