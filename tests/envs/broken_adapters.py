@@ -80,3 +80,25 @@ class HoverPayingKitchen(FrankaKitchenDenseAdapter):
 
     def make(self, task: str, seed: int) -> gym.Env:
         return _HoverPayingReward(super().make(task, seed))
+
+
+class _ApproachPayingReward(gym.Wrapper):
+    """Reward v4 whose approach term is paid but never charged: a step's negative F (backing off)
+    is refunded, as a [0, 10] clip applied after F would refund it where v3's reward is small. Every
+    posed check and the expert pass; only the approach cycle earns more than parking."""
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward - min(info["approach"], 0.0), terminated, truncated, info
+
+
+class ApproachPayingKitchen(FrankaKitchenDenseAdapter):
+    """Reward v4 that pays the approach and not the retreat: fails the approach-cycle check."""
+
+    name = "broken_approach_paying_kitchen"
+
+    def __init__(self, *args: Any, **options: Any) -> None:
+        super().__init__(*args, **{"reward_version": "v4", **options})
+
+    def make(self, task: str, seed: int) -> gym.Env:
+        return _ApproachPayingReward(super().make(task, seed))
