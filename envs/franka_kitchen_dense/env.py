@@ -340,16 +340,16 @@ class FrankaKitchenDenseEnv(gym.Env):
         """The task joint's qpos in upstream's initial state."""
         return self._init_qpos[self._qpos_adr : self._qpos_adr + self._qpos_width].copy()
 
-    def sync(self, keep_potential: bool = False) -> None:
+    def sync(self, previous_potential: float | None = None) -> None:
         """After editing qpos/qvel: recompute derived quantities and point upstream's velocity
         controller at the edited robot pose (it integrates from the last observed qpos). It does
         not hold it: under a zero action the arm sags from there, 34 cm in 50 steps, unless the env
         was made with `gravity_compensation=True` (4 mm; README, "Gravity compensation").
 
         The next step's Phi(s) (reward v4) becomes the edited state's, so a posed step does not
-        pay the jump from the state before the edit; `keep_potential` keeps the earlier one, as if
-        the edit were the step's own motion (the approach-cycle check)."""
+        pay the jump from the state before the edit; or `previous_potential`, as if the step
+        started from a state of that potential and the edit were its own motion (the approach
+        cycle: the previous pose's step)."""
         mujoco.mj_forward(self.model, self.data)
         self.kitchen.robot_env._last_robot_qpos = self.data.qpos[:9].copy()
-        if not keep_potential:
-            self._potential = self.potential()
+        self._potential = self.potential() if previous_potential is None else previous_potential

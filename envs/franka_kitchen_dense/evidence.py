@@ -193,26 +193,23 @@ def _posed_step(
     joint: np.ndarray,
     arm: np.ndarray,
     fingers: float,
-    previous_arm: np.ndarray | None = None,
+    previous_potential: float | None = None,
 ) -> tuple[float, float, dict[str, Any]]:
     """(reward, success, info) of one `env.step` from the state with the task joint at `joint`,
     the arm at `arm` (fingers open, at rest) and the finger action `fingers` (arm action zero).
 
-    The step's Phi(s) (reward v4) is the posed state's, never the reset state's; with
-    `previous_arm`, the arm is first posed there and its Phi(s) kept, so the step pays the
-    approach term of moving from `previous_arm` to `arm`."""
+    The step's Phi(s) (reward v4) is the posed state's, never the reset state's; or
+    `previous_potential`, so that the step pays the approach term of arriving at `arm` from a
+    state of that potential (the approach cycle)."""
     from franka_kitchen_dense.posing import ARM_DOFS, FINGER_OPEN
 
     raw = env.unwrapped
     env.reset(seed=seed)
     raw.set_task_joint(joint)
-    for pose, keep in ((previous_arm, False), (arm, previous_arm is not None)):
-        if pose is None:
-            continue
-        raw.data.qpos[:ARM_DOFS] = pose
-        raw.data.qpos[ARM_DOFS : ARM_DOFS + 2] = FINGER_OPEN
-        raw.data.qvel[: ARM_DOFS + 2] = 0.0
-        raw.sync(keep_potential=keep)
+    raw.data.qpos[:ARM_DOFS] = arm
+    raw.data.qpos[ARM_DOFS : ARM_DOFS + 2] = FINGER_OPEN
+    raw.data.qvel[: ARM_DOFS + 2] = 0.0
+    raw.sync(previous_potential=previous_potential)
     action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
     action[7:9] = fingers
     _, reward, _, _, info = env.step(action)
@@ -222,12 +219,12 @@ def _posed_step(
 def _posed_reward(
     env: gym.Env, seed: int, joint: np.ndarray, arm: np.ndarray, fingers: float
 ) -> tuple[float, float]:
-    """(reward, success) per step of holding the posed state (`_posed_step`) still: the step's
-    reward through `env.step`, its approach term (reward v4: one step of the posed arm's sag)
-    replaced by a still gripper's, F = (gamma - 1) * Phi(s)."""
-    reward, success, info = _posed_step(env, seed, joint, arm, fingers)
-    if "approach" in info:
-        reward += (env.unwrapped.gamma - 1.0) * info["potential"] - info["approach"]
+    """(reward, success) per step of holding the posed state (`_posed_step`) still: the step is
+    taken twice from the same pose, the second time with Phi(s) (reward v4) that of the state the
+    first ended in, which the second ends in again, so it pays a still gripper's approach term
+    F = (gamma - 1) * Phi(s) rather than one step of the unsupported arm's sag."""
+    _, _, info = _posed_step(env, seed, joint, arm, fingers)
+    reward, success, _ = _posed_step(env, seed, joint, arm, fingers, info.get("potential"))
     return reward, success
 
 
@@ -254,20 +251,26 @@ def _arm_at(
 
 
 def _approach_cycle(env: gym.Env, seed: int) -> tuple[float, list[np.ndarray]]:
-    """Mean reward per step of `APPROACH_CYCLE` (the untouched handle; each step from the previous
-    pose, the best finger action), and the cycle's arm poses."""
+    """Mean reward per step of `APPROACH_CYCLE` (the untouched handle, the best finger action at
+    each pose), each step's Phi(s) (reward v4) that of the state the previous step ended in (one
+    step of the arm's sag included, so its approach term telescopes over the period); the second
+    of two laps counts. Also the cycle's arm poses."""
     raw = env.unwrapped
     start = raw.initial_task_joint()
     back = -np.asarray(raw.task.approach, dtype=np.float64)  # the gripper comes in along `approach`
     poses = {d: _arm_at(env, seed, start, d * back) for d in sorted(set(APPROACH_CYCLE))}
-    cycle = [poses[d] for d in APPROACH_CYCLE]
-    rewards = [
-        max(
-            _posed_step(env, seed, start, arm, f, previous_arm=cycle[i - 1])[0]
-            for f in FINGER_ACTIONS.values()
-        )
-        for i, arm in enumerate(cycle)
-    ]
+    previous: float | None = None  # the first step of the first lap: the posed state's
+    rewards = []
+    for lap in range(2):
+        for d in APPROACH_CYCLE:
+            steps = [
+                _posed_step(env, seed, start, poses[d], f, previous)
+                for f in FINGER_ACTIONS.values()
+            ]
+            reward, _, info = max(steps, key=lambda step: step[0])
+            previous = info.get("potential", 0.0)
+            if lap == 1:
+                rewards.append(reward)
     return float(np.mean(rewards)), [poses[d] for d in sorted(poses)]
 
 
@@ -298,7 +301,8 @@ def exploit_evidence(env: gym.Env, expert_return: float, seed: int = 0) -> dict[
       it (`PARKING_DISTANCES` along +-x, +-y, +-z) and the approach cycle's points: the reward's
       best no-progress point;
     - `approach_cycle`: the object untouched, the gripper posed in turn `APPROACH_CYCLE` back from
-      the handle, each step's Phi(s) (reward v4) the previous pose's: one period's mean per step.
+      the handle, each step's Phi(s) (reward v4) that of the state the previous pose's step ended
+      in: one period's mean per step.
 
     A held state's step pays a still gripper's approach term, (gamma - 1) * Phi(s) (reward v4),
     and every posed step's Phi(s) comes after posing, never from the reset state. At every state

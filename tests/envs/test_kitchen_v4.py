@@ -147,21 +147,23 @@ def _broken(name: str) -> type:
     return getattr(broken_adapters, name)
 
 
-def test_the_approach_cycle_fails_a_reward_that_pays_the_approach_but_not_the_retreat() -> None:
-    broken = _broken("ApproachPayingKitchen")(tasks=["bottom-left-burner"]).semantic_check(
-        "bottom-left-burner", seed=0, episodes=1
+def test_the_approach_cycle_fails_a_reward_with_the_approach_term_inside_the_clip() -> None:
+    # The kettle: v3 pays ~0.13 per step near its handle, so the clip eats the retreat's negative F.
+    broken = _broken("ApproachPayingKitchen")(tasks=["kettle"]).semantic_check(
+        "kettle", seed=0, episodes=1
     )
     assert broken["spearman"] >= 0.9 and broken["scripted_success"] == 1.0  # all else passes ...
     assert broken["exploit_ratio"] <= 0.5  # ... and no exploit earns half the expert's ...
     returns = broken["exploit_returns"]
-    assert returns["approach_cycle"] > returns["parking"]  # ... but the cycle beats parking
+    assert returns["approach_cycle"] > 2 * returns["parking"]  # ... but the cycle beats parking
     assert broken["approach_cycle_ok"] is False and broken["ok"] is False
-    honest = FrankaKitchenDenseAdapter(tasks=["bottom-left-burner"], reward_version="v4")
-    env = honest.make("bottom-left-burner", 0)
-    figures = exploit_evidence(env, expert_return=2459.0)
+    honest = FrankaKitchenDenseAdapter(tasks=["kettle"], reward_version="v4")
+    env = honest.make("kettle", 0)
+    figures = exploit_evidence(env, expert_return=2256.0)
     env.close()
     assert figures["approach_cycle_ok"] is True
     assert figures["exploit_returns"]["approach_cycle"] < figures["exploit_returns"]["parking"]
+    assert figures["exploit_returns"]["parking"] == pytest.approx(returns["parking"], rel=0.05)
 
 
 def test_v4_ids_leave_the_default_the_newest_of_its_name() -> None:
