@@ -15,6 +15,7 @@ from seal.experiments.kitchen import (
     rewards_alone_goal,
     run_figures,
     run_kitchen_bench,
+    v4_goal,
 )
 from seal.protocols import load_protocol
 
@@ -49,7 +50,10 @@ def test_run_figures_first_crossing_and_censored_total() -> None:
         "updates_m": pytest.approx(1.1264),
         "best_success": 0.9,
         "final_success": 0.8,
+        "held_90": 0,
     }
+    # Kept: two more evaluations at >= 90% after the first crossing.
+    assert run_figures(_metrics([0.1, 0.9, 0.6, 1.0, 0.9]))["held_90"] == 2
     # Never reached: censored at the run's last evaluation (epoch 20: 5,600 steps, 1,600 updates).
     censored = run_figures(_metrics([0.3, 0.7]))
     assert (censored["reached"], censored["env_steps"], censored["grad_steps"]) == (
@@ -64,8 +68,9 @@ def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() ->
     configs = {arm.name: load_protocol(arm.protocol) for arm in ARMS}
     for name, config in configs.items():
         assert config.kind == "baseline" and config.envs["fk"].adapter == "franka_kitchen_dense"
-        assert config.evaluation.stop_when_reached, name
-        assert config.envs["fk"].options == {"reward_version": "v3"}, name
+        v4 = name.endswith("_v4")
+        assert config.evaluation.stop_when_reached is not v4, name  # v4 arms run all epochs
+        assert config.envs["fk"].options == {"reward_version": "v4" if v4 else "v3"}, name
         # 535 epochs x 280 steps = 149,800 env steps: within the 150k budget.
         assert config.protocol.epochs * config.envs["fk"].episode_length == 149_800
     for task in ("slide_cabinet", "light_switch", "bottom_left_burner"):
@@ -77,6 +82,21 @@ def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() ->
             plain.envs,
             plain.evaluation,
         )
+    for task in (
+        "slide_cabinet",
+        "light_switch",
+        "bottom_left_burner",
+        "microwave",
+        "bottom_right_burner",
+    ):
+        v3, v4 = configs[task], configs[f"{task}_v4"]  # only the reward and stopping differ
+        assert dataclasses.replace(v4.evaluation, stop_when_reached=True) == v3.evaluation
+        assert (v4.agent, v4.training, v4.envs["fk"].tasks) == (
+            v3.agent,
+            v3.training,
+            v3.envs["fk"].tasks,
+        )
+        assert v4.protocol.seeds == 3
     with pytest.raises(SealError, match="unknown kitchen arm 'nope'"):
         arms(["nope"])
 
@@ -102,6 +122,7 @@ def test_tiny_end_to_end(tmp_path) -> None:
     assert arm["demos"] == [{"episodes": 1, "env_steps": 5, "expert_success": 0.0}]
     assert not arm["learned_within_budget"] and result["goal"]["met"] is False
     assert result["goal"]["rewards_alone"]["met"] is None  # one arm of five run
+    assert result["goal"]["v4"]["met"] is None
     assert "slide-cabinet + demos" in format_result(result)
     # A second call takes the finished run instead of running it again.
     again = run_kitchen_bench(
@@ -131,3 +152,30 @@ def test_rewards_alone_goal_counts_arms_reached_in_any_seed_within_budget() -> N
     # With an arm missing the goal is not judged.
     del five["bottom_left_burner"]
     assert rewards_alone_goal(five)["met"] is None
+
+
+def test_v4_goal_counts_tasks_reached_in_two_of_three_seeds_within_budget() -> None:
+    def arm(label: str, *seeds: tuple[bool, int]) -> dict:
+        return {"label": label, "per_seed": [{"reached": r, "env_steps": n} for r, n in seeds]}
+
+    yes, no, late = (True, 100_000), (False, 149_800), (True, 150_200)
+    five = {
+        "slide_cabinet_v4": arm("slide-cabinet v4", yes, yes, no),
+        "light_switch_v4": arm("light-switch v4", yes, no, no),  # one seed of three
+        "bottom_left_burner_v4": arm("bottom-left-burner v4", yes, late, yes),
+        "microwave_v4": arm("microwave v4", yes, late, no),  # the second past the budget
+        "bottom_right_burner_v4": arm("bottom-right-burner v4", yes, yes, yes),
+        "slide_cabinet": arm("slide-cabinet", yes, yes),  # a v3 arm: not counted
+    }
+    goal = v4_goal(five)
+    assert goal["reached"] == [
+        "slide-cabinet v4",
+        "bottom-left-burner v4",
+        "bottom-right-burner v4",
+    ]
+    assert (goal["of"], goal["ran"], goal["met"]) == (5, 5, False)
+    five["light_switch_v4"] = arm("light-switch v4", yes, no, yes)
+    assert v4_goal(five)["met"] is True
+    assert rewards_alone_goal(five)["of"] == 5  # the v3 goal counts only the v3 arms
+    five["microwave_v4"] = arm("microwave v4", yes, yes)  # two seeds: not judged
+    assert v4_goal(five)["met"] is None

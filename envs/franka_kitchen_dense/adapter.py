@@ -3,7 +3,8 @@
 Its `semantic_check` is the evidence `seal envs check` asks for: with the task's object set at its
 goal and the gripper at the handle or object, a closing step gives success 1 and reward >= 9; at
 reset success is 0; and along a straight interpolation from the initial to the goal
-configuration (gripper at the handle at every point) the reward rises (Spearman >= 0.9). Every
+configuration (gripper at the handle at every point) the reward rises (Spearman >= 0.9; under
+reward v4 on v3's terms, the reward less the approach term). Every
 number goes through `env.reset` / `env.step` of the env `make` returns, so a wrapper that breaks
 reward or success fails the check.
 """
@@ -19,10 +20,12 @@ import gymnasium as gym
 import numpy as np
 from scipy.stats import spearmanr
 
+from franka_kitchen_dense.rewards import SHAPING_GAMMA
 from franka_kitchen_dense.tasks import (
     DEFAULT_EPISODE_LENGTH,
     REWARD_VERSION,
     REWARD_VERSIONS,
+    SHAPED_VERSIONS,
     TASK_NAMES,
     gym_id,
 )
@@ -50,6 +53,7 @@ OPTIONS = {  # adapter options and their values
     "gravity_compensation": "true or false, default false",
     "reward_version": " or ".join(f'"{v}"' for v in REWARD_VERSIONS)
     + f', default "{REWARD_VERSION}"',
+    "gamma": f"reward v4's approach-term discount in (0, 1], default {SHAPING_GAMMA}; must equal agent.gamma",
 }
 
 
@@ -80,7 +84,9 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
         **options: Any,
     ) -> None:
         """`options`: `gravity_compensation` (bool, default False: upstream's arm sags, as in the
-        paper); `reward_version` (one of `REWARD_VERSIONS`, default the newest)."""
+        paper); `reward_version` (one of `REWARD_VERSIONS`, default `REWARD_VERSION`); `gamma`
+        (reward v4's approach-term discount, default 0.99: it must equal the learner's `agent.gamma`,
+        which the protocol loader checks through `shaping_discount`)."""
         unknown = sorted(set(options) - set(OPTIONS))
         if unknown:
             raise SealError(
@@ -98,21 +104,34 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
                 f"adapter {self.name!r}: option reward_version must be "
                 f"{OPTIONS['reward_version'].split(',')[0]}, got {version!r}"
             )
+        gamma = options.get("gamma", SHAPING_GAMMA)
+        if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not 0.0 < gamma <= 1.0:
+            raise SealError(
+                f"adapter {self.name!r}: option gamma must be a number in (0, 1], got {gamma!r}"
+            )
         super().__init__(tasks=tasks, episode_length=episode_length)
         self.gravity_compensation = gravity
         self.reward_version: str = version
+        self.gamma = float(gamma)
         if version != REWARD_VERSION and version not in _WARNED_VERSIONS:
             # Said here, in SEAL's words and once per process, rather than by gymnasium at every
             # `make` of an older "-v<N>" id (see `make`). A set, not Python's "default" filter,
             # keeps it once: that filter forgets what it showed whenever any code changes filters.
             _WARNED_VERSIONS.add(version)
+            newer = REWARD_VERSIONS.index(version) > REWARD_VERSIONS.index(REWARD_VERSION)
             warnings.warn(
-                f"adapter {self.name!r}: reward_version = {version!r} is an older reward than the "
+                f"adapter {self.name!r}: reward_version = {version!r} is "
+                f"{'a candidate reward newer' if newer else 'an older reward'} than the "
                 f"default {REWARD_VERSION!r}; its successes and update counts compare only with "
                 f"runs on {version!r}",
                 SealWarning,
                 stacklevel=2,
             )
+
+    @property
+    def shaping_discount(self) -> float | None:
+        """The discount of reward v4's potential-based approach term (None for unshaped versions)."""
+        return self.gamma if self.reward_version in SHAPED_VERSIONS else None
 
     @property
     def observation_space(self) -> gym.spaces.Box:
@@ -140,6 +159,7 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
             episode_length=self.episode_length,
             seed=int(seed),
             gravity_compensation=self.gravity_compensation,
+            gamma=self.gamma,
         )
 
     def expert(self, task: str) -> Any:
@@ -182,8 +202,9 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
             arm = raw.data.qpos[
                 :7
             ].copy()  # warm start: neighbouring points have neighbouring poses
-            _, reward, _, _, _ = env.step(CLOSING_ACTION)
-            rewards.append(float(reward))
+            _, reward, _, _, info = env.step(CLOSING_ACTION)
+            # v3's terms: reward v4's approach term (one posed step's sag) is not the path's progress
+            rewards.append(float(reward) - float(info.get("approach", 0.0)))
         env.close()
         rho = float(spearmanr(fractions, rewards).statistic)
         rho = (

@@ -39,6 +39,8 @@ with contextlib.redirect_stderr(io.StringIO()):
 from franka_kitchen_dense.rewards import (
     FINGER_MAX_OPENING,
     MW_PAD_SQUEEZE,
+    POTENTIAL_SCALE,
+    SHAPING_GAMMA,
     TCP_NEAR_OBJECT,
     Constants,
     Reading,
@@ -80,8 +82,10 @@ class FrankaKitchenDenseEnv(gym.Env):
         render_mode: str | None = None,
         gravity_compensation: bool = False,
         reward_version: str = REWARD_VERSION,
+        gamma: float = SHAPING_GAMMA,
     ) -> None:
-        from seal.errors import UnknownNameError
+        """`gamma`: reward v4's approach-term discount; it must equal the learner's `agent.gamma`."""
+        from seal.errors import SealError, UnknownNameError
 
         if task not in TASKS:
             raise UnknownNameError("franka_kitchen_dense task", task, list(TASKS))
@@ -89,8 +93,12 @@ class FrankaKitchenDenseEnv(gym.Env):
             raise UnknownNameError(
                 "franka_kitchen_dense reward version", reward_version, list(REWARD_VERSIONS)
             )
+        if not 0.0 < float(gamma) <= 1.0:
+            raise SealError(f"franka_kitchen_dense: gamma must be in (0, 1], got {gamma!r}")
         self.task: KitchenTask = TASKS[task]
         self.reward_version = reward_version
+        self.gamma = float(gamma)
+        self._potential = 0.0  # Phi of the state the next step starts from (reward v4)
         self.episode_length = int(episode_length)
         self.render_mode = render_mode
         self._pending_seed = seed
@@ -256,10 +264,18 @@ class FrankaKitchenDenseEnv(gym.Env):
             effort=grip_effort(action),
         )
 
+    def potential(self) -> float:
+        """Reward v4's potential of the current state: -k * |tcp - site| (metres)."""
+        g = self._read_geometry(self.data)
+        return -POTENTIAL_SCALE * float(np.linalg.norm(g["tcp"] - g["obj"]))
+
     def evaluate(self, action: np.ndarray) -> tuple[float, dict[str, float]]:
-        """Reward and info (with "success") of the current state under `action`, without stepping."""
+        """Reward and info (with "success") of the current state under `action`, without stepping;
+        v4's approach term runs from the potential of the state the last step started from."""
         r = self.reading(np.asarray(action, dtype=np.float64))
-        reward, terms = compute_reward(self.task.family, r, self.constants, self.reward_version)
+        reward, terms = compute_reward(
+            self.task.family, r, self.constants, self.reward_version, self._potential, self.gamma
+        )
         info = {
             "success": float(r.distance <= self.task.threshold),
             "distance": r.distance,
@@ -286,6 +302,7 @@ class FrankaKitchenDenseEnv(gym.Env):
             self.action_space.seed(seed)
         upstream_obs, _ = self.kitchen.reset(seed=seed)
         self._steps = 0
+        self._potential = self.potential()  # the first step's Phi(s) is the reset state's
         _, info = self.evaluate(np.zeros(ACT_DIM))
         return self._flat_obs(upstream_obs), info
 
@@ -295,6 +312,7 @@ class FrankaKitchenDenseEnv(gym.Env):
         upstream_obs, _, _, _, _ = self.kitchen.step(action)
         self._steps += 1
         reward, info = self.evaluate(action)
+        self._potential = self.potential()
         truncated = self._steps >= self.episode_length
         return self._flat_obs(upstream_obs), reward, False, truncated, info
 
@@ -322,10 +340,16 @@ class FrankaKitchenDenseEnv(gym.Env):
         """The task joint's qpos in upstream's initial state."""
         return self._init_qpos[self._qpos_adr : self._qpos_adr + self._qpos_width].copy()
 
-    def sync(self) -> None:
+    def sync(self, previous_potential: float | None = None) -> None:
         """After editing qpos/qvel: recompute derived quantities and point upstream's velocity
         controller at the edited robot pose (it integrates from the last observed qpos). It does
         not hold it: under a zero action the arm sags from there, 34 cm in 50 steps, unless the env
-        was made with `gravity_compensation=True` (4 mm; README, "Gravity compensation")."""
+        was made with `gravity_compensation=True` (4 mm; README, "Gravity compensation").
+
+        The next step's Phi(s) (reward v4) becomes the edited state's, so a posed step does not
+        pay the jump from the state before the edit; or `previous_potential`, as if the step
+        started from a state of that potential and the edit were its own motion (the approach
+        cycle: the previous pose's step)."""
         mujoco.mj_forward(self.model, self.data)
         self.kitchen.robot_env._last_robot_qpos = self.data.qpos[:9].copy()
+        self._potential = self.potential() if previous_potential is None else previous_potential

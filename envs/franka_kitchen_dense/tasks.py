@@ -103,11 +103,23 @@ DEFAULT_EPISODE_LENGTH = 280  # upstream FrankaKitchen-v1 max_episode_steps
 # v3: dial-turn gains a success override; dial-turn's reach and sweep's caging margins are the
 #     distance to the nearest other task's site (not the initial distance); sweep's in_place
 #     margin is its travel (initial distance - threshold), so the start pays the tail 0.1.
-REWARD_VERSIONS: tuple[str, ...] = ("v2", "v3")
-"""Reward versions this package still builds (each has its gymnasium ids); the last is the default."""
-REWARD_VERSION = REWARD_VERSIONS[-1]
+# v4: v3 plus a potential-based approach term F = gamma * Phi(s') - Phi(s), Phi = -k * |tcp - site|,
+#     added after the success override and the [0, 10] clip (a candidate until its runs meet their goal).
+REWARD_VERSIONS: tuple[str, ...] = ("v2", "v3", "v4")
+"""Reward versions this package still builds (each has its gymnasium ids), oldest first."""
+REWARD_VERSION = "v3"
+"""The default, named explicitly: v4 stays a candidate until its learning runs meet their goal
+(README, "Reward v4")."""
+SHAPED_VERSIONS: tuple[str, ...] = ("v4",)
+"""Versions whose reward adds the potential-based approach term (`rewards.approach_shaping`)."""
 
 
 def gym_id(task: str, version: str = REWARD_VERSION) -> str:
-    """The gymnasium id registered for `task` under reward `version`, e.g. "seal/FrankaKitchenDense-kettle-v3"."""
-    return f"seal/FrankaKitchenDense-{task}-{version}"
+    """The gymnasium id registered for `task` under reward `version`, e.g. "seal/FrankaKitchenDense-kettle-v3".
+
+    A version newer than the default is registered under its own name,
+    "seal/FrankaKitchenDenseCandidate-<task>-<version>": gymnasium calls an id "out of date" when a
+    higher "-v<N>" of the same name exists, which would otherwise hit every `gym.make` of the default.
+    """
+    newer = REWARD_VERSIONS.index(version) > REWARD_VERSIONS.index(REWARD_VERSION)
+    return f"seal/FrankaKitchenDense{'Candidate' if newer else ''}-{task}-{version}"

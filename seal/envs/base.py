@@ -93,6 +93,9 @@ class EnvAdapter(abc.ABC):
     all_tasks: ClassVar[tuple[str, ...]]
     task_sets: ClassVar[dict[str, tuple[str, ...]]] = {}
     default_episode_length: ClassVar[int]
+    shaping_discount: float | None = None
+    """The discount of a potential-based shaping term in the adapter's reward (None: it has none);
+    the protocol loader requires it to equal `agent.gamma`, or the shaping changes the optimum."""
 
     def __init__(
         self,

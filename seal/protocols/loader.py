@@ -274,6 +274,24 @@ def _check_demos(config: ProtocolConfig, file: str) -> None:
             )
 
 
+def _check_discount(config: ProtocolConfig, file: str) -> None:
+    """An env whose reward has a potential-based shaping term must shape with the learner's discount."""
+    from seal.envs import adapter_class
+
+    for name, env in config.envs.items():
+        adapter = adapter_class(env.adapter)(
+            tasks=list(env.tasks), episode_length=env.episode_length, **env.options
+        )
+        discount = adapter.shaping_discount
+        if discount is not None and discount != config.agent.gamma:
+            raise ConfigError(
+                f"{file}: envs.{shown_key(name)}: adapter {env.adapter!r} shapes its reward with "
+                f"discount {discount} (options.gamma) but agent.gamma = {config.agent.gamma}; "
+                f"potential-based shaping keeps the optimal policy only when they are equal: "
+                f"set envs.{shown_key(name)}.options.gamma = {config.agent.gamma}"
+            )
+
+
 def _check_kind(config: ProtocolConfig, file: str) -> None:
     kind, envs = config.kind, [shown_key(e) for e in config.envs]
     if kind == "baseline" and len(envs) != 1:
@@ -425,6 +443,7 @@ def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolCon
     )
     _check_kind(config, file)
     _check_demos(config, file)
+    _check_discount(config, file)
     _check_kind_tables(config, file)
     _validate_scheduler(config.scheduler, envs, file)
     sweep_tables.parse_resources(config.resources, file)

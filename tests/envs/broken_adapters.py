@@ -80,3 +80,30 @@ class HoverPayingKitchen(FrankaKitchenDenseAdapter):
 
     def make(self, task: str, seed: int) -> gym.Env:
         return _HoverPayingReward(super().make(task, seed))
+
+
+class _ClippedApproachReward(gym.Wrapper):
+    """Reward v4 with the approach term inside the [0, 10] clip, where the issue warns it must not
+    go: the clip eats the negative F of backing off wherever v3's reward is small, so an
+    approach-and-retreat cycle pays. Every posed check, the expert and the exploit ratio pass;
+    only the approach cycle earns more than parking."""
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, float(np.clip(reward, 0.0, 10.0)), terminated, truncated, info
+
+
+class ApproachPayingKitchen(FrankaKitchenDenseAdapter):
+    """Reward v4 with F clipped with v3's reward, so backing off is not charged: fails the
+    approach-cycle check."""
+
+    name = "broken_approach_paying_kitchen"
+    # The kettle, where v3 pays ~0.13 per step near the handle, so the clip eats the retreat's F;
+    # near a burner knob v3 pays enough that it eats little (cycle 270 against parking 280).
+    all_tasks = ("kettle",)
+
+    def __init__(self, *args: Any, **options: Any) -> None:
+        super().__init__(*args, **{"reward_version": "v4", **options})
+
+    def make(self, task: str, seed: int) -> gym.Env:
+        return _ClippedApproachReward(super().make(task, seed))
