@@ -49,10 +49,12 @@ SHAPING_GOALS = {"expert_reward_spearman": 0.8, "return_ratio": 5.0, "flat_stret
 # Tasks no policy can finish by holding the handle; the verdict is re-measured by every check
 # (`evidence.reach_evidence`): the gripper must stay over the success radius from the handle at the goal.
 UNSOLVABLE = ("left-hinge-door",)
+_QUOTED = [f'"{v}"' for v in REWARD_VERSIONS]
+VERSION_CHOICES = ", ".join(_QUOTED[:-1]) + " or " + _QUOTED[-1]
+"""The reward versions as an error message names them: "v2", "v3" or "v4"."""
 OPTIONS = {  # adapter options and their values
     "gravity_compensation": "true or false, default false",
-    "reward_version": " or ".join(f'"{v}"' for v in REWARD_VERSIONS)
-    + f', default "{REWARD_VERSION}"',
+    "reward_version": f'{VERSION_CHOICES}, default "{REWARD_VERSION}"',
     "gamma": f"reward v4's approach-term discount in (0, 1], default {SHAPING_GAMMA}; must equal agent.gamma",
 }
 
@@ -102,7 +104,7 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
         if version not in REWARD_VERSIONS:
             raise SealError(
                 f"adapter {self.name!r}: option reward_version must be "
-                f"{OPTIONS['reward_version'].split(',')[0]}, got {version!r}"
+                f"{VERSION_CHOICES}, got {version!r}"
             )
         gamma = options.get("gamma", SHAPING_GAMMA)
         if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not 0.0 < gamma <= 1.0:

@@ -80,7 +80,7 @@ def test_unknown_options_and_bad_values_are_one_line_errors() -> None:
     assert "valid options: gravity_compensation (true or false" in message
     with pytest.raises(SealError, match="gravity_compensation must be true or false, got 'yes'"):
         FrankaKitchenDenseAdapter(gravity_compensation="yes")
-    with pytest.raises(SealError, match="""reward_version must be "v2" or "v3", got 'v9'"""):
+    with pytest.raises(SealError, match="""reward_version must be "v2", "v3" or "v4", got 'v9'"""):
         FrankaKitchenDenseAdapter(reward_version="v9")
 
 
@@ -105,7 +105,8 @@ def test_the_expert_told_of_gravity_compensation_still_solves_the_slide() -> Non
             "gravity=true",
             "seal envs: error: adapter 'franka_kitchen_dense': unknown option(s) ['gravity']; "
             "valid options: gravity_compensation (true or false, default false), "
-            'reward_version ("v2" or "v3", default "v3")',
+            'reward_version ("v2", "v3" or "v4", default "v3"), gamma (reward v4\'s approach-term '
+            "discount in (0, 1], default 0.99; must equal agent.gamma)",
         ),
         (
             "gravity",
