@@ -179,6 +179,29 @@ def bench_e2e(
     }
 
 
+def sb3_sac(config: ProtocolConfig, env: Any, seed: int, buffer_size: int) -> Any:
+    """stable-baselines3's `SAC` on `env` with a one-task protocol's widths, batch, learning rate,
+    gamma, tau and warm-up (`learning_starts`), one gradient step per env step, on the CPU."""
+    from stable_baselines3 import SAC
+
+    agent, training = config.agent, config.training
+    return SAC(
+        "MlpPolicy",
+        env,
+        learning_rate=agent.actor_lr,
+        buffer_size=buffer_size,
+        learning_starts=training.warmup_steps,
+        batch_size=training.batch_per_task,
+        tau=agent.tau,
+        gamma=agent.gamma,
+        train_freq=1,
+        gradient_steps=1,
+        policy_kwargs={"net_arch": list(agent.hidden)},
+        device="cpu",
+        seed=seed,
+    )
+
+
 def _sb3_window(
     config: ProtocolConfig,
     adapter: EnvAdapter,
@@ -189,25 +212,8 @@ def _sb3_window(
     threads: int,
 ) -> SideWork:
     """SB3's `SAC.learn` over `steps` env steps from its first update, after `warmup` without."""
-    from stable_baselines3 import SAC
-
-    agent, training = config.agent, config.training
     torch.set_num_threads(threads)
-    model = SAC(
-        "MlpPolicy",
-        adapter.make(task, seed),
-        learning_rate=agent.actor_lr,
-        buffer_size=warmup + steps + 1,
-        learning_starts=warmup,
-        batch_size=training.batch_per_task,
-        tau=agent.tau,
-        gamma=agent.gamma,
-        train_freq=1,
-        gradient_steps=1,
-        policy_kwargs={"net_arch": list(agent.hidden)},
-        device="cpu",
-        seed=seed,
-    )
+    model = sb3_sac(config, adapter.make(task, seed), seed, warmup + steps + 1)
     buffer, sampled = model.replay_buffer, [0]
     sample = buffer.sample
 

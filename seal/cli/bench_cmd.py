@@ -1,4 +1,4 @@
-"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1|quickstart] [--full | --fpr]]`: learner and collection speed as ratios, learning evidence."""
+"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1|quickstart|reach_sb3] [--full | --fpr]]`: learner and collection speed as ratios, learning evidence."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "--learn adds the slow learning checks (point with/without one-hot, reach-v3); "
             "--learn transfer runs only the cross-environment transfer testbed (protocols/testbed, "
             "docs/transfer_testbed.md): every arm, the positive controls included, against its alone arm, "
-            "with steps_saved and transfer_updates_saved, their 95% bootstrap CIs and the steps x "
+            "with steps_saved and transfer_updates_saved, their 95% Student's t CIs and the steps x "
             "per-step-batch decomposition; "
             "--learn kitchen runs only the kitchen learning protocols (protocols/kitchen_learn: "
             "slide-cabinet, light-switch and bottom-left-burner with and without demonstrations, "
@@ -33,7 +33,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "slide-cabinet with demonstrations under Single Env, 50/50, High FK and High MW with batch-matched alone arms) and "
             "prints `seal report`'s table of it with 95% CIs and its wall time; "
             "--learn quickstart runs README command 1's protocol for seeds 0-9 (one at a time) and "
-            "writes the README's table, kitchen curve and k-of-10 line into docs/."
+            "writes the README's table, kitchen curve and k-of-10 line into docs/; "
+            "--learn reach_sb3 runs reach-v3 (protocols/learn/reach.toml) under seal run and under "
+            "stable-baselines3's SAC.learn, seeds 0-2 each, both evaluated by SEAL's evaluation every "
+            "2,000 env steps and stopped at the first >= 90%, and prints k of 3 per side."
         ),
     )
     parser.add_argument(
@@ -47,8 +50,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs="?",
         const="evidence",
         default=None,
-        metavar="transfer|kitchen|table1|quickstart",
-        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs; --learn table1: only paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md); --learn quickstart: README command 1 over seeds 0-9",
+        metavar="transfer|kitchen|table1|quickstart|reach_sb3",
+        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs; --learn table1: only paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md); --learn quickstart: README command 1 over seeds 0-9; --learn reach_sb3: reach-v3 learned under seal run and under SB3's SAC.learn",
     )
     parser.add_argument(
         "--full",
@@ -64,31 +67,31 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--seeds",
         type=int,
         default=None,
-        help="with --learn transfer|kitchen|table1|quickstart: seeds per arm (default 5 for transfer, 2 for kitchen, 5 for table1, 10 for quickstart)",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: seeds per arm (default 5 for transfer, 2 for kitchen, 5 for table1, 10 for quickstart, 3 for reach_sb3)",
     )
     parser.add_argument(
         "--arms",
         nargs="+",
         metavar="ARM",
         default=None,
-        help="with --learn transfer|kitchen|table1|quickstart: only these arms (protocols/testbed/<ARM>.toml and the alone arms and pre-trainings they need, positive_pretrained being round 4's name of pretrained_trunk; protocols/kitchen_learn/<ARM>.toml; protocols/table1_small/<ARM>.toml and its references)",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: only these arms (protocols/testbed/<ARM>.toml and the alone arms and pre-trainings they need, positive_pretrained being round 4's name of pretrained_trunk; protocols/kitchen_learn/<ARM>.toml; protocols/table1_small/<ARM>.toml and its references; seal or sb3 for reach_sb3)",
     )
     parser.add_argument(
         "--reuse",
         action="store_true",
-        help="with --learn transfer|kitchen|table1|quickstart: take finished runs under --out whose resolved config is today's instead of running them again",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: take finished runs under --out whose resolved config is today's instead of running them again",
     )
     parser.add_argument(
         "--jobs",
         type=int,
         default=None,
-        help="with --learn transfer|kitchen|table1|quickstart: `seal run` processes at a time (default 2; 1 for quickstart, whose shipped threads assume the machine to itself)",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: `seal run` processes at a time (default 2; 1 for quickstart, whose shipped threads assume the machine to itself)",
     )
     parser.add_argument(
         "--out",
         default=None,
         metavar="DIR",
-        help="with --learn transfer|kitchen|table1|quickstart: reports root of the runs (default reports/bench_transfer, reports/bench_kitchen, reports/bench_table1 or reports/bench_quickstart)",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: reports root of the runs (default reports/bench_transfer, reports/bench_kitchen, reports/bench_table1, reports/bench_quickstart or reports/bench_reach_sb3)",
     )
     parser.add_argument(
         "--only", nargs="+", metavar="KEY", help="run only these keys, e.g. --only sac_vs_sb3"
@@ -155,8 +158,11 @@ LEARN_SETS: dict[str, tuple[str, int, str]] = {
     "kitchen": ("seal.experiments.kitchen", 2, "reports/bench_kitchen"),
     "table1": ("seal.experiments.table1", 5, "reports/bench_table1"),
     "quickstart": ("seal.experiments.quickstart", 10, "reports/bench_quickstart"),
+    "reach_sb3": ("seal.experiments.reach_sb3", 3, "reports/bench_reach_sb3"),
 }
 """`--learn <set>`: the module (with run_<set>_bench and format_result), default seeds and reports root."""
+OVERRIDE_SETS = ("table1", "quickstart", "reach_sb3")
+"""The `--learn` sets that take `--set` overrides of their protocols."""
 
 
 def run(args: argparse.Namespace) -> int:
@@ -181,9 +187,13 @@ def run(args: argparse.Namespace) -> int:
     if args.fpr and (args.learn != "transfer" or args.full or args.arms):
         raise SealError("--fpr only applies to --learn transfer, without --full and --arms")
     if args.arms and args.learn not in LEARN_SETS:
-        raise SealError("--arms only applies to --learn transfer, kitchen, table1 and quickstart")
-    if args.overrides and args.protocol is None and args.learn not in ("table1", "quickstart"):
-        raise SealError("--set only applies to --protocol, --learn table1 and --learn quickstart")
+        raise SealError(
+            "--arms only applies to --learn transfer, kitchen, table1, quickstart and reach_sb3"
+        )
+    if args.overrides and args.protocol is None and args.learn not in OVERRIDE_SETS:
+        raise SealError(
+            "--set only applies to --protocol, --learn table1, --learn quickstart and --learn reach_sb3"
+        )
     if args.learn in LEARN_SETS:
         import importlib
 
@@ -205,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
         extra: dict[str, object] = {}
         if args.learn == "transfer":
             extra["full"] = args.full
-        if args.learn in ("table1", "quickstart"):
+        if args.learn in OVERRIDE_SETS:
             extra["overrides"] = args.overrides
         result = getattr(bench, f"run_{args.learn}_bench")(
             seeds=default_seeds if args.seeds is None else args.seeds,
