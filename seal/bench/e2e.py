@@ -114,6 +114,7 @@ def seal_overrides(epochs: int, warmup: int, threads: int) -> list[str]:
         f"evaluation.interval={epochs}",
         "evaluation.episodes=1",
         "evaluation.stop_when_reached=false",
+        "evaluation.mode='sync'",  # no worker process beside the timed loop
         f"checkpoint.interval={epochs}",
     ]
 
