@@ -61,12 +61,21 @@ def _evaluations_of(metrics_csv: Path) -> list[dict[str, float]]:
     ]
 
 
-def _crossing(evaluations: Sequence[Mapping[str, float]], threshold: float) -> int | None:
+def _side_run(
+    side: str, seed: int, evaluations: list[dict[str, float]], threshold: float, start: float
+) -> SideRun:
+    """The record of a run that began at `start` (perf_counter) and evaluated `evaluations`."""
     from seal.evaluation import reaches
 
-    return next(
-        (int(e["env_steps"]) for e in evaluations if reaches(e["success"], threshold)), None
-    )
+    return {
+        "side": side,
+        "seed": seed,
+        "evaluations": evaluations,
+        "reached_at_env_steps": next(
+            (int(e["env_steps"]) for e in evaluations if reaches(e["success"], threshold)), None
+        ),
+        "wall_s": time.perf_counter() - start,
+    }
 
 
 def run_seal_side(seed: int, out: Path, overrides: Sequence[str] = ()) -> SideRun:
@@ -77,13 +86,7 @@ def run_seal_side(seed: int, out: Path, overrides: Sequence[str] = ()) -> SideRu
     start = time.perf_counter()
     result = run_seed(config, seed, out / "seal")
     evaluations = _evaluations_of(result.run_dir / "metrics.csv")
-    return {
-        "side": "seal",
-        "seed": seed,
-        "evaluations": evaluations,
-        "reached_at_env_steps": _crossing(evaluations, config.evaluation.threshold),
-        "wall_s": time.perf_counter() - start,
-    }
+    return _side_run("seal", seed, evaluations, config.evaluation.threshold, start)
 
 
 def run_sb3_side(seed: int, overrides: Sequence[str] = ()) -> SideRun:
@@ -146,13 +149,7 @@ def run_sb3_side(seed: int, overrides: Sequence[str] = ()) -> SideRun:
         model.learn(total_timesteps=budget, callback=Evaluate())
     finally:
         collector.close()
-    return {
-        "side": "sb3",
-        "seed": seed,
-        "evaluations": evaluations,
-        "reached_at_env_steps": _crossing(evaluations, config.evaluation.threshold),
-        "wall_s": time.perf_counter() - start,
-    }
+    return _side_run("sb3", seed, evaluations, config.evaluation.threshold, start)
 
 
 def _job(side: str, seed: int, out: str, overrides: Sequence[str]) -> SideRun:
