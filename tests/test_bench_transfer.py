@@ -17,6 +17,7 @@ from seal.experiments.transfer import (
     ARMS,
     TargetCost,
     agent_mismatches,
+    arm_mdes,
     arms,
     code_versions,
     finished_run,
@@ -249,6 +250,36 @@ def test_tiny_end_to_end(tmp_path) -> None:
     assert oracle["met"] is False and oracle["steps_saved"] == 0.0
     assert result["goal"]["mde"]["per_arm"]["high_source"] is None
     assert "oracle_policy steps_saved +0.000" in format_result(result)
+
+
+def test_mde_is_not_claimed_where_both_arms_never_reached() -> None:
+    # t(0.975, 4) + t(0.80, 4) = 2.7764 + 0.9410 = 3.7174; x 0.2 / sqrt(5) = 0.3325 (steps), and
+    # 3.7174 x 0.1 / sqrt(5) = 0.1662 (robust steps): the smaller is the arm's.
+    summary = {
+        "alone": {"steps_saved": None, "censored": 0, "task_runs": 20},
+        "joint": {
+            "steps_saved": 0.1,
+            "against": "alone",
+            "censored": 0,
+            "task_runs": 20,
+            "sd_paired_steps": 0.2,
+            "sd_paired_robust_steps": 0.1,
+        },
+        "alone_sparse": {"steps_saved": None, "censored": 20, "task_runs": 20},
+        # Every seed of both at the run's budget: SD 0 says nothing about the instrument.
+        "sparse": {
+            "steps_saved": 0.0,
+            "against": "alone_sparse",
+            "censored": 20,
+            "task_runs": 20,
+            "sd_paired_steps": 0.0,
+            "sd_paired_robust_steps": 0.0,
+        },
+    }
+    mdes = arm_mdes(summary)
+    assert set(mdes) == {"joint", "sparse"}
+    assert mdes["joint"] == pytest.approx(3.7174 * 0.1 / math.sqrt(5), abs=1e-4)
+    assert mdes["sparse"] is None
 
 
 def test_cli_errors_are_one_line(capsys) -> None:

@@ -1044,6 +1044,36 @@ def source_sensitivity(
     return out
 
 
+def _all_censored(arm: Mapping[str, Any]) -> bool:
+    """Whether no target task of the arm reached the threshold in any seed."""
+    return bool(arm.get("task_runs")) and arm.get("censored") == arm.get("task_runs")
+
+
+def arm_mdes(summary: Mapping[str, Mapping[str, Any]]) -> dict[str, float | None]:
+    """Each compared arm's MDE at the goal's 5 seeds, the smaller of steps' and robust_steps'.
+
+    From each statistic's paired SD, whatever --seeds was. None where there is no SD, and where
+    the arm and its alone arm never reached in any seed: every pair then sits at the run's budget,
+    and an SD of 0 measures the budget, not the instrument.
+    """
+    from seal.stats import mde
+
+    return {
+        name: None
+        if _all_censored(s) and _all_censored(summary[s["against"]])
+        else min(
+            (
+                mde(s[k], MIN_SEEDS_FOR_GOALS)
+                for k in ("sd_paired_steps", "sd_paired_robust_steps")
+                if _finite_number(s.get(k))
+            ),
+            default=None,
+        )
+        for name, s in summary.items()
+        if s.get("steps_saved") is not None
+    }
+
+
 def run_transfer_bench(
     full: bool = False,
     seeds: int = 5,
@@ -1158,21 +1188,7 @@ def run_transfer_bench(
                 and oracle["ci95"][0] > 0
             ),
         }
-    from seal.stats import mde
-
-    # The MDE at 5 seeds from each statistic's paired SD (the goal's n, whatever --seeds was).
-    mdes = {
-        name: min(
-            (
-                mde(s[k], MIN_SEEDS_FOR_GOALS)
-                for k in ("sd_paired_steps", "sd_paired_robust_steps")
-                if _finite_number(s.get(k))
-            ),
-            default=None,
-        )
-        for name, s in summary.items()
-        if s.get("steps_saved") is not None
-    }
+    mdes = arm_mdes(summary)
     return {
         "transfer_updates_saved": figure("high_source"),
         "goal": {
