@@ -122,9 +122,11 @@ def test_a_pending_evaluation_is_rerun_on_resume(
 
 
 QUICKSTART = Path(__file__).resolve().parents[2] / "protocols" / "quickstart.toml"
-# The quickstart's shape (its two real envs, networks, ratio), in short episodes.
+# The quickstart's shape (its two real envs, networks, ratio, overlapped collection), in short
+# episodes, evaluated synchronously unless a test says otherwise.
 QUICKSTART_SMALL = [
     "protocol.epochs=3",
+    'evaluation.mode="sync"',
     "protocol.threads=1",
     "envs.mw.episode_length=30",
     "envs.fk.episode_length=30",
