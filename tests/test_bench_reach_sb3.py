@@ -69,3 +69,8 @@ def test_bench_counts_seeds_and_reuses_finished_runs(tmp_path: Path) -> None:
     assert again["runs"] == result["runs"]
     assert any(line.startswith("reuse sb3 seed 0") for line in logs)
     assert "sb3: 1 of 1 seeds reach 90% (goal >= 2: not met)" in format_result(again)
+    # A record made under other overrides is run again, not taken.
+    logs.clear()
+    other = {**kwargs, "overrides": [*kwargs["overrides"], "evaluation.episodes=1"]}  # type: ignore[dict-item]
+    run_reach_sb3_bench(log=logs.append, reuse=True, **other)  # type: ignore[arg-type]
+    assert not any(line.startswith("reuse") for line in logs)

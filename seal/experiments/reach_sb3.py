@@ -152,9 +152,10 @@ def run_sb3_side(seed: int, overrides: Sequence[str] = ()) -> SideRun:
     return _side_run("sb3", seed, evaluations, config.evaluation.threshold, start)
 
 
-def _job(side: str, seed: int, out: str, overrides: Sequence[str]) -> SideRun:
+def _job(job: tuple[str, int, str, list[str]]) -> SideRun:
     import torch
 
+    side, seed, out, overrides = job
     torch.set_num_threads(1)
     if side == "seal":
         return run_seal_side(seed, Path(out), overrides)
@@ -172,39 +173,41 @@ def run_reach_sb3_bench(
     overrides: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Run seeds 0..seeds-1 on each side (`only`: the sides to run), `parallel` processes at a
-    time, and return the per-run records and each side's k of n within the budget."""
+    time, and return the per-run records and each side's k of n within the budget. Each record
+    is written as it finishes, with the overrides it ran under; `reuse` takes only a record of
+    the same overrides."""
     for side in only or ():
         if side not in SIDES:
             raise UnknownNameError("reach_sb3 side", side, list(SIDES))
     sides = [s for s in SIDES if not only or s in only]
     root = Path(out)
     root.mkdir(parents=True, exist_ok=True)
-    runs: dict[tuple[str, int], SideRun] = {}
+    runs: dict[tuple[str, int], dict[str, Any]] = {}
     todo = []
     for side in sides:
         for seed in range(seeds):
             path = root / f"{side}-seed{seed}.json"
-            if reuse and path.exists():
-                runs[side, seed] = json.loads(path.read_text())
+            saved = json.loads(path.read_text()) if reuse and path.exists() else None
+            if saved is not None and saved.get("overrides") == list(overrides):
+                runs[side, seed] = saved
                 log(f"reuse {side} seed {seed}: {path}")
             else:
-                todo.append((side, seed))
+                todo.append((side, seed, str(root), list(overrides)))
     start = time.perf_counter()
+    log(
+        f"{len(todo)} runs, {parallel} at a time: "
+        + ", ".join(f"{s} seed {n}" for s, n, *_ in todo)
+    )
     with mp.get_context("spawn").Pool(max(1, min(parallel, len(todo) or 1))) as pool:
-        pending = {
-            key: pool.apply_async(_job, (key[0], key[1], str(root), list(overrides)))
-            for key in todo
-        }
-        for key in pending:
-            log(f"start {key[0]} seed {key[1]}")
-        for key, handle in pending.items():
-            run = handle.get()
-            atomic_write_text(root / f"{key[0]}-seed{key[1]}.json", json.dumps(run, indent=2))
+        for run in pool.imap_unordered(_job, todo):
+            key = (run["side"], run["seed"])
+            record = {**run, "overrides": list(overrides)}
+            atomic_write_text(root / f"{key[0]}-seed{key[1]}.json", json.dumps(record, indent=2))
             log(
                 f"done {key[0]} seed {key[1]} in {run['wall_s']:.0f} s: "
                 f"reached at {run['reached_at_env_steps']} env steps"
             )
-            runs[key] = run
+            runs[key] = record
     summary = {
         side: {
             "reached": sum(runs[side, s]["reached_at_env_steps"] is not None for s in range(seeds)),
