@@ -15,7 +15,7 @@ import seal
 from seal.cli.main import main
 from seal.errors import SealError
 from seal.reports import RunData, column_label, load_run, report
-from seal.stats import change_ci, mde
+from seal.stats import change_ci, mde, stratified_change_ci
 
 HEADER = "seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s\n"
 TRAIN_HEADER = "seed,phase,epoch,grad_steps,env,key,value\n"
@@ -313,13 +313,14 @@ def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path
 
     # The changes: one row per (task, arm, reference). Two seeds a group: nothing is bold,
     # whatever the CI (MIN_SEEDS_RESOLVED = 3). High FK and Single Env ran seeds 0 and 1 on MW, so
-    # drawer-close is paired by seed: the resamples give 0.02/0.128 - 1 = -84.4%,
-    # 0.035/0.16 - 1 = -78.1% or 0.05/0.192 - 1 = -74.0%, hence the CI.
+    # drawer-close is paired by seed: 0.035/0.16 - 1 = -78.1%. Its CI is [n/a]: Single Env's
+    # 0.128 and 0.192 put its mean within t(0.975, 1 df) = 12.7 standard errors (0.032) of 0, so
+    # Fieller's set of ratios is unbounded, as it should be from 2 seeds.
     changes = (out / "tables" / "update_changes.md").read_text()
     assert _longest_line(out / "tables" / "update_changes.md") <= 100
     header, rows = _md_table(changes, "drawer-close-v3 (MW)")
     assert header == ["Arm", "vs", "Change", "95% CI", "n"]
-    assert rows["High FK"] == ["Single Env", "-78.1%", "[-84.4, -74.0]", "2"]
+    assert rows["High FK"] == ["Single Env", "-78.1%", "[n/a]", "2"]
     assert rows["Fine-tune on MW"] == ["Single Env", "-60.0%", "[n/a]", "1 vs 2"]
     _, rows = _md_table(changes, "slide-cabinet (FK)")
     assert rows["High FK"] == ["Single Env", "-27.1%", "[n/a]", "2 vs 1"]  # one baseline seed
@@ -328,10 +329,12 @@ def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path
     assert rows["High FK"] == ["Single Env", "n/a", "[n/a]", "1 vs 0"]
     header, rows = _md_table(changes, "Total (MW)")
     assert header[-1] == "tasks"
-    assert rows["High FK"] == ["Single Env", "-78.1%", "[-84.4, -74.0]", "2", "1"]
+    assert rows["High FK"] == ["Single Env", "-78.1%", "[n/a]", "2", "1"]
     assert "| **" not in changes  # no change bold: too few seeds
     assert "Fewer than 3 seeds in" in changes and "against or of them is resolved" in changes
-    assert "Paired by seed: High FK vs Single Env (MW)" in changes
+    # The pairing note lists comparisons with a CI; drawer-close's is [n/a], so its pairing shows
+    # in its n alone ("2", one number: paired).
+    assert "Paired by seed: High FK vs Single Env (MW)" not in changes
     frame = pd.read_csv(out / "tables" / "update_changes.csv")
     paired = frame.set_index(["task", "column"]).loc[("drawer-close-v3", "High FK")]
     # Per seed 0.02 / 0.128 - 1 = -84.375% and 0.05 / 0.192 - 1 = -73.958%: SD 7.366 points.
@@ -585,7 +588,7 @@ MATCHED_CONFIG = (
 THREE_SEEDS = {  # protocol -> task -> (updates per epoch, epoch each seed reaches)
     "baseline_fk": {"a": (0.064, (3, 3, 3)), "b": (0.064, (1, 2, 3))},
     "high_fk": {"a": (0.02, (1, 1, 2)), "b": (0.05, (1, 2, 4))},
-    "high_fk_fk_alone": {"a": (0.02, (2, 3, 3)), "b": (0.05, (2, 2, 2))},
+    "high_fk_fk_alone": {"a": (0.02, (3, 3, 4)), "b": (0.05, (2, 2, 2))},
 }
 
 
@@ -618,9 +621,9 @@ def test_matched_alone_column_and_the_not_bold_rule(tmp_path: Path) -> None:
     a = counts.loc[("High FK", "fk", "a")]
     assert a["reference"] == "Single Env" and a["matched_reference"] == "Single Env (High FK batch)"
     assert a["paired"] and a["matched_paired"]  # the same seeds 0, 1, 2 in every group
-    # Mean 0.02667 against 0.192 (-86.1%) and against 0.05333 (-50.0%).
+    # Mean 0.02667 against 0.192 (-86.1%) and against 0.06667 (-60.0%).
     assert a["pct_change"] == pytest.approx(100 * (0.08 / 3 / 0.192 - 1))
-    assert a["matched_pct_change"] == pytest.approx(-50.0)
+    assert a["matched_pct_change"] == pytest.approx(-60.0)
     assert (a["pct_ci_low"], a["pct_ci_high"]) == pytest.approx(
         tuple(100 * v for v in change_ci([0.02, 0.02, 0.04], [0.192] * 3, paired=True))
     )
@@ -629,30 +632,29 @@ def test_matched_alone_column_and_the_not_bold_rule(tmp_path: Path) -> None:
     # -> 666.7 steps x 40 transitions a step = 26,667.
     assert rows["a (FK)"][2] == "**0.02667 ± 0.01155** [3/3]"
     assert _md_table(md, "Gradient steps × per-step batch")[1]["a (FK)"][2] == "666.7 × 40"
-    # Against Single Env (0.192 in every seed) the resampled means run from 0.02 (-89.6%) to 0.04
-    # (-79.2%); against the matched arm from -66.7% to -33.3%. Both resolved: bold.
+    # Fieller's ends are the ratios c at which scipy's paired t-test of arm - c * reference sits
+    # at p = 0.05, found apart by root-finding (scipy.optimize.brentq on ttest_1samp): against
+    # Single Env (0.192 in every seed), the t CI of 0.02667 +- 4.303 * 0.00667 over 0.192; against
+    # the matched arm (0.06, 0.06, 0.08), -105.3% to -42.0%. Both resolved: bold.
     changes = (tmp_path / "out" / "tables" / "update_changes.md").read_text()
     change_rows = _md_table(changes, "a (FK)")[1]
     assert change_rows["Single Env (High FK batch)"] == [
         "Single Env",
-        "**-72.2%**",
-        "**[-79.2, -68.8]**",
+        "**-65.3%**",
+        "**[-80.2, -50.3]**",
         "3",
     ]
     assert _md_rows_of(changes, "a (FK)", "High FK") == [
-        ["Single Env", "**-86.1%**", "**[-89.6, -79.2]**", "3"],
-        ["matched", "**-50.0%**", "**[-66.7, -33.3]**", "3"],
+        ["Single Env", "**-86.1%**", "**[-101.1, -71.2]**", "3"],
+        ["matched", "**-60.0%**", "**[-105.3, -42.0]**", "3"],
     ]
     b = counts.loc[("High FK", "fk", "b")]
     assert b["pct_change"] == pytest.approx(100 * (0.35 / 0.384 - 1))
-    assert b["pct_ci_low"] < 0 < b["pct_ci_high"] and not b["resolved"]
+    # Single Env's b (0.064, 0.128, 0.192) is within t(0.975, 2 df) = 4.3 standard errors of 0:
+    # no ratio is excluded, so no CI and nothing resolved.
+    assert math.isnan(b["pct_ci_low"]) and not b["resolved"]
     assert not rows["b (FK)"][2].startswith("**")
-    assert _md_rows_of(changes, "b (FK)", "High FK")[0] == [
-        "Single Env",
-        "-8.9%",
-        "[-21.9, +4.2]",
-        "3",
-    ]
+    assert _md_rows_of(changes, "b (FK)", "High FK")[0] == ["Single Env", "-8.9%", "[n/a]", "3"]
     # The matched arm is set against Single Env only: the batch's effect without the other env.
     matched_a = counts.loc[("Single Env (High FK batch)", "fk", "a")]
     assert matched_a["reference"] == "Single Env" and matched_a["matched_reference"] == ""
@@ -660,10 +662,17 @@ def test_matched_alone_column_and_the_not_bold_rule(tmp_path: Path) -> None:
     total = result.totals.set_index(["column", "env"]).loc[("High FK", "fk")]
     assert total["shared_tasks"] == 2 and total["matched_shared_tasks"] == 2
     assert total["pct_change"] == pytest.approx(100 * ((0.08 / 3 + 0.35 / 3) / (0.192 + 0.128) - 1))
+    # Against the matched arm: (0.02667 + 0.11667) / (0.06667 + 0.1) - 1 = -14.0%, with the CI of
+    # the two tasks' seeds as strata, paired by seed.
+    low, high = stratified_change_ci(
+        {"a": [0.02, 0.02, 0.04], "b": [0.05, 0.10, 0.20]},
+        {"a": [0.06, 0.06, 0.08], "b": [0.10, 0.10, 0.10]},
+        paired=True,
+    )
     assert _md_rows_of(changes, "Total (FK)", "High FK")[1] == [
         "matched",
-        "-6.5%",
-        "[-50.0, +45.8]",
+        "-14.0%",
+        f"[{100 * low:+.1f}, {100 * high:+.1f}]",
         "3",
         "2",
     ]
@@ -709,7 +718,7 @@ def test_seeds_run_one_at_a_time_make_one_column(tmp_path: Path) -> None:
     assert "**0.02667 ± 0.01155** [3/3]" in md
     changes = (tmp_path / "out" / "tables" / "update_changes.md").read_text()
     assert _md_rows_of(changes, "a (FK)", "High FK") == [
-        ["matched", "**-50.0%**", "**[-66.7, -33.3]**", "3"]
+        ["matched", "**-60.0%**", "**[-105.3, -42.0]**", "3"]
     ]
 
 
@@ -739,14 +748,17 @@ def test_a_cells_ci_is_of_the_change_it_shows_when_a_seed_never_reached() -> Non
     from seal.reports.changes import _cell_change
 
     # Seed 2 of the arm never reached the task. The cell shows mean(1.0, 1.2) / mean(1, 1, 2) - 1
-    # = 1.1 / 1.333 - 1 = -17.5%; pairing seeds 0 and 1 alone would give a CI of [0%, +20%],
-    # which excludes it (seal bench --learn table1 printed "+19.8% [+0.0, +10.2]" so).
+    # = 1.1 / 1.333 - 1 = -17.5%; pairing seeds 0 and 1 alone would give the CI of another
+    # change, which can exclude it (seal bench --learn table1 printed "+19.8% [+0.0, +10.2]" so).
     arm = pd.DataFrame({"t": [1.0, 1.2, float("nan")]}, index=[0, 1, 2])
     base = pd.DataFrame({"t": [1.0, 1.0, 2.0]}, index=[0, 1, 2])
     low, high, paired, enough = _cell_change(arm, base, "t")
     assert not paired and not enough  # 2 seeds reached in the arm: nothing resolved
     assert low <= 100 * (1.1 / (4 / 3) - 1) <= high
-    assert -50.0 <= low < high <= 20.0  # the extreme resamples: 1.0 against 2.0, 1.2 against 1.0
+    # The CI is the unpaired one of the seeds shown, not a paired one of seeds 0 and 1.
+    assert (low, high) == pytest.approx(
+        tuple(100 * v for v in change_ci([1.0, 1.2], [1.0, 1.0, 2.0], paired=False))
+    )
     # Both reached in the same seeds: paired, as before.
     assert _cell_change(arm.fillna(1.1), base, "t")[2]
 

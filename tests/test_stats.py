@@ -65,35 +65,67 @@ def test_bootstrap_ci_is_seeded() -> None:
     assert bootstrap_ci(ARM, seed=3) != bootstrap_ci(ARM, seed=4)
 
 
-def _ratio(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
-    return np.mean(x, axis=axis) / np.mean(y, axis=axis) - 1.0
-
-
-def test_change_ci_paired_and_unpaired_match_scipy() -> None:
+def test_change_ci_paired_is_the_ratios_the_paired_t_test_keeps() -> None:
+    # Fieller: at each end c of the CI of mean(arm) / mean(base), scipy's paired t-test of
+    # arm_i - c * base_i = 0 sits exactly at p = 0.05, and inside the CI it does not reject.
+    low, high = change_ci(ARM, BASE, paired=True)
     a, b = np.array(ARM), np.array(BASE)
-    assert change_ci(ARM, BASE, paired=True) == pytest.approx(
-        _scipy_ci((a, b), _ratio, paired=True), rel=1e-12
-    )
-    assert change_ci(ARM, BASE, paired=False) == pytest.approx(
-        _scipy_ci((a, b), _ratio, paired=False), rel=1e-12
-    )
-    # Point change: 0.114 / 0.174 - 1 = -34.5%, inside both intervals.
-    for paired in (True, False):
-        low, high = change_ci(ARM, BASE, paired=paired)
-        assert low < 0.114 / 0.174 - 1 < high < 0
+    for end in (low, high):
+        assert scipy_stats.ttest_1samp(a - (1 + end) * b, 0.0).pvalue == pytest.approx(0.05)
+    point = a.mean() / b.mean() - 1  # 0.114 / 0.174 - 1 = -34.5%
+    assert low < point < high < 0
+    assert scipy_stats.ttest_1samp(a - (1 + point) * b, 0.0).pvalue == pytest.approx(1.0)
+
+
+def test_change_ci_unpaired_is_welchs_t_at_the_point_ratio() -> None:
+    # Unpaired: at each end c, Welch's t of mean(arm) - c mean(base) equals the t quantile at the
+    # Welch-Satterthwaite degrees of freedom of the point ratio, computed here by hand.
+    a, b = np.array(ARM), np.array(BASE)
+    low, high = change_ci(ARM, BASE, paired=False)
+    r = a.mean() / b.mean()
+    va, vb = a.var(ddof=1) / 5, r**2 * b.var(ddof=1) / 5
+    df = (va + vb) ** 2 / (va**2 / 4 + vb**2 / 4)
+    quantile = scipy_stats.t.ppf(0.975, df)
+    for end in (low, high):
+        c = 1 + end
+        t = abs(a.mean() - c * b.mean()) / math.sqrt(va + c**2 * b.var(ddof=1) / 5)
+        assert t == pytest.approx(quantile)
+    assert low < r - 1 < high < 0
+
+
+def test_change_ci_keeps_its_level_where_the_bootstrap_did_not() -> None:
+    # No effect planted: 5 paired seeds whose arm and base costs are draws of one law (a seed
+    # effect shared by the pair, then noise). Fieller's CI excludes 0 in about 5% of 2,000
+    # replications (binomial SD 0.5 points); the percentile bootstrap of the same ratio, which
+    # the reports used before, in about twice as many.
+    rng = np.random.default_rng(0)
+    seed_effect = rng.normal(1.0, 0.3, (2_000, 1, 5))
+    costs = seed_effect + rng.normal(0.0, 0.2, (2_000, 2, 5))
+    fieller = np.mean([resolved(change_ci(x[0], x[1], paired=True)) for x in costs])
+    assert 0.035 <= fieller <= 0.065
+    ratio = lambda x, y, axis=-1: np.mean(x, axis=axis) / np.mean(y, axis=axis) - 1.0  # noqa: E731
+    boot = np.mean([resolved(_scipy_ci((x[0], x[1]), ratio, paired=True)) for x in costs[:300]])
+    assert boot > 0.09
 
 
 def test_change_ci_hand_worked() -> None:
-    # Every seed of the arm uses exactly half of its paired base: every paired resample gives
-    # mean(arm) / mean(base) = 0.5, so the CI is the point -50%.
+    # Every seed of the arm uses exactly half of its paired base: arm_i - 0.5 base_i = 0 in every
+    # seed, so no other ratio passes the t-test and the CI is the point -50%.
     base = [0.2, 0.4, 0.6, 0.8]
     arm = [v / 2 for v in base]
     assert change_ci(arm, base, paired=True) == pytest.approx((-0.5, -0.5))
-    # Unpaired, the resamples of arm and base differ, so the CI widens around -50%.
+    # Unpaired, the spreads of arm and base count, so the CI widens around -50%.
     low, high = change_ci(arm, base, paired=False)
     assert low < -0.5 < high
     # Constant on both sides: 0.1 / 0.2 - 1, exactly.
     assert change_ci([0.1, 0.1], [0.2, 0.2], paired=False) == (-0.5, -0.5)
+    # A constant base: the CI is the t CI of the arm's mean, divided by the base.
+    t_low, t_high = t_ci([0.02, 0.02, 0.04])
+    assert change_ci([0.02, 0.02, 0.04], [0.192] * 3, paired=True) == pytest.approx(
+        (t_low / 0.192 - 1, t_high / 0.192 - 1)
+    )
+    # A base whose mean the seeds do not resolve from 0: the set of ratios is unbounded.
+    assert all(math.isnan(v) for v in change_ci([1.0, 2.0, 3.0], [0.1, 5.0, -4.0], paired=False))
 
 
 def test_change_ci_nans_and_errors() -> None:
@@ -109,28 +141,38 @@ def test_change_ci_nans_and_errors() -> None:
         change_ci(ARM, BASE[:3], paired=True)
 
 
-def test_stratified_change_ci_replicates_the_resampling_by_hand() -> None:
+def test_stratified_change_ci_adds_the_tasks_variances() -> None:
+    # Two tasks, unpaired: at each end c, (total arm - c total base)^2 equals t^2 times the sum of
+    # the four means' variances (c^2 on the base's), t at the Welch-Satterthwaite df of the point.
     arm = {"a": [1.0, 2.0, 3.0], "b": [5.0, 6.0]}
     base = {"a": [2.0, 3.0, 4.0, 4.0], "b": [6.0, 7.0, 9.0]}
-    # Unpaired: scipy draws one index array per sample in order (a arm, a base, b arm, b base).
-    rng = np.random.default_rng(0)
-    draws = [
-        rng.integers(0, len(x), (10_000, len(x)))
-        for x in (arm["a"], base["a"], arm["b"], base["b"])
+    means = {k: {t: np.mean(v) for t, v in side.items()} for k, side in (("a", arm), ("b", base))}
+    var = {
+        k: {t: np.var(v, ddof=1) / len(v) for t, v in s.items()}
+        for k, s in (("a", arm), ("b", base))
+    }
+    ma, mb = sum(means["a"].values()), sum(means["b"].values())
+    r = ma / mb
+    pieces = [
+        (var["a"]["a"], 2),
+        (var["a"]["b"], 1),
+        (r**2 * var["b"]["a"], 3),
+        (r**2 * var["b"]["b"], 2),
     ]
-    arm_total = np.array(arm["a"])[draws[0]].mean(-1) + np.array(arm["b"])[draws[2]].mean(-1)
-    base_total = np.array(base["a"])[draws[1]].mean(-1) + np.array(base["b"])[draws[3]].mean(-1)
-    change = arm_total / base_total - 1
-    expected = (np.percentile(change, 2.5), np.percentile(change, 97.5))
-    assert stratified_change_ci(arm, base, paired=False) == pytest.approx(expected, rel=1e-12)
+    df = sum(v for v, _ in pieces) ** 2 / sum(v**2 / d for v, d in pieces)
+    quantile = scipy_stats.t.ppf(0.975, df)
+    low, high = stratified_change_ci(arm, base, paired=False)
+    for end in (low, high):
+        c = 1 + end
+        spread = sum(var["a"].values()) + c**2 * sum(var["b"].values())
+        assert abs(ma - c * mb) / math.sqrt(spread) == pytest.approx(quantile)
+    assert low < r - 1 < high
 
 
 def test_stratified_change_ci_of_one_task_is_change_ci() -> None:
-    one = stratified_change_ci({"t": ARM}, {"t": BASE}, paired=False)
-    assert one == change_ci(ARM, BASE, paired=False)
-    assert stratified_change_ci({"t": ARM}, {"t": BASE}, paired=True) == change_ci(
-        ARM, BASE, paired=True
-    )
+    for paired in (False, True):
+        one = stratified_change_ci({"t": ARM}, {"t": BASE}, paired=paired)
+        assert one == change_ci(ARM, BASE, paired=paired)
 
 
 def test_stratified_change_ci_paired_is_exact_when_every_task_halves() -> None:
@@ -317,6 +359,14 @@ def test_false_positive_rate_on_synthetic_data_with_no_effect() -> None:
     assert 0.02 <= t_rate <= 0.09
     boot_rate = mean_rate(lambda v: bootstrap_ci(v, n_resamples=1000))
     assert t_rate < boot_rate <= 0.25
+    # The report's CI of mean(a) / mean(b) - 1 (Fieller's, paired) on the same splits: about 5%.
+    fieller = [
+        split_false_positive_rate(
+            a, splits=200, seed=i, change=lambda x, y: change_ci(x, y, paired=True)
+        )["rate"]
+        for i, a in enumerate(arms)
+    ]
+    assert 0.02 <= float(np.mean(fieller)) <= 0.09
     # Reproducible: the same seed draws the same splits.
     assert split_false_positive_rate(arms[0], splits=100, ci=t_ci) == split_false_positive_rate(
         arms[0], splits=100, ci=t_ci

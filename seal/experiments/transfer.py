@@ -706,7 +706,7 @@ def _change_rows(
     costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm], tasks: Sequence[str]
 ) -> pd.DataFrame:
     """Per (task or Total, arm with an alone arm): the change of the mean transitions to 90%
-    against the alone arm, with its paired 95% bootstrap CI over seeds, as
+    against the alone arm, with its paired 95% Fieller CI over seeds, as
     `seal.reports.changes.change_rows` lays changes out (censored seeds count their totals)."""
     from seal.reports.changes import CHANGE_ROW_COLUMNS
     from seal.stats import MIN_SEEDS_RESOLVED, change_ci, resolved
@@ -867,7 +867,7 @@ def transfer_documents(
         else [],
         [
             "Change = mean(arm) / mean(alone) - 1 of the target's transitions to 90% (censored "
-            "seeds at their totals), 95% CI = paired percentile bootstrap over seeds in percent; "
+            "seeds at their totals), 95% CI = paired Fieller interval (t quantiles) in percent; "
             "bold = it excludes 0 with >= 3 seeds; n = seed pairs; tasks = the tasks in a total.",
             *_statistics_notes(chosen, summary),
         ],
@@ -1253,12 +1253,13 @@ def false_positive_rate(
     until every task first reaches 90% (`target_cost`, censored at the run's total).
     `seal.stats.split_false_positive_rate` draws `splits` random half/half splits, pairs the halves'
     seeds at random, and applies the arms' CI (`ARM_CI`: Student's t) and, for comparison, the
-    percentile bootstrap it replaced, to the mean of 1 - G(a) / G(b).
+    percentile bootstrap it replaced, to the mean of 1 - G(a) / G(b); and `seal report`'s CI of a
+    change (`seal.stats.change_ci`, paired) to mean(G(a)) / mean(G(b)) - 1 on the same splits.
     """
     from functools import partial
 
     from seal import load_run
-    from seal.stats import bootstrap_ci, split_false_positive_rate
+    from seal.stats import bootstrap_ci, change_ci, split_false_positive_rate
 
     costs = [target_cost(load_run(path).metrics) for path in run_dirs]
     steps = [c.grad_steps for c in costs]
@@ -1270,6 +1271,8 @@ def false_positive_rate(
         "ci_method": "Student's t CI of the mean saving (the arms' ci95)",
         "false_positive_rate": rate,
         "false_positive_rate_bootstrap": split(ci=bootstrap_ci),
+        # `seal report`'s CI of a change of the mean (Fieller's, paired), on the same splits
+        "false_positive_rate_report": split(change=partial(change_ci, paired=True)),
         "goal": {"rate_le": FPR_GOAL, "met": rate["rate"] <= FPR_GOAL},
     }
 
@@ -1331,6 +1334,11 @@ def format_fpr(result: Mapping[str, Any]) -> str:
         f"  {result['ci_method']}: {share(rate)}; goal <= {result['goal']['rate_le']}: {verdict}",
         f"  percentile bootstrap (the arms' CI until measured here), for comparison: {share(other)}",
     ]
+    if "false_positive_rate_report" in result:
+        lines.append(
+            "  seal report's CI of mean(G(a)) / mean(G(b)) - 1 (Fieller's, paired by seed): "
+            f"{share(result['false_positive_rate_report'])}"
+        )
     note = versions_note(result["code_versions"])
     if note:
         lines.append(f"WARNING, {note}")

@@ -185,7 +185,7 @@ def _update_counts(
     """The update-count metric: (per seed, across seeds with changes and CIs, env totals).
 
     Per seed, `first_reach` split into gradient steps x per-step batch; across seeds, the change
-    against Single Env (and against a column's batch-matched alone arm) with bootstrap CIs; the
+    against Single Env (and against a column's batch-matched alone arm) with Fieller CIs; the
     totals count censored tasks by the `censored` rule.
     """
     per_seed = []
@@ -248,10 +248,12 @@ def _change_notes(
         f"Change = mean(Arm) / mean(reference) - 1 of the updates to {threshold:.0%}, over the "
         "seeds that reached the task; vs matched = against the arm's batch-matched alone arm, "
         "Single Env (<arm> batch): the same per-task batch without the other environment's data.",
-        "95% CI = percentile bootstrap over seeds in percent (scipy.stats.bootstrap, 10,000 "
-        "resamples, seed 0); a total's change is over the tasks both columns reached (tasks), "
-        "seeds resampled within each task (stratified bootstrap). Bold = resolved: the CI "
-        f"excludes 0 and both columns reached it in >= {MIN_SEEDS_RESOLVED} seeds.",
+        "95% CI = Fieller's interval of the ratio of means with Student's t quantiles, paired "
+        "by seed where the seeds pair (seal.stats.change_ci), in percent; a total's change is "
+        "over the tasks both columns reached (tasks), with the tasks as strata. [n/a] = the "
+        "reference's mean is not resolved from 0 at these seeds, so no ratio is excluded. Bold "
+        "= resolved: the CI excludes 0 and both columns reached it in >= "
+        f"{MIN_SEEDS_RESOLVED} seeds.",
         "n = the seeds behind a change: one number when paired by seed (both reached it in the "
         "same seeds), else the arm's vs the reference's (a total: the seeds run).",
         "update_changes.csv adds, for a paired change, the SD of its per-seed relative changes and "
