@@ -838,3 +838,29 @@ def _first_column(md: str) -> dict[str, str]:
         elif rows:
             break
     return rows
+
+
+def test_the_interval_plot_cuts_wide_cis_at_its_limits(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from seal.reports import plots
+
+    saved = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: saved.append(fig) or path)
+    rows = [
+        plots.Interval("narrow", -20.0, -30.0, -10.0, mde=15.0, resolved=True),
+        plots.Interval("wide", 40.0, -250.0, 13_000.0, mde=900.0),
+    ]
+    plots.plot_intervals([("t", rows)], tmp_path / "p.png", "x", "title", limits=(-100, 300))
+    ax = saved[0].axes[0]
+    # The axis is the limits padded by 3% of their span, not the wide row's -250..13,000.
+    assert ax.get_xlim() == pytest.approx((-112.0, 312.0))
+    # The wide row's CI is cut at both edges, each cut marked by an arrowhead at the edge.
+    cuts = {(line.get_marker(), tuple(line.get_xdata())) for line in ax.lines}
+    assert ("<", (-100.0,)) in cuts and (">", (300.0,)) in cuts
+    # Its MDE band (+-900%) is cut to the axis too: one bar from -100 to +300.
+    bars = [(p.get_x(), p.get_width()) for p in ax.patches]
+    assert (-100.0, 400.0) in bars and (-15.0, 30.0) in bars
+    # Without limits nothing is cut.
+    plots.plot_intervals([("t", rows)], tmp_path / "q.png", "x", "title")
+    assert not any(line.get_marker() in "<>" for line in saved[1].axes[0].lines)

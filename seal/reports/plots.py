@@ -168,11 +168,22 @@ class Interval:
 
 
 def plot_intervals(
-    panels: Sequence[tuple[str, Sequence[Interval]]], path: Path, xlabel: str, title: str
+    panels: Sequence[tuple[str, Sequence[Interval]]],
+    path: Path,
+    xlabel: str,
+    title: str,
+    limits: tuple[float, float] | None = None,
 ) -> Path:
     """One panel per (title, rows), one row per arm: the change (a dot, in colour when resolved),
     its CI (a bar), the zero line, and the band -MDE..+MDE around 0 within which the row's seeds
-    would miss a true effect more often than 1 time in 5."""
+    would miss a true effect more often than 1 time in 5. With `limits` the axis spans them: a
+    CI or band beyond is cut at the edge and the cut marked with an arrowhead, so that one row's
+    CI of +-10,000% does not squeeze the others to a point."""
+    low_edge, high_edge = limits if limits is not None else (-math.inf, math.inf)
+
+    def clip(x: float) -> float:
+        return min(max(x, low_edge), high_edge)
+
     heights = [0.45 * max(len(rows), 1) + 0.9 for _, rows in panels]
     fig = Figure(figsize=(7.0, sum(heights) + 0.9), layout="constrained")
     axes = fig.subplots(len(panels), 1, squeeze=False, height_ratios=heights)[:, 0]
@@ -180,26 +191,35 @@ def plot_intervals(
         ys = np.arange(len(rows))[::-1]
         for y, row in zip(ys, rows, strict=True):
             if math.isfinite(row.mde):
-                ax.barh(y, 2 * row.mde, left=-row.mde, height=0.6, color="0.85", zorder=0)
+                left, right = clip(-row.mde), clip(row.mde)
+                ax.barh(y, right - left, left=left, height=0.6, color="0.85", zorder=0)
             if not math.isfinite(row.value):
                 ax.text(0, y, " n/a", va="center", fontsize="small", color="grey")
                 continue
             colour = "tab:blue" if row.resolved else "black"
+            value = clip(row.value)
             if math.isfinite(row.low) and math.isfinite(row.high):
+                low, high = clip(row.low), clip(row.high)
                 ax.errorbar(
-                    row.value,
+                    value,
                     y,
-                    xerr=[[row.value - row.low], [row.high - row.value]],
+                    xerr=[[value - low], [high - value]],
                     fmt="o",
                     color=colour,
                     capsize=3,
                     zorder=2,
                 )
+                for end, cut, marker in ((row.low, low, "<"), (row.high, high, ">")):
+                    if end != cut:
+                        ax.plot(cut, y, marker, color=colour, markersize=7, zorder=3)
             else:
-                ax.plot(row.value, y, "o", color=colour, zorder=2)
+                ax.plot(value, y, "o", color=colour, zorder=2)
         ax.axvline(0.0, color="black", linewidth=1, zorder=1)
         ax.set_yticks(ys, [r.label for r in rows], fontsize="small")
         ax.set_ylim(-0.7, len(rows) - 0.3)
+        if limits is not None:
+            pad = 0.03 * (high_edge - low_edge)
+            ax.set_xlim(low_edge - pad, high_edge + pad)
         ax.set_title(name, fontsize="medium")
         ax.grid(axis="x", alpha=0.3)
     axes[-1].set_xlabel(xlabel)
@@ -208,9 +228,16 @@ def plot_intervals(
         Line2D([], [], color="tab:blue", marker="o", label="resolved"),
         Patch(color="0.85", label="±MDE (power 0.8, two-sided 0.05)"),
     ]
-    fig.legend(handles=handles, loc="outside lower center", ncols=3, fontsize="x-small")
+    if limits is not None:
+        handles.append(Line2D([], [], color="black", marker=">", linestyle="", label="cut at axis"))
+    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize="x-small")
     fig.suptitle(title)
     return _save(fig, path)
+
+
+CHANGE_AXIS = (-100.0, 300.0)
+"""The changes plot's axis (percent): no task takes fewer than 0 updates (-100%), and a change
+beyond 4 times the reference's updates (+300%) reads the same for the question asked."""
 
 
 def plot_changes(changes: pd.DataFrame, labels: Mapping[str, str], plots: Path) -> list[Path]:
@@ -242,6 +269,7 @@ def plot_changes(changes: pd.DataFrame, labels: Mapping[str, str], plots: Path) 
                 path,
                 "change in updates to the threshold (%)",
                 f"{labels.get(str(env), env)}: changes against the references",
+                limits=CHANGE_AXIS,
             )
         )
     return written
