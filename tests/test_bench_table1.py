@@ -147,3 +147,44 @@ def test_cli_rejects_set_outside_protocol_and_table1(capsys) -> None:
     assert "--set only applies to --protocol, --learn table1, --learn quickstart and" in (
         capsys.readouterr().err
     )
+
+
+def _run_metrics(env: str, task: str, points: list[tuple[int, float]]) -> pd.DataFrame:
+    """A run's evaluation rows: (gradient steps, success) of one task."""
+    return pd.DataFrame(
+        {
+            "epoch": range(1, len(points) + 1),
+            "env": env,
+            "task": task,
+            "grad_steps": [g for g, _ in points],
+            "success": [s for _, s in points],
+        }
+    )
+
+
+def test_auc_changes_pair_by_seed_and_keep_a_censored_seed() -> None:
+    from seal.experiments.table1 import auc_changes, format_auc
+
+    fk, task = "fk", "slide-cabinet"
+    runs = {
+        # Budget 400 (the longest run). Single Env seed 0: 0, 0 at 200, 1 at 400 -> area 100/400.
+        ("single_fk", 0): _run_metrics(fk, task, [(0, 0.0), (200, 0.0), (400, 1.0)]),
+        # seed 1 never reaches: 0, 0.5 at 200, 0.5 at 400 -> (50 + 100) / 400 = 0.375.
+        ("single_fk", 1): _run_metrics(fk, task, [(0, 0.0), (200, 0.5), (400, 0.5)]),
+        # High FK seed 0 stops at 200 on 1.0, held to 400: (100 + 200) / 400 = 0.75.
+        ("high_fk", 0): _run_metrics(fk, task, [(0, 0.0), (200, 1.0)]),
+        # seed 1: 0, 1.0 at 100 (stops), held: (50 + 300) / 400 = 0.875.
+        ("high_fk", 1): _run_metrics(fk, task, [(0, 0.0), (100, 1.0)]),
+        # seed 2 has no Single Env run to pair with: left out.
+        ("high_fk", 2): _run_metrics(fk, task, [(0, 0.0), (100, 1.0)]),
+    }
+    (row,) = auc_changes(runs)
+    assert (row["arm"], row["vs"], row["task"], row["seeds"]) == ("high_fk", "single_fk", task, [0, 1])
+    assert row["auc_arm"] == pytest.approx((0.75 + 0.875) / 2)
+    assert row["auc_vs"] == pytest.approx((0.25 + 0.375) / 2)
+    assert row["auc_diff_per_seed"] == pytest.approx([0.5, 0.5])
+    # Two equal differences: SD 0, so the CI is the point and the MDE 0.
+    assert row["auc_diff_ci95"] == pytest.approx([0.5, 0.5]) and row["sd_paired_auc"] == 0.0
+    text = format_auc([row])
+    assert "| slide-cabinet | High FK | Single Env | 0.812 | 0.312 | +0.500 | [+0.500, +0.500] | 2 |" in text
+    assert max(len(line) for line in text.splitlines()) <= 100

@@ -864,3 +864,35 @@ def test_the_interval_plot_cuts_wide_cis_at_its_limits(
     # Without limits nothing is cut.
     plots.plot_intervals([("t", rows)], tmp_path / "q.png", "x", "title")
     assert not any(line.get_marker() in "<>" for line in saved[1].axes[0].lines)
+
+
+def test_a_run_that_stopped_once_learned_holds_its_last_value_in_the_curve(
+    tmp_path: Path,
+) -> None:
+    """Seed 0 stopped at epoch 1 (every task reached); seed 1 ran on. Past epoch 1 the mean curve
+    is (1.00 + seed 1's) / 2 when the runs stop when reached, and seed 1's alone when they don't
+    (a run cut short for another reason is not imputed)."""
+    from seal.reports.groups import _gather, _labelled
+    from seal.reports.plots import success_curves
+
+    rows = {
+        0: "0,train,1,mw,drawer-close-v3,1.00,1,500,500,0.064,1\n",
+        1: "1,train,1,mw,drawer-close-v3,0.00,1,500,500,0.064,1\n"
+        "1,train,2,mw,drawer-close-v3,0.40,1,1000,1000,0.128,2\n"
+        "1,train,3,mw,drawer-close-v3,0.95,1,1500,1500,0.192,3\n",
+    }
+    means = {}
+    for stops in (True, False):
+        CONFIGS["stopping"] = (
+            CONFIGS["baseline_mw"] + f"\n[evaluation]\nstop_when_reached = {str(stops).lower()}\n"
+        )
+        try:
+            group = _write_group(tmp_path / str(stops), "stopping", rows)
+        finally:
+            del CONFIGS["stopping"]
+        metrics = _labelled(_gather([group]), "metrics")
+        curve = success_curves(metrics, "epoch").set_index("epoch")
+        means[stops] = curve["mean"].round(6).tolist()
+        assert curve["seeds"].tolist() == ([2, 2, 2] if stops else [2, 1, 1])
+    assert means[True] == [0.5, 0.7, 0.975]
+    assert means[False] == [0.5, 0.4, 0.95]

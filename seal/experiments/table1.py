@@ -11,7 +11,10 @@ are the ones a user gets from `seal report` on the same runs.
 
 from __future__ import annotations
 
+import math
 import os
+import statistics
+import textwrap
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -78,6 +81,94 @@ def _cells(counts: pd.DataFrame) -> list[dict[str, Any]]:
     ]
 
 
+AUC_NOTE = (
+    "AUC: per task, the area under its evaluated success over gradient steps 0 to the table's "
+    "budget (the last evaluated step of any run), / the budget; a run that stopped once every task "
+    "reached 90% holds its last evaluation. Diff: AUC(arm) - AUC(reference), paired by seed; 95% "
+    "t CI; MDE at power 0.8 and the seeds an MDE <= 0.10 needs, from the paired SD; matched = the "
+    "joint arm's batch-matched alone arm."
+)
+"""The AUC table's note: the statistic that does not censor (a task never reached still has an area)."""
+
+
+def auc_changes(runs: Mapping[tuple[str, int], pd.DataFrame]) -> list[dict[str, Any]]:
+    """Per (task, joint arm, reference arm): the paired AUC difference over the seeds both ran.
+
+    `runs` maps (arm, seed) to that run's metrics. The updates-to-90% changes lose every pair in
+    which one side never reached the task (a censored seed); the AUC keeps them, which is why the
+    bench reports it beside them. Gradient steps, not consumed updates, are the x axis: against a
+    batch-matched arm the two are proportional, against Single Env it is "the same number of
+    network updates".
+    """
+    from seal.experiments.transfer import ARM_CI, target_auc
+    from seal.stats import paired_power
+
+    budget = max(int(m["grad_steps"].max()) for m in runs.values())
+    areas: dict[tuple[str, int, str, str], float] = {}
+    for (arm, seed), metrics in runs.items():
+        for env in dict.fromkeys(metrics["env"]):
+            for task, area in target_auc(metrics, budget, env=env).items():
+                areas[(arm, seed, env, task)] = area
+    rows = []
+    for arm, references in REFERENCES.items():
+        for reference in references:
+            keys = sorted({(e, t) for (a, _, e, t) in areas if a == reference})
+            for env, task in keys:
+                seeds = sorted(
+                    s
+                    for (a, s, e, t) in areas
+                    if a == arm and (e, t) == (env, task) and (reference, s, env, task) in areas
+                )
+                if not seeds:
+                    continue
+                own = [areas[(arm, s, env, task)] for s in seeds]
+                base = [areas[(reference, s, env, task)] for s in seeds]
+                diff = [a - b for a, b in zip(own, base, strict=True)]
+                rows.append(
+                    {
+                        "env": env,
+                        "task": task,
+                        "arm": arm,
+                        "vs": reference,
+                        "seeds": seeds,
+                        "auc_arm": statistics.fmean(own),
+                        "auc_vs": statistics.fmean(base),
+                        "auc_diff_per_seed": diff,
+                        "auc_diff": statistics.fmean(diff),
+                        "auc_diff_ci95": list(ARM_CI(diff)),
+                        **paired_power(diff, "auc"),
+                    }
+                )
+    return rows
+
+
+def format_auc(rows: Sequence[Mapping[str, Any]]) -> str:
+    """The AUC changes as a Markdown table (one row per task, arm and reference) and its note."""
+    labels = {a.name: a.label for a in ARMS if a.name in REFERENCES}
+    labels.update({a.name: "Single Env" for a in ARMS if a.name.startswith("single_")})
+    labels.update({a.name: "matched" for a in ARMS if a.name.endswith("_alone")})
+
+    def number(value: float, sign: str = "") -> str:
+        return "-" if not math.isfinite(value) else f"{value:{sign}.3f}"
+
+    lines = [
+        "## Area under the success curve (no censoring)",
+        "",
+        "| task | arm | vs | AUC arm | AUC vs | diff | 95% CI | n | MDE | n for MDE <= 0.10 |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        low, high = r["auc_diff_ci95"]
+        needed = r["seeds_for_mde_0p10_auc"]
+        lines.append(
+            f"| {r['task']} | {labels[r['arm']]} | {labels[r['vs']]} | {number(r['auc_arm'])} | "
+            f"{number(r['auc_vs'])} | {number(r['auc_diff'], '+')} | "
+            f"[{number(low, '+')}, {number(high, '+')}] | {len(r['seeds'])} | "
+            f"{number(r['mde_auc'])} | {needed if needed is not None else '-'} |"
+        )
+    return "\n".join([*lines, "", *textwrap.wrap(AUC_NOTE, 100)])
+
+
 def run_table1_bench(
     seeds: int = MIN_SEEDS,
     out: str | os.PathLike[str] = "reports/bench_table1",
@@ -116,11 +207,14 @@ def run_table1_bench(
     table = "\n".join(result.tables[name].read_text() for name in TABLES if name in result.tables)
     loaded = {key: load_run(path) for key, path in run_dirs.items()}
     versions = code_versions({k: r.provenance.get("git_sha") for k, r in loaded.items()})
+    auc = auc_changes({key: run.metrics for key, run in loaded.items()})
     fresh = not reused
     return {
         "table": table,
         "cells": _cells(result.update_counts),
         "changes": result.to_json()["changes"],
+        "auc": auc,
+        "auc_table": format_auc(auc),
         "plots": [str(p) for p in result.plots],
         "report_dir": str(result.out_dir),
         "seeds": seeds,
@@ -150,6 +244,8 @@ def format_result(result: Mapping[str, Any]) -> str:
     verdict = {None: "not judged (runs reused)", True: "met", False: "not met"}[budget["met"]]
     lines = [
         result["table"].rstrip(),
+        "",
+        result["auc_table"],
         "",
         "50/50's batch-matched alone arm is Single Env: with one task per env, 50/50 draws 128 per "
         "task per step, Single Env's batch.",

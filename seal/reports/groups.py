@@ -248,6 +248,10 @@ def _labelled(groups: Sequence[_Group], frame_of: str) -> pd.DataFrame:
                 run.env_label(e) if isinstance(e, str) else "" for e in frame["env"]
             ]
             frame["source"] = group.name
+            # A run that ended once every task had reached the threshold (its curves hold there).
+            frame["stops_when_reached"] = bool(
+                run.config.get("evaluation", {}).get("stop_when_reached", False)
+            )
             frames.append(frame)
     if not frames:
         return pd.DataFrame()

@@ -78,15 +78,28 @@ def _mean_std_over_seeds(frame: pd.DataFrame, x: str, value: str) -> pd.DataFram
 
 def success_curves(metrics: pd.DataFrame, x: XAxis) -> pd.DataFrame:
     """Per (column, env, epoch): x, the mean over seeds of the success averaged over the env's
-    tasks, its 95% bootstrap band (`low`, `high`) and the seeds."""
+    tasks, its 95% bootstrap band (`low`, `high`) and the seeds.
+
+    A seed whose run stopped once every task had reached the threshold (`stops_when_reached`)
+    holds its last evaluation at the epochs after it, as the transfer bench's AUC does: left out,
+    the mean past the first stop would be that of the seeds still failing, and would fall.
+    """
+    if "stops_when_reached" not in metrics.columns:
+        metrics = metrics.assign(stops_when_reached=False)
     per_eval = (
         metrics.groupby(["column", "env", "seed", "epoch"], sort=False)
-        .agg(success=("success", "mean"), grad_steps=("grad_steps", "mean"))
+        .agg(
+            success=("success", "mean"),
+            grad_steps=("grad_steps", "mean"),
+            held=("stops_when_reached", "any"),
+        )
         .reset_index()
     )
     frames = []
     for (column, env), frame in per_eval.groupby(["column", "env"], sort=False):
         table = frame.pivot_table(index="seed", columns="epoch", values="success")
+        held = frame.groupby("seed")["held"].any().reindex(table.index).to_numpy(dtype=bool)
+        table.loc[held] = table.loc[held].ffill(axis=1)
         low, high = bootstrap_band(table.to_numpy())
         frames.append(
             pd.DataFrame(
@@ -147,6 +160,15 @@ def plot_success(
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylabel("success rate (mean over tasks)")
         ax.set_title(f"{labels.get(env, env)}: success, mean over seeds, 95% bootstrap band")
+        if metrics.get("stops_when_reached", pd.Series(False)).any():
+            ax.text(
+                0.0,
+                -0.2,
+                "runs stop once every task has reached the threshold; a stopped run holds its last value",
+                transform=ax.transAxes,
+                fontsize="x-small",
+                color="grey",
+            )
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize="small")
         written.append(_save(fig, plots / f"success_{_safe(env)}.png"))
