@@ -5,8 +5,9 @@ expert's episodes) under the paper's four columns (Single Env, 50/50, High FK, H
 ratio column with its batch-matched alone arms. Every
 arm is an ordinary protocol run by `seal run` in its own process (the transfer bench's launcher,
 two at a time); the table is `seal report`'s on their run directories, so its cells, changes,
-bootstrap CIs, [reached/seeds] and plots (changes with their MDE, success with a bootstrap band)
-are the ones a user gets from `seal report` on the same runs.
+CIs, [reached/seeds] and plots (changes with their MDE, success with a bootstrap band) are the
+ones a user gets from `seal report` on the same runs. Beside it, `auc_changes`: the paired area
+under each task's success curve, which no censored seed drops.
 """
 
 from __future__ import annotations
