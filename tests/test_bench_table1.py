@@ -179,12 +179,20 @@ def test_auc_changes_pair_by_seed_and_keep_a_censored_seed() -> None:
         ("high_fk", 2): _run_metrics(fk, task, [(0, 0.0), (100, 1.0)]),
     }
     (row,) = auc_changes(runs)
-    assert (row["arm"], row["vs"], row["task"], row["seeds"]) == ("high_fk", "single_fk", task, [0, 1])
+    assert (row["arm"], row["vs"], row["task"], row["seeds"]) == (
+        "high_fk",
+        "single_fk",
+        task,
+        [0, 1],
+    )
     assert row["auc_arm"] == pytest.approx((0.75 + 0.875) / 2)
     assert row["auc_vs"] == pytest.approx((0.25 + 0.375) / 2)
     assert row["auc_diff_per_seed"] == pytest.approx([0.5, 0.5])
     # Two equal differences: SD 0, so the CI is the point and the MDE 0.
     assert row["auc_diff_ci95"] == pytest.approx([0.5, 0.5]) and row["sd_paired_auc"] == 0.0
     text = format_auc([row])
-    assert "| slide-cabinet | High FK | Single Env | 0.812 | 0.312 | +0.500 | [+0.500, +0.500] | 2 |" in text
+    assert (
+        "| slide-cabinet | High FK | Single Env | 0.812 | 0.312 | +0.500 | [+0.500, +0.500] | 2 |"
+        in text
+    )
     assert max(len(line) for line in text.splitlines()) <= 100
