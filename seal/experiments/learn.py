@@ -62,7 +62,7 @@ def learn_protocol(
         "epochs": int(timing["epochs"]),
         "wall_s": time.perf_counter() - start,
         "success": result.final_success[env],
-        "reached": {t: v > 0 for t, v in result.update_counts[env].items()},
+        "reached": {t: v is not None for t, v in result.update_counts[env].items()},
     }
 
 

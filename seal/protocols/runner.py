@@ -173,8 +173,8 @@ class RunResult:
     """What one seed's run produced: its directory and the headline numbers (also `seal run --json`)."""
 
     run_dir: Path
-    update_counts: dict[str, dict[str, float]]
-    """env -> task -> millions of that task's transitions consumed by updates when it first reached the threshold (0 = never)."""
+    update_counts: dict[str, dict[str, float | None]]
+    """env -> task -> millions of that task's transitions consumed by updates when it first reached the threshold (None, JSON null: never; 0 would be a task reached before any update)."""
     final_success: dict[str, dict[str, float]]
     """env -> task -> success rate at the last evaluation of the phase that trained on env."""
     timing: dict[str, PhaseTiming] = field(default_factory=dict)
@@ -447,13 +447,14 @@ class Run:
 
     def _result(self, shares: TimeShares) -> RunResult:
         """The headline numbers and the per-part timing of the finished phases."""
-        counts: dict[str, dict[str, float]] = {}
+        counts: dict[str, dict[str, float | None]] = {}
         final: dict[str, dict[str, float]] = {}
         for phase in self.phases:
             state = self.results[phase.name]
             for env in phase.envs:
                 tasks = self.adapters[env].tasks
-                counts[env] = {t: float(state.reached.get(env, {}).get(t, 0.0)) for t in tasks}
+                reached = state.reached.get(env, {})
+                counts[env] = {t: float(reached[t]) if t in reached else None for t in tasks}
                 final[env] = {t: float(state.last_success.get(env, {}).get(t, 0.0)) for t in tasks}
         timing: dict[str, PhaseTiming] = {
             name: {

@@ -116,6 +116,10 @@ def test_baseline_run_directory_and_hand_computed_counters(tmp_path: Path) -> No
     assert load_protocol(run / "config.toml") == config.replace(path=str(run / "config.toml"))
     assert set(result.update_counts["pt"]) == {"east", "north"}
     assert result.final_success["pt"]["east"] == metrics.iloc[-2]["success"]
+    # A task never at the threshold has no count (JSON null), not 0; a reached one its updates.
+    for task, count in result.update_counts["pt"].items():
+        rows = metrics[(metrics["task"] == task) & (metrics["success"] >= 0.9)]
+        assert count == (None if rows.empty else rows.iloc[0]["updates"]), task
 
 
 JOINT_ENVS = """
