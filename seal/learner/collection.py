@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import os
+import signal
 import time
 import traceback
 import zlib
@@ -273,11 +274,31 @@ def _handle(
     raise ValueError(f"unknown command {cmd!r}")
 
 
-def _worker_main(conn: Connection, groups: dict[str, list[_Instance]], spin_s: float = 0.0) -> None:
+def exit_with_parent(parent: int) -> None:
+    """Have the kernel kill this process when its parent dies (Linux), so a kill -9 leaves no orphan.
+
+    Every spawned worker calls it, at every level: a process killed this way never runs
+    multiprocessing's exit handler, which is what would have stopped its own daemonic workers.
+    """
+    with contextlib.suppress(OSError, AttributeError):
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    if os.getppid() != parent:  # the parent died before prctl took effect
+        os._exit(1)
+
+
+def _worker_main(
+    conn: Connection, groups: dict[str, list[_Instance]], spin_s: float = 0.0, parent: int = 0
+) -> None:
     """A worker process: owns a batch of envs of each environment and answers reset/step messages.
 
     With `spin_s` > 0 it polls for the next message that long before sleeping on the pipe.
+    `parent`: the pid of the process that started it (`exit_with_parent`); 0 = not a process.
     """
+    if parent:
+        exit_with_parent(parent)
     try:
         live = {env: _EnvGroup(insts) for env, insts in groups.items()}
         conn.send(("ok", None))
@@ -381,7 +402,7 @@ class _SubprocBatchedBackend(_Backend):
             spin = INLINE_SPIN_S if inline else 0.0
             proc = ctx.Process(
                 target=_worker_main,
-                args=(child, shares[w], spin),
+                args=(child, shares[w], spin, os.getpid()),
                 daemon=True,
                 name=f"seal-collect-{w}",
             )

@@ -37,7 +37,6 @@ import dataclasses
 import io
 import multiprocessing as mp
 import os
-import signal
 import time
 import traceback
 import warnings
@@ -49,6 +48,7 @@ import numpy as np
 import torch
 
 from seal.errors import SealError, SealWarning
+from seal.learner.collection import exit_with_parent
 from seal.learner.sac import Agent, AgentState
 from seal.protocols.phase_model import (
     ACTING_THREADS,
@@ -265,17 +265,6 @@ def _cpu_seconds() -> float:
     return total
 
 
-def _exit_with_parent(parent: int) -> None:
-    """Have the kernel kill this process when its parent dies (Linux), so a kill -9 leaves no orphan."""
-    with contextlib.suppress(OSError, AttributeError):
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    if os.getppid() != parent:  # the parent died before prctl took effect
-        os._exit(1)
-
-
 def _worker_main(
     conn: Connection,
     role: str,
@@ -286,7 +275,7 @@ def _worker_main(
     parent: int,
 ) -> None:
     """The worker: build the phase's side of `role`, then answer ("request", payload) messages."""
-    _exit_with_parent(parent)
+    exit_with_parent(parent)
     ignore_signals()  # a SIGTERM or Ctrl-C reaches the run, which closes its workers
 
     try:

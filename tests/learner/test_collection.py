@@ -385,3 +385,55 @@ def test_auto_chooses_from_what_splitting_a_step_saves(monkeypatch: pytest.Monke
         assert col.backend_name == "sync" and col.step_cost_s is None
     assert collection.choose_backend(0.999e-3) == "sync"
     assert collection.choose_backend(1e-3) == "inline-batched"
+
+
+HOLDER = """
+import sys, time
+from seal.envs.registry import make_adapter
+from seal.learner.collection import Collector
+
+col = Collector({"pt": make_adapter("point")}, seed=0, backend="subproc-batched", num_workers=2)
+print(" ".join(str(p.pid) for p in col._backend.procs if p is not None), flush=True)
+time.sleep(120)
+"""
+
+
+def test_a_killed_collector_leaves_no_worker_behind() -> None:
+    """kill -9 of the process that holds a Collector: its env workers die with it (PDEATHSIG),
+    where they would otherwise wait on their pipes for ever (the daemonic workers' cleanup runs
+    only at a normal exit, never at a kill)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER], stdout=subprocess.PIPE, text=True)
+    try:
+        pids = [int(p) for p in holder.stdout.readline().split()]  # type: ignore[union-attr]
+        assert pids, "no worker process started"
+        for pid in pids:
+            os.kill(pid, 0)  # alive
+        holder.send_signal(signal.SIGKILL)
+        holder.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        alive = list(pids)
+        while alive and time.monotonic() < deadline:
+            alive = [p for p in alive if _running(p)]
+            time.sleep(0.1)
+        assert alive == [], f"workers {alive} outlived their parent"
+    finally:
+        holder.kill()
+
+
+def _running(pid: int) -> bool:
+    """Whether `pid` is a live process (a zombie, dead and not yet reaped by init, is not)."""
+    import os
+
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+    except OSError:
+        return os.path.exists(f"/proc/{pid}")
