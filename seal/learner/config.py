@@ -90,6 +90,9 @@ class AgentConfig:
     """Polyak rate of the target critics: target <- (1 - tau) * target + tau * online, once per update."""
     init_alpha: float = 1.0
     """Initial temperature of every task."""
+    min_alpha: float = 0.0
+    """Floor of every task's temperature, held after each temperature step (0: none). A floor keeps
+    a learned task exploring, one candidate against losing it again (issue 37's collapse test)."""
     target_entropy: float | None = None
     """Target entropy of every task; None means -|A| of each env's own action size."""
     one_hot: bool = True
@@ -195,6 +198,14 @@ class AgentConfig:
             value = getattr(self, key)
             if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
                 raise ConfigError(f"agent.{key}: expected a finite number > 0, got {value!r}")
+        if (
+            not isinstance(self.min_alpha, int | float)
+            or not math.isfinite(self.min_alpha)
+            or self.min_alpha < 0
+        ):
+            raise ConfigError(
+                f"agent.min_alpha: expected a finite number >= 0 (0 = no floor), got {self.min_alpha!r}"
+            )
         if not 0.0 <= self.gamma <= 1.0:
             raise ConfigError(f"agent.gamma: expected a number in [0, 1], got {self.gamma!r}")
         if not 0.0 < self.tau <= 1.0:

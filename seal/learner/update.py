@@ -32,6 +32,7 @@ each network's optimiser and an unclipped temperature optimiser.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import NamedTuple, Protocol
 
@@ -173,6 +174,12 @@ def sac_update(
     # ---- temperature: one step for every env's log_alpha, after all stages
     if any(g is not None for g in alpha_grads):
         fused_adam_step([learner.alpha_optimizer], alpha_grads, learner.adam_cache)
+        if learner.config.min_alpha > 0:
+            with torch.no_grad():
+                torch._foreach_clamp_min_(
+                    learner.alpha_optimizer.param_groups[0]["params"],
+                    math.log(learner.config.min_alpha),
+                )
 
     # ---- target critics: Polyak averaging in place
     with torch.no_grad():

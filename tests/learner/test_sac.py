@@ -468,3 +468,23 @@ def test_cuda_mode_compiles_wherever_the_cpu_mode_does_and_agrees(
         losses = sorted(k for k in want if k.startswith("losses"))
         np.testing.assert_allclose([got[k] for k in losses], [want[k] for k in losses], rtol=1e-4)
     assert graphed.compiled and graphed.compile_seconds > 0
+
+
+def test_min_alpha_holds_every_temperature_at_its_floor() -> None:
+    """A target entropy far below the policy's drives every sampled task's temperature down at
+    each step; with min_alpha = init_alpha it stays exactly at the floor, a task unsampled
+    included, while without one it falls below."""
+    spec = EnvSpec("e", 3, 2, 4)
+    batch = _random_batch(spec, 16)._replace(task_ids=torch.tensor([0, 2] * 8))
+    logs = {}
+    for floor in (0.0, 0.5):
+        config = AgentConfig(**SMALL, init_alpha=0.5, target_entropy=-100.0, min_alpha=floor)
+        agent = Agent([spec], config, seed=0)
+        for _ in range(3):
+            agent.update({"e": batch})
+        logs[floor] = agent.log_alpha["e"].detach().clone()
+    floored, free = logs[0.5], logs[0.0]
+    assert torch.equal(floored, torch.full((4,), math.log(0.5)))
+    assert (free[[0, 2]] < math.log(0.5)).all() and free[1] == free[3] == math.log(0.5)
+    with pytest.raises(ConfigError, match="agent.min_alpha: expected a finite number >= 0"):
+        AgentConfig(min_alpha=-0.1)
