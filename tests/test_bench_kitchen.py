@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import warnings
 
 import pandas as pd
@@ -105,7 +106,7 @@ def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() ->
         arms(["nope"])
 
 
-def test_tiny_end_to_end(tmp_path) -> None:
+def test_tiny_end_to_end(tmp_path, capsys) -> None:
     tiny = [
         "protocol.epochs=1",
         "envs.fk.episode_length=5",
@@ -128,11 +129,15 @@ def test_tiny_end_to_end(tmp_path) -> None:
     assert result["goal"]["rewards_alone"]["met"] is None  # one arm of five run
     assert result["goal"]["v4"]["met"] is None
     assert "slide-cabinet + demos" in format_result(result)
-    # A second call takes the finished run instead of running it again.
-    again = run_kitchen_bench(
-        seeds=1, out=tmp_path, overrides=tiny, only=["slide_cabinet_demos"], reuse=True
-    )
-    assert again["reused"] == ["slide_cabinet_demos/seed-0"]
+    # A second call, through the CLI with the same --set values, takes the finished run instead of
+    # running it again.
+    from seal.cli.main import main
+
+    args = ["bench", "--learn", "kitchen", "--arms", "slide_cabinet_demos", "--seeds", "1"]
+    args += ["--out", str(tmp_path), "--reuse", "--json"]
+    assert main(args + [a for value in tiny for a in ("--set", value)]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["reused"] == ["slide_cabinet_demos/seed-0"] and again["overrides"] == tiny
 
 
 def test_rewards_alone_goal_counts_arms_reached_in_any_seed_within_budget() -> None:

@@ -148,7 +148,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="TABLE.KEY=VALUE",
-        help='with --protocol, --learn table1 or --learn quickstart: override a protocol value (e.g. protocol.device=cuda, agent.preset="seal_prototype")',
+        help="with --protocol or --learn table1, quickstart, reach_sb3 or kitchen: override a protocol value (e.g. protocol.device=cuda, evaluation.stop_when_reached=false)",
     )
     parser.set_defaults(func=run)
 
@@ -161,7 +161,7 @@ LEARN_SETS: dict[str, tuple[str, int, str]] = {
     "reach_sb3": ("seal.experiments.reach_sb3", 3, "reports/bench_reach_sb3"),
 }
 """`--learn <set>`: the module (with run_<set>_bench and format_result), default seeds and reports root."""
-OVERRIDE_SETS = ("table1", "quickstart", "reach_sb3")
+OVERRIDE_SETS = ("table1", "quickstart", "reach_sb3", "kitchen")
 """The `--learn` sets that take `--set` overrides of their protocols."""
 
 
@@ -192,7 +192,9 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.overrides and args.protocol is None and args.learn not in OVERRIDE_SETS:
         raise SealError(
-            "--set only applies to --protocol, --learn table1, --learn quickstart and --learn reach_sb3"
+            "--set only applies to --protocol and to --learn "
+            + ", ".join(OVERRIDE_SETS[:-1])
+            + f" and {OVERRIDE_SETS[-1]}"
         )
     if args.learn in LEARN_SETS:
         import importlib
