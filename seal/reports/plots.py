@@ -234,8 +234,17 @@ def plot_intervals(
                 for end, cut, marker in ((row.low, low, "<"), (row.high, high, ">")):
                     if end != cut:
                         ax.plot(cut, y, marker, color=colour, markersize=7, zorder=3)
-            else:
+            else:  # the seeds bound no interval (a reference not resolved from 0, one seed)
                 ax.plot(value, y, "o", color=colour, zorder=2)
+                ax.annotate(
+                    "no CI",
+                    (value, y),
+                    xytext=(6, 0),
+                    textcoords="offset points",
+                    va="center",
+                    fontsize="x-small",
+                    color="grey",
+                )
         ax.axvline(0.0, color="black", linewidth=1, zorder=1)
         ax.set_yticks(ys, [r.label for r in rows], fontsize="small")
         ax.set_ylim(-0.7, len(rows) - 0.3)
