@@ -8,6 +8,8 @@ eager. On CUDA each compiled stage is replayed as a CUDA graph (`compile_mode`).
 
 from __future__ import annotations
 
+import os
+import re
 import time
 import warnings
 from collections.abc import Callable, Hashable, Sequence
@@ -23,6 +25,28 @@ def compile_mode(device: torch.device) -> str | None:
     compiled stage as a CUDA graph (one launch for its forward and backward kernels); elsewhere
     the default, since CPU has no graphs. Not yet run on a GPU (README, Speed)."""
     return "reduce-overhead" if device.type == "cuda" else None
+
+
+KERNEL_CAPS = ("ATEN_CPU_CAPABILITY", "DNNL_MAX_CPU_ISA", "MKL_ENABLE_INSTRUCTIONS")
+"""Environment variables that cap the CPU kernels torch and its libraries pick."""
+
+
+def isolate_inductor_cache() -> None:
+    """Give compiled code made under capped CPU kernels its own inductor cache directory.
+
+    torch 2.13's FX graph cache key omits these caps, so code compiled under one cap is loaded
+    under another and crashes (measured: `ATEN_CPU_CAPABILITY=avx2 MKL_ENABLE_INSTRUCTIONS=AVX2
+    DNNL_MAX_CPU_ISA=AVX2` reading a native run's cache segfaults, and a native run reading the
+    capped cache aborts). With a cap set and no TORCHINDUCTOR_CACHE_DIR of the user's, the cache
+    goes to the default directory suffixed with the caps; otherwise nothing changes.
+    """
+    caps = [f"{k}={os.environ[k]}" for k in KERNEL_CAPS if os.environ.get(k)]
+    if not caps or os.environ.get("TORCHINDUCTOR_CACHE_DIR"):
+        return
+    from torch._inductor.runtime.cache_dir_utils import default_cache_dir
+
+    suffix = re.sub(r"[^A-Za-z0-9_.=-]", "_", "-".join(caps))
+    os.environ["TORCHINDUCTOR_CACHE_DIR"] = f"{default_cache_dir()}-{suffix}"
 
 
 class Stages:
@@ -44,6 +68,7 @@ class Stages:
 
     def compile(self, device: torch.device) -> None:
         """torch.compile every stage (compilation itself happens at the first call of a key)."""
+        isolate_inductor_cache()
         mode = compile_mode(device)
         self._compiled = {
             fn: torch.compile(fn, fullgraph=True, dynamic=False, mode=mode) for fn in self.eager

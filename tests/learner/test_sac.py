@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import warnings
 from dataclasses import replace
 
@@ -488,3 +489,25 @@ def test_min_alpha_holds_every_temperature_at_its_floor() -> None:
     assert (free[[0, 2]] < math.log(0.5)).all() and free[1] == free[3] == math.log(0.5)
     with pytest.raises(ConfigError, match="agent.min_alpha: expected a finite number >= 0"):
         AgentConfig(min_alpha=-0.1)
+
+
+def test_capped_kernels_get_their_own_inductor_cache(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A kernel cap moves an unset inductor cache to the default directory suffixed with the caps
+    (code compiled under another cap crashes when loaded); a user's directory, or no cap, stays."""
+    from torch._inductor.runtime.cache_dir_utils import default_cache_dir
+
+    from seal.learner.staging import KERNEL_CAPS, isolate_inductor_cache
+
+    for key in (*KERNEL_CAPS, "TORCHINDUCTOR_CACHE_DIR"):
+        monkeypatch.delenv(key, raising=False)
+    isolate_inductor_cache()
+    assert "TORCHINDUCTOR_CACHE_DIR" not in os.environ  # no cap: torch's own default
+    monkeypatch.setenv("ATEN_CPU_CAPABILITY", "avx2")
+    monkeypatch.setenv("DNNL_MAX_CPU_ISA", "AVX2")
+    isolate_inductor_cache()
+    assert os.environ["TORCHINDUCTOR_CACHE_DIR"] == (
+        f"{default_cache_dir()}-ATEN_CPU_CAPABILITY=avx2-DNNL_MAX_CPU_ISA=AVX2"
+    )
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", "/somewhere/mine")
+    isolate_inductor_cache()
+    assert os.environ["TORCHINDUCTOR_CACHE_DIR"] == "/somewhere/mine"
