@@ -37,14 +37,16 @@ def isolate_inductor_cache() -> None:
     torch 2.13's FX graph cache key omits these caps, so code compiled under one cap is loaded
     under another and crashes (measured: `ATEN_CPU_CAPABILITY=avx2 MKL_ENABLE_INSTRUCTIONS=AVX2
     DNNL_MAX_CPU_ISA=AVX2` reading a native run's cache segfaults, and a native run reading the
-    capped cache aborts). With a cap set and no TORCHINDUCTOR_CACHE_DIR of the user's, the cache
-    goes to the default directory suffixed with the caps; otherwise nothing changes.
+    capped cache aborts). With a cap set and no TORCHINDUCTOR_CACHE_DIR of the user's (torch
+    writes its default there once it has used it), the cache goes to the default directory
+    suffixed with the caps; otherwise nothing changes.
     """
-    caps = [f"{k}={os.environ[k]}" for k in KERNEL_CAPS if os.environ.get(k)]
-    if not caps or os.environ.get("TORCHINDUCTOR_CACHE_DIR"):
-        return
     from torch._inductor.runtime.cache_dir_utils import default_cache_dir
 
+    caps = [f"{k}={os.environ[k]}" for k in KERNEL_CAPS if os.environ.get(k)]
+    chosen = os.environ.get("TORCHINDUCTOR_CACHE_DIR")
+    if not caps or (chosen and os.path.abspath(chosen) != os.path.abspath(default_cache_dir())):
+        return
     suffix = re.sub(r"[^A-Za-z0-9_.=-]", "_", "-".join(caps))
     os.environ["TORCHINDUCTOR_CACHE_DIR"] = f"{default_cache_dir()}-{suffix}"
 

@@ -504,6 +504,7 @@ def test_capped_kernels_get_their_own_inductor_cache(monkeypatch: pytest.MonkeyP
     assert "TORCHINDUCTOR_CACHE_DIR" not in os.environ  # no cap: torch's own default
     monkeypatch.setenv("ATEN_CPU_CAPABILITY", "avx2")
     monkeypatch.setenv("DNNL_MAX_CPU_ISA", "AVX2")
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", default_cache_dir())  # torch's, once it ran
     isolate_inductor_cache()
     assert os.environ["TORCHINDUCTOR_CACHE_DIR"] == (
         f"{default_cache_dir()}-ATEN_CPU_CAPABILITY=avx2-DNNL_MAX_CPU_ISA=AVX2"
