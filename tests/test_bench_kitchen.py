@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import warnings
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -188,3 +189,39 @@ def test_v4_goal_counts_tasks_reached_in_two_of_three_seeds_within_budget() -> N
     assert rewards_alone_goal(five)["of"] == 5  # the v3 goal counts only the v3 arms
     five["microwave_v4"] = arm("microwave v4", yes, yes)  # two seeds: not judged
     assert v4_goal(five)["met"] is None
+
+
+def test_a_run_a_session_left_unfinished_is_resumed_not_restarted(tmp_path) -> None:
+    """`--reuse` continues an unfinished run from its last checkpoint (`seal run --resume`) in
+    its own directory, where it used to start the seed again from epoch 1."""
+    tiny = [
+        "protocol.epochs=2",
+        "checkpoint.interval=1",
+        "envs.fk.episode_length=5",
+        "training.warmup_steps=0",
+        "training.demo_episodes=1",
+        "training.batch_per_task=4",
+        "training.grad_steps_per_epoch=2",
+        "evaluation.interval=1",
+        "evaluation.episodes=1",
+        "agent.hidden=[8]",
+    ]
+    only = ["slide_cabinet_demos"]
+    first = run_kitchen_bench(seeds=1, out=tmp_path, overrides=tiny, only=only)
+    run = Path(first["run_dirs"]["slide_cabinet_demos/seed-0"])
+    full = pd.read_csv(run / "metrics.csv")
+    # As a session that ended during epoch 2 leaves it: no epoch-2 checkpoint, rows or end time.
+    (run / "checkpoints" / "ckpt-0000002.pt").unlink()
+    full[full["epoch"] < 2].to_csv(run / "metrics.csv", index=False)
+    provenance = json.loads((run / "provenance.json").read_text())
+    provenance["end_time"] = None
+    (run / "provenance.json").write_text(json.dumps(provenance))
+    logs: list[str] = []
+    again = run_kitchen_bench(
+        seeds=1, out=tmp_path, overrides=tiny, only=only, reuse=True, log=logs.append
+    )
+    assert any(line.startswith("resume slide_cabinet_demos seed 0") for line in logs), logs
+    assert again["reused"] == [] and Path(again["run_dirs"]["slide_cabinet_demos/seed-0"]) == run
+    resumed = pd.read_csv(run / "metrics.csv")
+    assert resumed["epoch"].tolist() == full["epoch"].tolist()  # epoch 2 run again, once
+    assert json.loads((run / "provenance.json").read_text())["end_time"]

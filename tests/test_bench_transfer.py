@@ -576,3 +576,65 @@ def test_cli_fpr_only_with_learn_transfer(capsys) -> None:
     assert main(["bench", "--learn", "table1", "--fpr"]) == 2
     assert "--fpr only applies to --learn transfer" in capsys.readouterr().err
     assert main(["bench", "--learn", "transfer", "--fpr", "--full"]) == 2
+
+
+TRAPS_SIGTERM = """
+import pathlib, signal, sys, time
+def stop(signum, frame):
+    pathlib.Path(sys.argv[1]).write_text("checkpoint saved")
+    sys.exit(0)
+signal.signal(signal.SIGTERM, stop)
+print("ready", flush=True)
+time.sleep(60)
+"""
+
+
+def test_a_stopped_launcher_stops_its_runs_with_sigterm(tmp_path: Path) -> None:
+    """Stopping the launcher gives each run one SIGTERM, which `seal run` answers by saving a
+    checkpoint (here: a stand-in that writes a file), then waits for it: no run is killed
+    mid-epoch and none outlives the launcher. A run that ignores SIGTERM is killed after the wait."""
+    import signal
+    import subprocess
+    import sys
+
+    import seal.experiments.transfer as transfer
+
+    marker = tmp_path / "saved"
+    polite = subprocess.Popen(
+        [sys.executable, "-c", TRAPS_SIGTERM, str(marker)], stdout=subprocess.PIPE, text=True
+    )
+    deaf = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); "
+            "print('ready', flush=True); time.sleep(60)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    for proc in (polite, deaf):
+        assert proc.stdout.readline().strip() == "ready"  # type: ignore[union-attr]
+    transfer.STOP_WAIT_S, wait = 2.0, transfer.STOP_WAIT_S
+    try:
+        transfer._stop_runs([polite, deaf])
+    finally:
+        transfer.STOP_WAIT_S = wait
+    assert polite.returncode == 0 and marker.read_text() == "checkpoint saved"
+    assert deaf.returncode == -signal.SIGKILL
+
+
+def test_sigterm_reaches_a_launchers_cleanup() -> None:
+    """Inside `terminate_as_exit` a SIGTERM raises SystemExit(143), so `finally` runs; outside,
+    the previous handler is back."""
+    import os
+    import signal
+
+    from seal.experiments.transfer import terminate_as_exit
+
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(SystemExit) as stopped, terminate_as_exit():
+        os.kill(os.getpid(), signal.SIGTERM)
+        signal.pause()  # not reached: the handler raises first
+    assert stopped.value.code == 143
+    assert signal.getsignal(signal.SIGTERM) is before

@@ -25,14 +25,17 @@ with CI and MDE, the target's success with a bootstrap band) go to `<out>/transf
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
+import threading
 import time
 import tomllib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -299,6 +302,12 @@ def last_checkpoint(run_dir: Path) -> Path:
     return found[-1]
 
 
+def resume_command(arm: Arm, run_dir: Path) -> list[str]:
+    """The `seal run --resume` command line that continues `run_dir` (its saved config)."""
+    run = [sys.executable, "-m", "seal.cli.main", "run", str(arm.protocol)]
+    return [*run, "--resume", str(run_dir), "--quiet", "--no-report", "--json"]
+
+
 def run_all(
     jobs: list[tuple[Arm, int]],
     out: Path,
@@ -306,12 +315,28 @@ def run_all(
     parallel: int = 2,
     log: Callable[[str], None] = lambda _: None,
     done: Mapping[tuple[str, int], Path] | None = None,
+    resume: Mapping[tuple[str, int], Path] | None = None,
 ) -> dict[tuple[str, int], Path]:
     """Run every (arm, seed) as its own `seal run` process, `parallel` at a time; their run directories.
 
     A job whose arm has a `pretrain` starts once that arm's run of the same seed is in `done`
-    (given, e.g. reused, or finished here), from its last checkpoint.
+    (given, e.g. reused, or finished here), from its last checkpoint. A job in `resume` continues
+    that run directory from its last checkpoint instead of starting afresh. Stopped (SIGTERM,
+    Ctrl-C, a failed run), it stops its runs with SIGTERM so that each saves a checkpoint.
     """
+    with terminate_as_exit():
+        return _run_all(jobs, out, overrides, parallel, log, done, resume or {})
+
+
+def _run_all(
+    jobs: list[tuple[Arm, int]],
+    out: Path,
+    overrides: Sequence[str],
+    parallel: int,
+    log: Callable[[str], None],
+    done: Mapping[tuple[str, int], Path] | None,
+    resume: Mapping[tuple[str, int], Path],
+) -> dict[tuple[str, int], Path]:
     pending = list(jobs)
     running: list[tuple[Arm, int, subprocess.Popen[str], float]] = []
     finished: dict[tuple[str, int], Path] = dict(done or {})
@@ -324,14 +349,23 @@ def run_all(
         while pending or running:
             while len(running) < parallel and any(ready(j) for j in pending):
                 arm, seed = pending.pop(next(i for i, j in enumerate(pending) if ready(j)))
-                extra = list(overrides)
-                if arm.pretrain is not None:
-                    start = last_checkpoint(finished[(arm.pretrain, seed)])
-                    extra.append(f"transfer.checkpoint={start}")
-                cmd = seal_run_command(arm, seed, out, extra)
+                if (arm.name, seed) in resume:
+                    cmd = resume_command(arm, resume[(arm.name, seed)])
+                else:
+                    extra = list(overrides)
+                    if arm.pretrain is not None:
+                        start = last_checkpoint(finished[(arm.pretrain, seed)])
+                        extra.append(f"transfer.checkpoint={start}")
+                    cmd = seal_run_command(arm, seed, out, extra)
                 log(f"start {arm.name} seed {seed}: {' '.join(cmd[1:])}")
+                # Its own session: a Ctrl-C at the terminal reaches the launcher alone, which
+                # then stops each run with one SIGTERM (a second signal would abort its save).
                 proc = subprocess.Popen(
-                    cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+                    cmd,
+                    stdout=subprocess.PIPE,
+                    stderr=subprocess.PIPE,
+                    text=True,
+                    start_new_session=True,
                 )
                 running.append((arm, seed, proc, time.monotonic()))
             if not running:  # pending jobs wait on arms that are neither given nor run
@@ -353,9 +387,45 @@ def run_all(
                 finished[(arm.name, seed)] = run_dir
                 log(f"done {arm.name} seed {seed} in {time.monotonic() - started:.0f} s: {run_dir}")
     finally:
-        for _, _, proc, _ in running:
-            proc.kill()
+        _stop_runs([proc for _, _, proc, _ in running])
     return {job: finished[job] for job in finished if done is None or job not in done}
+
+
+STOP_WAIT_S = 60.0
+"""How long a stopped launcher waits for each run to save its checkpoint after SIGTERM
+(`checkpoint.signal_budget_s`, 10 s by default, plus the save) before killing it."""
+
+
+def _stop_runs(procs: Sequence[subprocess.Popen[str]]) -> None:
+    """Stop the runs still going: SIGTERM, so that each finishes its epoch and saves a checkpoint
+    that `--reuse` then resumes from; SIGKILL for one that has not exited within STOP_WAIT_S."""
+    for proc in procs:
+        if proc.poll() is None:
+            proc.terminate()
+    for proc in procs:
+        try:
+            proc.wait(timeout=STOP_WAIT_S)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@contextlib.contextmanager
+def terminate_as_exit() -> Iterator[None]:
+    """Within it, SIGTERM raises SystemExit (143) in the main thread, so a launcher's `finally`
+    stops its runs cleanly; by default SIGTERM ends the process at once and orphans them."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def run_or_reuse(
@@ -367,16 +437,25 @@ def run_or_reuse(
     reuse: bool,
 ) -> tuple[dict[tuple[str, int], Path], dict[tuple[str, int], Path]]:
     """(every job's run directory, the reused ones): with `reuse`, finished runs under `out`
-    whose resolved config is today's (`finished_run`) are taken; the rest are run (`run_all`)."""
+    whose resolved config is today's (`finished_run`) are taken, unfinished ones with a
+    checkpoint (`unfinished_run`: a session that ended mid-run) are resumed, and the rest are
+    run (`run_all`)."""
     reused: dict[tuple[str, int], Path] = {}
+    resumed: dict[tuple[str, int], Path] = {}
     if reuse:
         for arm, seed in jobs:
             found = finished_run(arm, seed, out, overrides)
             if found is not None:
                 reused[(arm.name, seed)] = found
                 log(f"reuse {arm.name} seed {seed}: {found}")
+                continue
+            partial = unfinished_run(arm, seed, out, overrides)
+            if partial is not None:
+                resumed[(arm.name, seed)] = partial
+                log(f"resume {arm.name} seed {seed}: {partial}")
         jobs = [(a, s) for a, s in jobs if (a.name, s) not in reused]
-    return {**reused, **run_all(jobs, out, overrides, parallel, log, done=reused)}, reused
+    ran = run_all(jobs, out, overrides, parallel, log, done=reused, resume=resumed)
+    return {**reused, **ran}, reused
 
 
 # ---------------------------------------------------------------- reuse and consistency
@@ -465,6 +544,18 @@ def finished_run(arm: Arm, seed: int, out: Path, overrides: Sequence[str] = ()) 
         if loaded.provenance.get("end_time") or (
             not epochs.empty and int(epochs.max()) >= want["epochs"]
         ):
+            return run
+    return None
+
+
+def unfinished_run(arm: Arm, seed: int, out: Path, overrides: Sequence[str] = ()) -> Path | None:
+    """The newest run of (arm, seed) under `out` with today's resolved config that did not finish
+    but saved an epoch checkpoint to go on from (`seal run --resume`), else None."""
+    name, want = resolved_tables(arm, overrides)
+    for run in sorted(out.glob(f"{name}/*/seed-{seed}"), reverse=True):
+        if not (run / "config.toml").is_file() or not any((run / "checkpoints").glob("ckpt-*.pt")):
+            continue
+        if _same_tables(_tables(tomllib.loads((run / "config.toml").read_text())), want):
             return run
     return None
 
