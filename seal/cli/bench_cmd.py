@@ -79,7 +79,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--reuse",
         action="store_true",
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: take finished runs under --out whose resolved config is today's instead of running them again",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: take finished runs under --out whose resolved config is today's instead of running them again, and (except reach_sb3) resume unfinished ones from their last checkpoint",
     )
     parser.add_argument(
         "--jobs",
