@@ -107,18 +107,21 @@ def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() ->
         arms(["nope"])
 
 
+TINY = [
+    "envs.fk.episode_length=5",
+    "training.warmup_steps=0",
+    "training.demo_episodes=1",
+    "training.batch_per_task=4",
+    "training.grad_steps_per_epoch=2",
+    "evaluation.interval=1",
+    "evaluation.episodes=1",
+    "agent.hidden=[8]",
+]
+"""A kitchen arm shrunk to seconds: the plumbing only (epochs are each test's)."""
+
+
 def test_tiny_end_to_end(tmp_path, capsys) -> None:
-    tiny = [
-        "protocol.epochs=1",
-        "envs.fk.episode_length=5",
-        "training.warmup_steps=0",
-        "training.demo_episodes=1",
-        "training.batch_per_task=4",
-        "training.grad_steps_per_epoch=2",
-        "evaluation.interval=1",
-        "evaluation.episodes=1",
-        "agent.hidden=[8]",
-    ]
+    tiny = ["protocol.epochs=1", *TINY]
     result = run_kitchen_bench(seeds=1, out=tmp_path, overrides=tiny, only=["slide_cabinet_demos"])
     arm = result["arms"]["slide_cabinet_demos"]
     (figures,) = arm["per_seed"]
@@ -194,18 +197,7 @@ def test_v4_goal_counts_tasks_reached_in_two_of_three_seeds_within_budget() -> N
 def test_a_run_a_session_left_unfinished_is_resumed_not_restarted(tmp_path) -> None:
     """`--reuse` continues an unfinished run from its last checkpoint (`seal run --resume`) in
     its own directory, where it used to start the seed again from epoch 1."""
-    tiny = [
-        "protocol.epochs=2",
-        "checkpoint.interval=1",
-        "envs.fk.episode_length=5",
-        "training.warmup_steps=0",
-        "training.demo_episodes=1",
-        "training.batch_per_task=4",
-        "training.grad_steps_per_epoch=2",
-        "evaluation.interval=1",
-        "evaluation.episodes=1",
-        "agent.hidden=[8]",
-    ]
+    tiny = ["protocol.epochs=2", "checkpoint.interval=1", *TINY]
     only = ["slide_cabinet_demos"]
     first = run_kitchen_bench(seeds=1, out=tmp_path, overrides=tiny, only=only)
     run = Path(first["run_dirs"]["slide_cabinet_demos/seed-0"])

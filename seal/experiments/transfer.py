@@ -324,19 +324,7 @@ def run_all(
     that run directory from its last checkpoint instead of starting afresh. Stopped (SIGTERM,
     Ctrl-C, a failed run), it stops its runs with SIGTERM so that each saves a checkpoint.
     """
-    with terminate_as_exit():
-        return _run_all(jobs, out, overrides, parallel, log, done, resume or {})
-
-
-def _run_all(
-    jobs: list[tuple[Arm, int]],
-    out: Path,
-    overrides: Sequence[str],
-    parallel: int,
-    log: Callable[[str], None],
-    done: Mapping[tuple[str, int], Path] | None,
-    resume: Mapping[tuple[str, int], Path],
-) -> dict[tuple[str, int], Path]:
+    resume = resume or {}
     pending = list(jobs)
     running: list[tuple[Arm, int, subprocess.Popen[str], float]] = []
     finished: dict[tuple[str, int], Path] = dict(done or {})
@@ -345,7 +333,7 @@ def _run_all(
         arm, seed = job
         return arm.pretrain is None or (arm.pretrain, seed) in finished
 
-    try:
+    with terminate_as_exit(), _stopped_at_exit(running):
         while pending or running:
             while len(running) < parallel and any(ready(j) for j in pending):
                 arm, seed = pending.pop(next(i for i, j in enumerate(pending) if ready(j)))
@@ -386,9 +374,18 @@ def _run_all(
                 run_dir = Path(json.loads(stdout.strip().splitlines()[-1])["run_dir"])
                 finished[(arm.name, seed)] = run_dir
                 log(f"done {arm.name} seed {seed} in {time.monotonic() - started:.0f} s: {run_dir}")
+    return {job: finished[job] for job in finished if done is None or job not in done}
+
+
+@contextlib.contextmanager
+def _stopped_at_exit(
+    running: list[tuple[Arm, int, subprocess.Popen[str], float]],
+) -> Iterator[None]:
+    """On leaving (normally, or by an exception), stop the runs still in `running` (`_stop_runs`)."""
+    try:
+        yield
     finally:
         _stop_runs([proc for _, _, proc, _ in running])
-    return {job: finished[job] for job in finished if done is None or job not in done}
 
 
 STOP_WAIT_S = 60.0
