@@ -40,6 +40,13 @@ def resolve_device(name: str | torch.device = "auto") -> torch.device:
     raise SealError(f"unsupported device {name!r}; valid: auto, cpu, cuda, cuda:<index>")
 
 
+def apply_matmul_precision(device: torch.device, precision: str) -> None:
+    """torch.set_float32_matmul_precision(`precision`) when `device` is CUDA; CPU runs keep
+    "highest", since "high" there may mean a bfloat16-based algorithm where the CPU has one."""
+    if device.type == "cuda":
+        torch.set_float32_matmul_precision(precision)
+
+
 @contextlib.contextmanager
 def torch_threads(n: int | None) -> Iterator[None]:
     """Run with `n` torch intra-op threads (None: unchanged), restoring the previous count."""

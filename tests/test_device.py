@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
+import torch
 
 import seal.device
 from seal.cli.main import main
@@ -97,3 +98,31 @@ def test_a_sweep_trial_starts_no_more_threads_than_its_cores(tmp_path: Path) -> 
     provenance = json.loads((run_dir / "provenance.json").read_text())
     assert provenance["device_name"] == "cpu (1 threads)"
     assert provenance["update_threads"].startswith("1 (protocol.threads = 4, capped at 1 core;")
+
+
+def test_matmul_precision_is_set_for_cuda_runs_only() -> None:
+    """protocol.matmul_precision reaches torch on a CUDA device and never on the CPU (where "high"
+    may mean a bfloat16-based algorithm); the setting is global, so it is restored here."""
+    from seal.device import apply_matmul_precision
+
+    before = torch.get_float32_matmul_precision()
+    try:
+        torch.set_float32_matmul_precision("highest")
+        apply_matmul_precision(torch.device("cpu"), "high")
+        assert torch.get_float32_matmul_precision() == "highest"
+        apply_matmul_precision(torch.device("cuda"), "high")  # setting the flag needs no GPU
+        assert torch.get_float32_matmul_precision() == "high"
+    finally:
+        torch.set_float32_matmul_precision(before)
+
+
+def test_matmul_precision_refuses_what_torch_would_round_to_bfloat16(tmp_path: Path) -> None:
+    """ "medium" (bfloat16 matmuls) is not offered: the error names the file, the key and the choices."""
+    toml = (ROOT / "protocols" / "quickstart.toml").read_text()
+    path = tmp_path / "p.toml"
+    path.write_text(toml.replace("[protocol]\n", '[protocol]\nmatmul_precision = "medium"\n', 1))
+    with pytest.raises(SealError) as info:
+        load_protocol(path)
+    message = str(info.value)
+    assert str(path) in message and "protocol.matmul_precision = 'medium'" in message
+    assert "'highest', 'high'" in message

@@ -465,7 +465,9 @@ def bench_update_rate(
     per task, batch 2,560, 400-wide). On CUDA the compiled path replays each update stage as a CUDA
     graph (`seal.learner.staging.compile_mode`). Every env gets batch_per_task samples per task (the
     50/50 point of a ratio schedule: the total batch, hence the work, is the same at any ratio).
-    ``paper_update_rate`` is the headline path's updates/s (compiled when it compiled).
+    ``paper_update_rate`` is the headline path's updates/s (compiled when it compiled), at full
+    float32; on CUDA the same paths again with TF32 matmuls (`protocol.matmul_precision = "high"`)
+    give ``paper_update_rate_tf32``.
     """
     specs, config, per_task = quickstart_setup(protocol, device=device)
     timed = _time_eager_and_compiled(specs, config, per_task, updates, repeats, seed, compile)
@@ -473,6 +475,18 @@ def bench_update_rate(
         path["updates_per_s"] = 1.0 / path["update_s"]
     if timed["device"].startswith("cuda"):
         timed["device_name"] = torch.cuda.get_device_name(torch.device(timed["device"]))
+        before = torch.get_float32_matmul_precision()
+        torch.set_float32_matmul_precision("high")
+        try:
+            tf32 = _time_eager_and_compiled(
+                specs, config, per_task, updates, repeats, seed, compile
+            )
+        finally:
+            torch.set_float32_matmul_precision(before)
+        for path in tf32["paths"].values():
+            path["updates_per_s"] = 1.0 / path["update_s"]
+        timed["tf32"] = tf32
+        timed["paper_update_rate_tf32"] = tf32["paths"][tf32["headline_path"]]["updates_per_s"]
     return {
         "protocol": str(protocol),
         "envs": {s.name: dataclasses.asdict(s) for s in specs},

@@ -290,6 +290,11 @@ def format_table(result: Mapping[str, Any]) -> str:
                 )
                 for name, p in rate["paths"].items()
             )
+            + (
+                f"; with TF32 matmuls {rate['paper_update_rate_tf32']:.1f}/s"
+                if "paper_update_rate_tf32" in rate
+                else ""
+            )
             + f"; {rate['device_name'] if 'device_name' in rate else rate['device']}, batch {rate['batch']}, {rate['threads']} threads (goal: one H100)"
         )
     for key in ("collect_mt10_speedup", "collect_fk_speedup"):

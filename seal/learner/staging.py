@@ -23,7 +23,7 @@ R = TypeVar("R")
 def compile_mode(device: torch.device) -> str | None:
     """torch.compile's mode for the update stages: on CUDA "reduce-overhead", which replays each
     compiled stage as a CUDA graph (one launch for its forward and backward kernels); elsewhere
-    the default, since CPU has no graphs. Not yet run on a GPU (README, Speed)."""
+    the default, since CPU has no graphs. Measured on an H200: docs/benchmarks.md."""
     return "reduce-overhead" if device.type == "cuda" else None
 
 
@@ -71,6 +71,8 @@ class Stages:
     def compile(self, device: torch.device) -> None:
         """torch.compile every stage (compilation itself happens at the first call of a key)."""
         isolate_inductor_cache()
+        # The run chose its float32 matmul precision (protocol.matmul_precision): no advice needed.
+        warnings.filterwarnings("ignore", "TensorFloat32 tensor cores", UserWarning)
         mode = compile_mode(device)
         self._compiled = {
             fn: torch.compile(fn, fullgraph=True, dynamic=False, mode=mode) for fn in self.eager

@@ -59,6 +59,7 @@ from typing import Any, TypedDict
 import torch
 
 from seal import provenance
+from seal.device import apply_matmul_precision
 from seal.errors import ConfigError, SealError
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.sac import Agent, AgentState
@@ -246,6 +247,7 @@ class Run:
         """The updates' intra-op threads and the inputs of the rule that chose them."""
         if self.threads.threads:
             torch.set_num_threads(self.threads.threads)
+        apply_matmul_precision(torch.device(self.device), config.protocol.matmul_precision)
         # [transfer]: read the source checkpoint now, so a bad path fails before anything is written
         # (a resumed run restores its own agent and does not need the source any more).
         self.transfer_state = None if resume else transfer_source(config)
