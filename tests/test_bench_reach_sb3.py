@@ -27,6 +27,7 @@ TINY = [
     "evaluation.episodes=2",
     "training.batch_per_task=16",
     "agent.hidden=[16,16]",
+    "agent.compile=false",  # the shipped protocol compiles; a cold compile costs ~20-80 s a test
 ]
 
 
