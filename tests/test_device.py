@@ -117,7 +117,7 @@ def test_matmul_precision_is_set_for_cuda_runs_only() -> None:
 
 
 def test_matmul_precision_refuses_what_torch_would_round_to_bfloat16(tmp_path: Path) -> None:
-    """ "medium" (bfloat16 matmuls) is not offered: the error names the file, the key and the choices."""
+    """The key offers no "medium" (bfloat16 matmuls): the error names the file, key and choices."""
     toml = (ROOT / "protocols" / "quickstart.toml").read_text()
     path = tmp_path / "p.toml"
     path.write_text(toml.replace("[protocol]\n", '[protocol]\nmatmul_precision = "medium"\n', 1))

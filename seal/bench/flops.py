@@ -470,21 +470,22 @@ def bench_update_rate(
     give ``paper_update_rate_tf32``.
     """
     specs, config, per_task = quickstart_setup(protocol, device=device)
-    timed = _time_eager_and_compiled(specs, config, per_task, updates, repeats, seed, compile)
-    for path in timed["paths"].values():
-        path["updates_per_s"] = 1.0 / path["update_s"]
+
+    def rates() -> dict[str, Any]:
+        timed = _time_eager_and_compiled(specs, config, per_task, updates, repeats, seed, compile)
+        for path in timed["paths"].values():
+            path["updates_per_s"] = 1.0 / path["update_s"]
+        return timed
+
+    timed = rates()
     if timed["device"].startswith("cuda"):
         timed["device_name"] = torch.cuda.get_device_name(torch.device(timed["device"]))
         before = torch.get_float32_matmul_precision()
         torch.set_float32_matmul_precision("high")
         try:
-            tf32 = _time_eager_and_compiled(
-                specs, config, per_task, updates, repeats, seed, compile
-            )
+            tf32 = rates()
         finally:
             torch.set_float32_matmul_precision(before)
-        for path in tf32["paths"].values():
-            path["updates_per_s"] = 1.0 / path["update_s"]
         timed["tf32"] = tf32
         timed["paper_update_rate_tf32"] = tf32["paths"][tf32["headline_path"]]["updates_per_s"]
     return {
