@@ -139,8 +139,14 @@ def test_update_rate_bench_times_eager_and_compiled_on_the_protocols_shapes(
     assert d["headline_path"] == "compiled"
     assert d["paper_update_rate"] == compiled["updates_per_s"] == 1 / compiled["update_s"]
     assert d["paths"]["eager"]["updates_per_s"] > 0
+    assert "paper_update_rate_tf32" not in d  # TF32 is timed on CUDA only
     table = _table_of("paper_update_rate", d, paper_update_rate=d)
     assert "paper_update_rate" in table and ">=1000" in table and "batch 256" in table
+    assert "TF32" not in table
+    on_gpu = {**d, "paper_update_rate_tf32": 576.54}  # as a CUDA run adds it
+    assert "; with TF32 matmuls 576.5/s;" in _table_of(
+        "paper_update_rate", d, paper_update_rate=on_gpu
+    )
 
 
 def test_mt10_flops_bench_reports_eager_and_compiled_paths(
