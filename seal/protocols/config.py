@@ -54,7 +54,7 @@ class ProtocolTable:
     threads: Annotated[int, Field(ge=0)] | Literal["auto"] = "auto"
     """torch intra-op threads for the updates: "auto" (seal.device.update_threads, on parameters x batch and usable cores), N (at most the usable cores) or 0 (torch's default); acting uses one."""
     matmul_precision: Literal["highest", "high"] = "highest"
-    """float32 matmuls on CUDA: "highest" (full float32) or "high" (TF32 tensor cores, JAX's GPU default, so the authors' prototype's; 1.47x the paper-scale update on an H200, docs/benchmarks.md). CPU runs ignore it."""
+    """float32 matmuls on CUDA: "highest" (full float32) or "high" (TF32 tensor cores, JAX's default for float32 on such GPUs; 1.47x the paper-scale update on an H200, docs/benchmarks.md). CPU runs ignore it."""
 
 
 @with_config(SCHEMA)
