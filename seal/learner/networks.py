@@ -73,10 +73,14 @@ class StackedMLP(nn.Module):
 
     Weights are (ensemble, in, out), biases (ensemble, 1, out). With ensemble == 1 inputs and
     outputs are (B, width); otherwise inputs are (B, in) shared by all members or
-    (ensemble, B, in), and outputs are (ensemble, B, width). ReLU follows every layer.
+    (ensemble, B, in), and outputs are (ensemble, B, width). ReLU follows every layer; with
+    `layer_norm`, a LayerNorm with its own gain and bias per member comes between each layer's
+    affine map and its ReLU (gains (ensemble, 1, width) drawn as ones, biases as zeros).
     """
 
-    def __init__(self, in_dim: int, widths: Sequence[int], ensemble: int = 1) -> None:
+    def __init__(
+        self, in_dim: int, widths: Sequence[int], ensemble: int = 1, layer_norm: bool = False
+    ) -> None:
         super().__init__()
         self.in_dim, self.widths, self.ensemble = in_dim, tuple(widths), ensemble
         dims = (in_dim, *self.widths)
@@ -85,6 +89,12 @@ class StackedMLP(nn.Module):
             for i, o in zip(dims[:-1], dims[1:], strict=True)
         )
         self.biases = nn.ParameterList(nn.Parameter(torch.empty(ensemble, 1, o)) for o in dims[1:])
+        self.norm_gains = nn.ParameterList(
+            nn.Parameter(torch.empty(ensemble, 1, o)) for o in (dims[1:] if layer_norm else ())
+        )
+        self.norm_biases = nn.ParameterList(
+            nn.Parameter(torch.empty(ensemble, 1, o)) for o in (dims[1:] if layer_norm else ())
+        )
 
     @property
     def out_dim(self) -> int:
@@ -101,9 +111,14 @@ class StackedMLP(nn.Module):
             else:
                 _uniform_(weight, weight.shape[1], generator)
                 _uniform_(bias, weight.shape[1], generator)
+        with torch.no_grad():  # no draws: the weights above are the same with or without norms
+            for gain, shift in zip(self.norm_gains, self.norm_biases, strict=True):
+                gain.fill_(1.0)
+                shift.zero_()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Apply all layers; see the class docstring for shapes."""
+        norms = zip(self.norm_gains, self.norm_biases, strict=True) if self.norm_gains else None
         for weight, bias in zip(self.weights, self.biases, strict=True):
             if self.ensemble == 1:
                 # squeeze, not [0]: its backward is a view, select's allocates and copies.
@@ -112,6 +127,11 @@ class StackedMLP(nn.Module):
                 if x.dim() == 2:
                     x = x.expand(self.ensemble, *x.shape)
                 x = torch.baddbmm(bias, x, weight)
+            if norms is not None:
+                gain, shift = next(norms)
+                if self.ensemble == 1:
+                    gain, shift = gain.squeeze(0), shift.squeeze(0)
+                x = torch.addcmul(shift, F.layer_norm(x, x.shape[-1:]), gain)
             # In place: addmm/baddbmm keep their inputs, not their output, for backward.
             x = F.relu(x, inplace=True)
         return x
@@ -223,6 +243,7 @@ class TaskNetwork(nn.Module):
         ensemble: int = 1,
         head_hidden: Sequence[int] = (),
         head_per_task: bool = False,
+        layer_norm: bool = False,
     ) -> None:
         super().__init__()
         if head_hidden and ensemble != 1:
@@ -239,10 +260,13 @@ class TaskNetwork(nn.Module):
             translator_hidden, latent_dim = translator
             for key, segs in segments.items():
                 self.translators[key] = StackedMLP(
-                    sum(width for _, width in segs), (*translator_hidden, latent_dim), ensemble
+                    sum(width for _, width in segs),
+                    (*translator_hidden, latent_dim),
+                    ensemble,
+                    layer_norm,
                 )
             trunk_in = latent_dim
-        self.trunk = StackedMLP(trunk_in, trunk_hidden, ensemble)
+        self.trunk = StackedMLP(trunk_in, trunk_hidden, ensemble, layer_norm)
         self.heads = nn.ModuleDict(
             {
                 key: MLPHead(
@@ -322,13 +346,20 @@ class PerEnvCritic(nn.Module):
         num_heads: dict[str, int],
         hidden: Sequence[int],
         ensemble: int = 2,
+        layer_norm: bool = False,
     ) -> None:
         super().__init__()
         self.segments = dict(segments)
         self.nets = nn.ModuleDict(
             {
                 key: TaskNetwork(
-                    {key: segs}, {key: 1}, {key: num_heads[key]}, hidden, None, ensemble
+                    {key: segs},
+                    {key: 1},
+                    {key: num_heads[key]},
+                    hidden,
+                    None,
+                    ensemble,
+                    layer_norm=layer_norm,
                 )
                 for key, segs in segments.items()
             }

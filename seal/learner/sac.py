@@ -188,7 +188,11 @@ class Agent:
         self.critic: TaskNetwork | PerEnvCritic
         if config.architecture == "seal" and config.critic_sharing == "per_env":
             self.critic = PerEnvCritic(
-                self.critic_segments, critic_heads, config.critic_hidden, ensemble=2
+                self.critic_segments,
+                critic_heads,
+                config.critic_hidden,
+                ensemble=2,
+                layer_norm=config.critic_layer_norm,
             )
         else:
             self.critic = TaskNetwork(
@@ -198,6 +202,7 @@ class Agent:
                 trunk,
                 translator,
                 ensemble=2,  # twin Q: qf1 and qf2 as one stacked network
+                layer_norm=config.critic_layer_norm,
             )
         self.log_alpha = nn.ParameterDict(
             {keys[s.name]: nn.Parameter(torch.empty(s.num_tasks)) for s in specs}

@@ -389,6 +389,9 @@ def _map_stack(
             old = input_map.T @ old  # (in, in_saved) @ (G, in_saved, out)
         _write(weight, old, f"{prefix}weights.{i}")
         _write(bias, _saved(saved, f"{prefix}biases.{i}"), f"{prefix}biases.{i}")
+    for i, (gain, shift) in enumerate(zip(stack.norm_gains, stack.norm_biases, strict=True)):
+        _write(gain, _saved(saved, f"{prefix}norm_gains.{i}"), f"{prefix}norm_gains.{i}")
+        _write(shift, _saved(saved, f"{prefix}norm_biases.{i}"), f"{prefix}norm_biases.{i}")
 
 
 def _map_head(

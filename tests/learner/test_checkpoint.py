@@ -19,8 +19,16 @@ SMALL = {"hidden": (32, 32), "translator_hidden": (32,), "latent_dim": 16, "trun
 SPECS = [EnvSpec("mw", 5, 2, 3), EnvSpec("fk", 7, 3, 2)]
 
 
-def _filled(seed: int = 0, compile: bool = False) -> tuple[Agent, MultiTaskReplay]:
-    agent = Agent(SPECS, AgentConfig(architecture="seal", compile=compile, **SMALL), seed=seed)
+def _config(compile: bool = False, critic_layer_norm: bool = False) -> AgentConfig:
+    return AgentConfig(
+        architecture="seal", compile=compile, critic_layer_norm=critic_layer_norm, **SMALL
+    )
+
+
+def _filled(
+    seed: int = 0, compile: bool = False, critic_layer_norm: bool = False
+) -> tuple[Agent, MultiTaskReplay]:
+    agent = Agent(SPECS, _config(compile, critic_layer_norm), seed=seed)
     replay = MultiTaskReplay(SPECS, capacity=60)
     rng = np.random.default_rng(seed)
     for spec in SPECS:
@@ -51,11 +59,15 @@ def _params(agent: Agent) -> list[torch.Tensor]:
     ]
 
 
-@pytest.mark.parametrize("compile", [False, True], ids=["eager", "compiled"])
+@pytest.mark.parametrize(
+    ("compile", "norm"),
+    [(False, False), (True, False), (False, True)],
+    ids=["eager", "compiled", "critic_layer_norm"],
+)
 def test_resume_then_update_is_bitwise_identical_to_updating_without_the_round_trip(
-    tmp_path: Path, compile: bool
+    tmp_path: Path, compile: bool, norm: bool
 ) -> None:
-    agent, replay = _filled(compile=compile)
+    agent, replay = _filled(compile=compile, critic_layer_norm=norm)
     counts = counts_from_ratio({"mw": 0.5, "fk": 0.5}, {"mw": 3, "fk": 2}, batch_per_task=4)
     for _ in range(3):
         agent.update(replay.sample(counts))
@@ -70,7 +82,7 @@ def test_resume_then_update_is_bitwise_identical_to_updating_without_the_round_t
     expected_params = _params(agent)
 
     resumed, resumed_replay = (
-        Agent(SPECS, AgentConfig(architecture="seal", compile=compile, **SMALL), seed=99),
+        Agent(SPECS, _config(compile, norm), seed=99),
         MultiTaskReplay(SPECS, capacity=60, seed=99),  # the saved sampling stream replaces it
     )
     extra = read_checkpoint(path)

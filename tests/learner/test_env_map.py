@@ -95,9 +95,13 @@ def test_the_oracle_map_is_the_testbed_by_construction() -> None:
     np.testing.assert_array_equal(point_action(view), move)
 
 
+@pytest.mark.parametrize("critic_layer_norm", [False, True], ids=["", "critic_layer_norm"])
 @pytest.mark.parametrize("critic_sharing", ["per_env", "shared"])
-def test_the_mapped_target_computes_the_sources_latent_action_and_q(critic_sharing: str) -> None:
-    source, joint = _mapped(_config(critic_sharing=critic_sharing))
+def test_the_mapped_target_computes_the_sources_latent_action_and_q(
+    critic_sharing: str, critic_layer_norm: bool
+) -> None:
+    config = _config(critic_sharing=critic_sharing, critic_layer_norm=critic_layer_norm)
+    source, joint = _mapped(config)
     x_source, x_target, ids, source_ids = _inputs()
     with torch.no_grad():
         # The translator: the target's latent of V s under task j is the source's of s under σ(j).

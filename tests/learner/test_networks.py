@@ -8,7 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from seal.learner import Agent, AgentConfig, EnvSpec
+from seal.learner import Agent, AgentConfig, Batch, EnvSpec
 from seal.learner.networks import LOG_STD_MIN, MultiHeadLinear, StackedMLP, tanh_gaussian
 
 SMALL = {"hidden": (32, 32), "translator_hidden": (32,), "latent_dim": 16, "trunk_hidden": (32, 32)}
@@ -202,3 +202,67 @@ def test_device_auto_resolves_to_cpu_without_cuda_and_bad_names_raise() -> None:
         with pytest.raises(SealError, match="has 0 CUDA device"):
             resolve_device("cuda:1")
     assert Agent([EnvSpec("e", 2, 1, 1)], AgentConfig(**SMALL), seed=0).device.type == expected
+
+
+@pytest.mark.parametrize("ensemble", [1, 2])
+def test_stacked_mlp_layer_norm_is_torch_layer_norm_per_member(ensemble: int) -> None:
+    """With layer_norm, each member is Linear -> nn.LayerNorm (its own gain and bias) -> ReLU per
+    layer; the weights drawn are those of the same stack without norms (gains 1, biases 0)."""
+    g = torch.Generator().manual_seed(3)
+    plain, normed = (
+        StackedMLP(5, (7, 3), ensemble),
+        StackedMLP(5, (7, 3), ensemble, layer_norm=True),
+    )
+    plain.reset_parameters(torch.Generator().manual_seed(0), "metaworld_algorithms")
+    normed.reset_parameters(torch.Generator().manual_seed(0), "metaworld_algorithms")
+    for a, b in zip(plain.weights, normed.weights, strict=True):
+        assert torch.equal(a, b)
+    assert all((gain == 1).all() for gain in normed.norm_gains)
+    assert all((shift == 0).all() for shift in normed.norm_biases)
+    with torch.no_grad():  # gains and biases away from their identity values
+        for gain, shift in zip(normed.norm_gains, normed.norm_biases, strict=True):
+            gain.uniform_(0.5, 2.0, generator=g)
+            shift.uniform_(-1.0, 1.0, generator=g)
+    x = torch.randn(4, 5, generator=g)
+    out = normed(x)
+    assert out.shape == ((4, 3) if ensemble == 1 else (ensemble, 4, 3))
+    for member in range(ensemble):
+        h = x
+        for i, (w, b) in enumerate(zip(normed.weights, normed.biases, strict=True)):
+            norm = torch.nn.LayerNorm(w.shape[-1])
+            with torch.no_grad():
+                norm.weight.copy_(normed.norm_gains[i][member, 0])
+                norm.bias.copy_(normed.norm_biases[i][member, 0])
+            h = F.relu(norm(h @ w[member] + b[member, 0]))
+        torch.testing.assert_close(out if ensemble == 1 else out[member], h)
+
+
+def test_critic_layer_norm_bounds_q_far_from_the_data() -> None:
+    """The reason for `critic_layer_norm`: scaling an input by s scales an unnormalised ReLU
+    critic's Q by ~s, while with LayerNorm Q stays bounded by its weights; the actor has no norms."""
+    spec = EnvSpec("e", 6, 3, 2)
+    qs = {}
+    for norm in (False, True):
+        agent = Agent([spec], AgentConfig(**SMALL, critic_layer_norm=norm), seed=0)
+        assert bool(list(agent.critic.trunk.norm_gains)) is norm
+        assert not list(agent.actor.trunk.norm_gains)
+        x = torch.randn(1, 6 + 2 + 3, generator=torch.Generator().manual_seed(0))
+        task = torch.zeros(1, dtype=torch.long)
+        with torch.no_grad():
+            qs[norm] = [agent.critic("e", x * s, task).abs().max().item() for s in (1.0, 1e4)]
+    assert qs[False][1] > 1e3 * qs[False][0]
+    assert qs[True][1] < 10 * qs[True][0]
+    g = torch.Generator().manual_seed(1)
+    batch = Batch(
+        torch.randn(8, 6, generator=g),
+        torch.rand(8, 3, generator=g) * 2 - 1,
+        torch.randn(8, generator=g),
+        torch.randn(8, 6, generator=g),
+        torch.zeros(8),
+        torch.randint(0, 2, (8,), generator=g),
+    )
+    agent.update({"e": batch})  # the norms' gains and biases learn with the critic
+    assert not torch.equal(
+        agent.critic.trunk.norm_gains[0], torch.ones_like(agent.critic.trunk.norm_gains[0])
+    )
+    assert not agent.critic_target.trunk.norm_biases[0].eq(0).all()  # Polyak-averaged too
