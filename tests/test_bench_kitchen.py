@@ -13,7 +13,9 @@ import pytest
 from seal.errors import SealError, SealWarning
 from seal.experiments.kitchen import (
     ARMS,
+    _format_collapse_test,
     arms,
+    collapse_test,
     format_result,
     rewards_alone_goal,
     run_figures,
@@ -74,7 +76,7 @@ def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() ->
     for name, config in configs.items():
         assert config.evaluation.mode == "async", name  # off the loop's critical path
         assert config.kind == "baseline" and config.envs["fk"].adapter == "franka_kitchen_dense"
-        v4 = name.endswith("_v4")
+        v4 = "_v4" in name
         assert config.evaluation.stop_when_reached is not v4, name  # v4 arms run all epochs
         assert config.envs["fk"].options == {"reward_version": "v4" if v4 else "v3"}, name
         # 535 epochs x 280 steps = 149,800 env steps: within the issue's 150k budget.
@@ -103,6 +105,16 @@ def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() ->
             v3.envs["fk"].tasks,
         )
         assert v4.protocol.seeds == 3
+    for task in ("light_switch", "microwave"):  # the collapse test: one change to the v4 arm
+        v4, changed = configs[f"{task}_v4"], configs[f"{task}_v4_critic_ln"]
+        assert changed.agent == dataclasses.replace(v4.agent, critic_layer_norm=True)
+        assert not v4.agent.critic_layer_norm
+        assert (changed.training, changed.envs, changed.evaluation, changed.protocol.seeds) == (
+            v4.training,
+            v4.envs,
+            v4.evaluation,
+            v4.protocol.seeds,
+        )
     with pytest.raises(SealError, match="unknown kitchen arm 'nope'"):
         arms(["nope"])
 
@@ -192,6 +204,41 @@ def test_v4_goal_counts_tasks_reached_in_two_of_three_seeds_within_budget() -> N
     assert rewards_alone_goal(five)["of"] == 5  # the v3 goal counts only the v3 arms
     five["microwave_v4"] = arm("microwave v4", yes, yes)  # two seeds: not judged
     assert v4_goal(five)["met"] is None
+    # A collapse-test arm is a learner change, not v4's evidence: it is not counted.
+    five["microwave_v4"] = arm("microwave v4", no, no, no)
+    five["microwave_v4_critic_ln"] = arm("microwave v4 + critic LN", yes, yes, yes)
+    assert (v4_goal(five)["of"], v4_goal(five)["reached"][-1]) == (5, "bottom-right-burner v4")
+
+
+def test_the_collapse_test_sets_each_seed_against_v4_alone() -> None:
+    def arm(label: str, *seeds: tuple[float, int]) -> dict:
+        return {
+            "label": label,
+            "per_seed": [{"final_success": f, "held_90": h} for f, h in seeds],
+        }
+
+    result_arms = {
+        "light_switch_v4": arm("light-switch v4", (0.2, 1), (0.0, 0), (1.0, 30)),
+        "light_switch_v4_critic_ln": arm("light-switch v4 + critic LN", (0.9, 12), (0.1, 0)),
+        "microwave_v4_critic_ln": arm("microwave v4 + critic LN", (1.0, 40)),  # v4 alone not run
+    }
+    tests = collapse_test(result_arms)
+    assert tests == {  # the two seeds both arms ran, in seed order
+        "light_switch_v4_critic_ln": {
+            "against": "light_switch_v4",
+            "seeds": 2,
+            "final_success": [0.9, 0.1],
+            "final_success_alone": [0.2, 0.0],
+            "held_90": [12, 0],
+            "held_90_alone": [1, 0],
+        }
+    }
+    labels = {k: a["label"] for k, a in result_arms.items()}
+    (line,) = _format_collapse_test(tests, labels)
+    assert line == (
+        "collapse test, light-switch v4 + critic LN against light-switch v4, 2 seeds: final success "
+        "0.9, 0.1 against 0.2, 0; evaluations >= 90% after the first 12, 0 against 1, 0"
+    )
 
 
 def test_a_run_a_session_left_unfinished_is_resumed_not_restarted(tmp_path) -> None:

@@ -8,7 +8,8 @@ transitions) at the first evaluation at >= 90%; a run that never got there is ce
 Goals: every arm's task reaches 90% within 150k env steps in every seed (issue 11); at least 4 of
 the 5 demonstration-free reward-v3 arms reach it in at least one seed (issue 25, `goal.rewards_alone`);
 under the candidate reward v4 (the `*_v4` arms, all 535 epochs run), at least 4 of the 5 tasks
-reach it in at least 2 of 3 seeds (issue 37, `goal.v4`).
+reach it in at least 2 of 3 seeds (issue 37, `goal.v4`). The `*_v4_critic_ln` arms are issue 37's
+collapse test, v4 with LayerNorm in the critics, set seed for seed against v4 alone (`collapse_test`).
 """
 
 from __future__ import annotations
@@ -65,9 +66,14 @@ ARMS: tuple[Arm, ...] = (
     _arm("bottom_left_burner_v4", "bottom-left-burner v4"),
     _arm("microwave_v4", "microwave v4"),
     _arm("bottom_right_burner_v4", "bottom-right-burner v4"),
+    _arm("light_switch_v4_critic_ln", "light-switch v4 + critic LN"),
+    _arm("microwave_v4_critic_ln", "microwave v4 + critic LN"),
 )
 """The arms, each pinned to a reward version by its protocol's `options.reward_version`: v3, and
-the candidate v4 for the `*_v4` arms (which run all 535 epochs: `evaluation.stop_when_reached = false`)."""
+the candidate v4 for the `*_v4` arms (which run all 535 epochs: `evaluation.stop_when_reached = false`)
+and for the collapse test's `*_v4_critic_ln` arms (v4 with `agent.critic_layer_norm`)."""
+COLLAPSE_TEST_SUFFIX = "_critic_ln"
+"""A collapse-test arm is its v4 arm's name with this suffix: the same protocol with one change."""
 
 
 def _arm_config(arm: Arm) -> ProtocolConfig:
@@ -171,6 +177,7 @@ def run_kitchen_bench(
             "rewards_alone": rewards_alone_goal(result_arms),
             "v4": v4_goal(result_arms),
         },
+        "collapse_test": collapse_test(result_arms),
         "seeds": seeds,
         "overrides": list(overrides),
         "run_dirs": {f"{a}/seed-{s}": str(p) for (a, s), p in run_dirs.items()},
@@ -212,7 +219,11 @@ def _within_budget(figures: Mapping[str, Any]) -> bool:
 def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     """Issue 37's goal over the reward-v4 arms: how many reached 90% within the budget in at least
     `V4_SEEDS_NEEDED` seeds; `met` is None (not judged) unless all five ran with `V4_SEEDS` seeds or more."""
-    v4 = [a.name for a in ARMS if _pinned_version(a) == "v4"]
+    v4 = [
+        a.name
+        for a in ARMS
+        if _pinned_version(a) == "v4" and not a.name.endswith(COLLAPSE_TEST_SUFFIX)
+    ]
     ran = [name for name in v4 if name in result_arms]
     reached = [
         result_arms[name]["label"]
@@ -231,6 +242,41 @@ def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
         "reached": reached,
         "met": len(reached) >= V4_TASKS_NEEDED if judged else None,
     }
+
+
+def collapse_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
+    """Issue 37's collapse test, per collapse-test arm run beside its v4 arm: seed for seed (the
+    seeds both ran), the final success and the evaluations >= 90% after the first (`held_90`),
+    the change's and v4 alone's."""
+    out: dict[str, Any] = {}
+    for name, arm in result_arms.items():
+        alone = name.removesuffix(COLLAPSE_TEST_SUFFIX)
+        if alone == name or alone not in result_arms:
+            continue
+        pairs = list(zip(arm["per_seed"], result_arms[alone]["per_seed"], strict=False))
+        out[name] = {
+            "against": alone,
+            "seeds": len(pairs),
+            **{
+                f"{key}{side}": [p[i][key] for p in pairs]
+                for key in ("final_success", "held_90")
+                for i, side in enumerate(("", "_alone"))
+            },
+        }
+    return out
+
+
+def _format_collapse_test(tests: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
+    return [
+        f"collapse test, {labels[name]} against {labels[t['against']]}, {t['seeds']} seeds: final "
+        f"success {_listed(t['final_success'])} against {_listed(t['final_success_alone'])}; "
+        f"evaluations >= 90% after the first {_listed(t['held_90'])} against {_listed(t['held_90_alone'])}"
+        for name, t in tests.items()
+    ]
+
+
+def _listed(values: Sequence[float]) -> str:
+    return ", ".join(f"{v:g}" for v in values)
 
 
 def _reward_version(run_dir: Path) -> str | None:
@@ -318,6 +364,9 @@ def format_result(result: Mapping[str, Any]) -> str:
         f"{'met' if goal['met'] else 'not met'}",
         _format_rewards_alone(goal["rewards_alone"]),
         _format_v4(goal["v4"]),
+        *_format_collapse_test(
+            result.get("collapse_test", {}), {k: a["label"] for k, a in result["arms"].items()}
+        ),
         f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s wall"
         f"{reused}; load before "
         f"{load['loadavg_1m']} (1 min) on {load['cpus']} CPUs, after {result['load_after']['loadavg_1m']}",
