@@ -8,8 +8,11 @@ policy on its one dense-kitchen task and prints, per episode: return, success, t
 the start and end, the gripper-to-handle distance over the last 100 steps, the share of steps
 with a closing finger effort, the reward's grasp/reach term over the last 100 steps and the
 largest in-place term, the arm joints that end the episode at a limit and the arm's joint angles
-at reset and at the first successful step. The kitchen README's traces of the learned and failed
-policies read these.
+at reset and at the first successful step; for a checkpoint also the critic's Q at reset (the lower
+twin, of the action taken) beside what the episode earned from there, discounted at the agent's
+gamma with the critic's own Q of the last state carried past the 280-step limit (a critic that
+overestimates says more than the episode earns). The kitchen README's traces of the learned and
+failed policies read these.
 """
 
 from __future__ import annotations
@@ -51,7 +54,16 @@ def arm_angles(model: mujoco.MjModel, data: mujoco.MjData) -> str:
     )
 
 
-def trace(adapter: EnvAdapter, act: Callable[[np.ndarray], np.ndarray], episodes: int = 3) -> None:
+Critic = tuple[Callable[[np.ndarray, np.ndarray], float], float]
+"""(the lower twin's Q of one observation and action, the discount) of a checkpoint's agent."""
+
+
+def trace(
+    adapter: EnvAdapter,
+    act: Callable[[np.ndarray], np.ndarray],
+    episodes: int = 3,
+    critic: Critic | None = None,
+) -> None:
     """Print one line per deterministic episode of `act` on the adapter's one task."""
     (task,) = adapter.tasks
     for episode in range(episodes):
@@ -63,6 +75,7 @@ def trace(adapter: EnvAdapter, act: Callable[[np.ndarray], np.ndarray], episodes
             print(f"arm at reset: {arm_angles(inner.model, inner.data)}")
         effort, grasp, in_place, rewards, gap, success = [], [], [], [], [], []
         at_success = None
+        q_reset = critic[0](obs, act(obs)) if critic else None
         for _ in range(adapter.episode_length):
             action = act(obs)
             obs, reward, terminated, truncated, info = env.step(action)
@@ -88,7 +101,17 @@ def trace(adapter: EnvAdapter, act: Callable[[np.ndarray], np.ndarray], episodes
             f"grasp/reach term last 100 {np.mean(grasp[-100:]):.3f}, in_place max {max(in_place):.3f}, "
             f"arm joints at a limit at the end: {pinned(inner.model, inner.data)}, "
             f"arm at the first success: {at_success}"
+            + (f", {_q_against_earned(critic, q_reset, rewards, obs, act(obs))}" if critic else "")
         )
+
+
+def _q_against_earned(
+    critic: Critic, q_reset: float, rewards: list[float], last_obs: np.ndarray, action: np.ndarray
+) -> str:
+    q, gamma = critic
+    earned = sum(gamma**t * r for t, r in enumerate(rewards))
+    earned += gamma ** len(rewards) * q(last_obs, action)  # the limit is a truncation: bootstrapped
+    return f"critic's Q at reset {q_reset:.0f} against {earned:.0f} earned (discounted)"
 
 
 def main(argv: list[str]) -> None:
@@ -105,7 +128,16 @@ def main(argv: list[str]) -> None:
     # the run's own options (its reward version, episode length), not today's defaults
     adapter = make_adapter(env_config.adapter, tasks=list(env_config.tasks), **env_config.options)
     policy = AgentPolicy(agent, deterministic=True)
-    trace(adapter, lambda obs: policy(env_name, obs[None], np.array([0]))[0])
+
+    def q(obs: np.ndarray, action: np.ndarray) -> float:
+        return float(agent.q_values(env_name, obs[None], action[None], np.array([0])).min())
+
+    trace(
+        adapter,
+        lambda obs: policy(env_name, obs[None], np.array([0]))[0],
+        3,
+        (q, config.agent.gamma),
+    )
 
 
 if __name__ == "__main__":

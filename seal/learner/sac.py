@@ -417,11 +417,7 @@ class Agent:
         +-(1 - 1e-6) so that atanh stays finite), then `tanh_gaussian`'s formula.
         """
         spec = self._spec(env_name)
-        actions = np.asarray(actions, dtype=np.float32)
-        if actions.ndim != 2 or actions.shape[1] != spec.act_dim:
-            raise SealError(
-                f"log_prob({env_name!r}): expected actions (N, {spec.act_dim}), got {actions.shape}"
-            )
+        actions = self._check_actions("log_prob", env_name, spec, actions)
         obs, task_ids = self._check_inputs(env_name, spec, obs, task_ids)
         with torch.inference_mode():
             obs_t = torch.from_numpy(obs).to(self.device)
@@ -434,6 +430,30 @@ class Agent:
             noise = (pre_tanh - mean) / log_std.clamp(LOG_STD_MIN, LOG_STD_MAX).exp()
             _, log_prob = tanh_gaussian(mean_log_std, noise)
             return log_prob.cpu().numpy()
+
+    def q_values(
+        self, env_name: str, obs: np.ndarray, actions: np.ndarray, task_ids: np.ndarray
+    ) -> np.ndarray:
+        """The twin critics' Q (2, N) of raw observations (N, obs_dim) and actions (N, act_dim)."""
+        spec = self._spec(env_name)
+        actions = self._check_actions("q_values", env_name, spec, actions)
+        obs, task_ids = self._check_inputs(env_name, spec, obs, task_ids)
+        with torch.inference_mode():
+            obs_t = torch.from_numpy(obs).to(self.device)
+            ids_t = torch.from_numpy(task_ids).to(self.device)
+            x = self._actor_input(env_name, obs_t, ids_t)
+            q = self.qf(env_name, ids_t)(x, torch.from_numpy(actions).to(self.device))
+            return q.cpu().numpy()
+
+    @staticmethod
+    def _check_actions(what: str, env_name: str, spec: EnvSpec, actions: np.ndarray) -> np.ndarray:
+        """actions as float32 (N, act_dim), else SealError."""
+        actions = np.asarray(actions, dtype=np.float32)
+        if actions.ndim != 2 or actions.shape[1] != spec.act_dim:
+            raise SealError(
+                f"{what}({env_name!r}): expected actions (N, {spec.act_dim}), got {actions.shape}"
+            )
+        return actions
 
     @staticmethod
     def _check_inputs(

@@ -381,6 +381,34 @@ def test_log_prob_of_given_actions_matches_the_sampling_density() -> None:
         agent.log_prob("e", obs, actions.numpy()[:, :2], ids)
 
 
+def test_q_values_are_the_twin_critics_on_obs_one_hot_and_action() -> None:
+    """q_values(obs, actions, ids) is the stacked critic on [obs, one-hot(id), action], built by hand
+    here; a wrong action shape is one line."""
+    spec = EnvSpec("e", 4, 3, 2)
+    agent = Agent([spec], AgentConfig(**SMALL), seed=0)
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(5, 4)).astype(np.float32)
+    actions = rng.uniform(-1, 1, size=(5, 3)).astype(np.float32)
+    ids = np.array([0, 1, 1, 0, 1])
+    got = agent.q_values("e", obs, actions, ids)
+    assert got.shape == (2, 5)
+    one_hot = np.eye(2, dtype=np.float32)[ids]
+    x = torch.from_numpy(np.concatenate([obs, one_hot, actions], axis=1))
+    with torch.no_grad():
+        expected = agent.critic.trunk(x)  # (2, 5, hidden): both twins
+        heads = agent.critic.heads["e"]  # one Q output per task: each row takes its task's
+        expected = torch.stack(
+            [
+                expected[m, i] @ heads.weight[m, :, ids[i]] + heads.bias[m, 0, ids[i]]
+                for m in range(2)
+                for i in range(5)
+            ]
+        ).reshape(2, 5)
+    np.testing.assert_allclose(got, expected.numpy(), rtol=1e-5, atol=1e-6)
+    with pytest.raises(SealError, match=r"q_values\('e'\): expected actions \(N, 3\)"):
+        agent.q_values("e", obs, actions[:, :2], ids)
+
+
 def test_compile_failure_falls_back_to_eager_with_a_warning(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
