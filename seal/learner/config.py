@@ -93,7 +93,7 @@ class AgentConfig:
     min_alpha: float = 0.0
     """Floor of every task's temperature, held after each temperature step (0: none). A floor keeps
     a learned task exploring, one candidate against losing it again (issue 37's collapse test)."""
-    # A candidate against v4's diverging critics (issue 37: mean Q 3,038-7,469 where no policy earns
+    # A candidate against v4's diverging critics (issue 37: mean Q 3,038-7,738 where no policy earns
     # over ~1,190): LayerNorm bounds what the critic extrapolates (Ball et al. 2023, RLPD; Nauman et al. 2024, BRO).
     critic_layer_norm: bool = False
     """LayerNorm (a gain and bias per unit, per twin) between each hidden layer's affine map and its ReLU in the critics; the Q output layer stays linear."""
