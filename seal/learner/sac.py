@@ -416,17 +416,11 @@ class Agent:
         Same density as the update's: the pre-tanh value is atanh(action) (actions clipped to
         +-(1 - 1e-6) so that atanh stays finite), then `tanh_gaussian`'s formula.
         """
-        spec = self._spec(env_name)
-        actions = self._check_actions("log_prob", env_name, spec, actions)
-        obs, task_ids = self._check_inputs(env_name, spec, obs, task_ids)
         with torch.inference_mode():
-            obs_t = torch.from_numpy(obs).to(self.device)
-            ids_t = torch.from_numpy(task_ids).to(self.device)
-            mean_log_std = self.actor(
-                self._keys[env_name], self._actor_input(env_name, obs_t, ids_t), ids_t
-            )
+            x, actions_t, ids_t = self._state_actions("log_prob", env_name, obs, actions, task_ids)
+            mean_log_std = self.actor(self._keys[env_name], x, ids_t)
             mean, log_std = mean_log_std.chunk(2, dim=-1)
-            pre_tanh = torch.from_numpy(actions).to(self.device).clamp(-1 + 1e-6, 1 - 1e-6).atanh()
+            pre_tanh = actions_t.clamp(-1 + 1e-6, 1 - 1e-6).atanh()
             noise = (pre_tanh - mean) / log_std.clamp(LOG_STD_MIN, LOG_STD_MAX).exp()
             _, log_prob = tanh_gaussian(mean_log_std, noise)
             return log_prob.cpu().numpy()
@@ -435,25 +429,25 @@ class Agent:
         self, env_name: str, obs: np.ndarray, actions: np.ndarray, task_ids: np.ndarray
     ) -> np.ndarray:
         """The twin critics' Q (2, N) of raw observations (N, obs_dim) and actions (N, act_dim)."""
-        spec = self._spec(env_name)
-        actions = self._check_actions("q_values", env_name, spec, actions)
-        obs, task_ids = self._check_inputs(env_name, spec, obs, task_ids)
         with torch.inference_mode():
-            obs_t = torch.from_numpy(obs).to(self.device)
-            ids_t = torch.from_numpy(task_ids).to(self.device)
-            x = self._actor_input(env_name, obs_t, ids_t)
-            q = self.qf(env_name, ids_t)(x, torch.from_numpy(actions).to(self.device))
-            return q.cpu().numpy()
+            x, actions_t, ids_t = self._state_actions("q_values", env_name, obs, actions, task_ids)
+            return self.qf(env_name, ids_t)(x, actions_t).cpu().numpy()
 
-    @staticmethod
-    def _check_actions(what: str, env_name: str, spec: EnvSpec, actions: np.ndarray) -> np.ndarray:
-        """actions as float32 (N, act_dim), else SealError."""
+    def _state_actions(
+        self, what: str, env_name: str, obs: np.ndarray, actions: np.ndarray, task_ids: np.ndarray
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(actor input, actions, task ids) as tensors on the device, or SealError naming `what`."""
+        spec = self._spec(env_name)
         actions = np.asarray(actions, dtype=np.float32)
         if actions.ndim != 2 or actions.shape[1] != spec.act_dim:
             raise SealError(
                 f"{what}({env_name!r}): expected actions (N, {spec.act_dim}), got {actions.shape}"
             )
-        return actions
+        obs, task_ids = self._check_inputs(env_name, spec, obs, task_ids)
+        obs_t = torch.from_numpy(obs).to(self.device)
+        ids_t = torch.from_numpy(task_ids).to(self.device)
+        actions_t = torch.from_numpy(actions).to(self.device)
+        return self._actor_input(env_name, obs_t, ids_t), actions_t, ids_t
 
     @staticmethod
     def _check_inputs(
