@@ -548,8 +548,14 @@ def test_resume_of_a_missing_sweep_dir_is_a_user_error(tmp_path: Path) -> None:
         sweep(resume=tmp_path)
 
 
+HUNG_SWEEP_S = 900
+"""How long the SIGTERM test waits for a sweep's next step before calling it hung."""
+
+
 def _wait_until(ready, child: subprocess.Popen[str], what: str) -> None:  # noqa: ANN001
-    deadline = time.monotonic() + 180  # only a hung sweep gets there
+    # Only a hung sweep gets there: 180 s was reached once by a sweep that was working, starting Ray
+    # and two trials on 2 cores beside three kitchen runs (round 11's full suite).
+    deadline = time.monotonic() + HUNG_SWEEP_S
     while not ready():
         assert child.poll() is None, f"the sweep ended before {what}: {child.communicate()[1]}"
         assert time.monotonic() < deadline, f"never {what}"
@@ -598,7 +604,7 @@ def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
 
         _wait_until(seed_1_preempted, driver, "seed 1 was recorded preempted")
         driver.send_signal(signal.SIGTERM)
-        err = driver.communicate(timeout=180)[1]
+        err = driver.communicate(timeout=HUNG_SWEEP_S)[1]
     finally:
         if driver.poll() is None:
             driver.kill()
