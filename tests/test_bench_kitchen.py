@@ -14,6 +14,7 @@ from seal.errors import SealError, SealWarning
 from seal.experiments.kitchen import (
     ARMS,
     _format_collapse_test,
+    _format_v4,
     arms,
     collapse_test,
     format_result,
@@ -174,8 +175,10 @@ def test_rewards_alone_goal_counts_arms_reached_in_any_seed_within_budget() -> N
     assert (goal["of"], goal["ran"], goal["met"]) == (5, 5, False)
     five["microwave"] = arm("microwave", (True, 149_800), (False, 149_800))
     assert rewards_alone_goal(five)["met"] is True
-    # With an arm missing the goal is not judged.
+    # With an arm missing the goal is met once four have reached 90%, else not judged.
     del five["bottom_left_burner"]
+    assert (rewards_alone_goal(five)["met"], rewards_alone_goal(five)["all_ran"]) == (True, False)
+    five["microwave"] = arm("microwave", (False, 149_800), (False, 149_800))
     assert rewards_alone_goal(five)["met"] is None
 
 
@@ -202,12 +205,28 @@ def test_v4_goal_counts_tasks_reached_in_two_of_three_seeds_within_budget() -> N
     five["light_switch_v4"] = arm("light-switch v4", yes, no, yes)
     assert v4_goal(five)["met"] is True
     assert rewards_alone_goal(five)["of"] == 5  # the v3 goal counts only the v3 arms
-    five["microwave_v4"] = arm("microwave v4", yes, yes)  # two seeds: not judged
-    assert v4_goal(five)["met"] is None
+    assert v4_goal(five)["all_ran"] is True
+    # Two seeds of one arm: met once four tasks have reached 90% in two seeds (a third seed cannot
+    # undo a crossing), not judged while fewer have, since the third could add one.
+    five["microwave_v4"] = arm("microwave v4", yes, yes)
+    assert (v4_goal(five)["met"], v4_goal(five)["all_ran"]) == (True, False)
+    assert _format_v4(v4_goal(five)).endswith(
+        ": 5 (slide-cabinet v4, light-switch v4, bottom-left-burner v4, microwave v4, "
+        "bottom-right-burner v4): met before every run was made (5 of 5 run, 3 seeds each needed; "
+        "a later run cannot undo a crossing)"
+    )
+    five["light_switch_v4"] = arm("light-switch v4", yes, no, no)
+    five["bottom_right_burner_v4"] = arm("bottom-right-burner v4", yes, no)
+    assert (len(v4_goal(five)["reached"]), v4_goal(five)["met"]) == (3, None)
+    assert _format_v4(v4_goal(five)).endswith(": not judged (5 of 5 run, 3 seeds each needed)")
+    five["bottom_right_burner_v4"] = arm("bottom-right-burner v4", yes, no, no)
+    five["microwave_v4"] = arm("microwave v4", yes, yes, no)  # every run made, 3 tasks reached
+    assert v4_goal(five)["met"] is False and _format_v4(v4_goal(five)).endswith(": not met")
     # A collapse-test arm is a learner change, not v4's evidence: it is not counted.
     five["microwave_v4"] = arm("microwave v4", no, no, no)
     five["microwave_v4_critic_ln"] = arm("microwave v4 + critic LN", yes, yes, yes)
-    assert (v4_goal(five)["of"], v4_goal(five)["reached"][-1]) == (5, "bottom-right-burner v4")
+    assert v4_goal(five)["of"] == 5
+    assert v4_goal(five)["reached"] == ["slide-cabinet v4", "bottom-left-burner v4"]
 
 
 def test_the_collapse_test_sets_each_seed_against_v4_alone() -> None:

@@ -191,7 +191,7 @@ def run_kitchen_bench(
 
 def rewards_alone_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     """Issue 25's goal over the demonstration-free arms: how many reached 90% within the budget in at
-    least one seed; `met` is None (not judged) unless every demonstration-free arm was run."""
+    least one seed; `met` as `_verdict` decides it."""
     plain = [
         a.name
         for a in ARMS
@@ -208,8 +208,15 @@ def rewards_alone_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
         "of": len(plain),
         "ran": len(ran),
         "reached": reached,
-        "met": len(reached) >= REWARDS_ALONE_NEEDED if len(ran) == len(plain) else None,
+        **_verdict(len(reached), REWARDS_ALONE_NEEDED, all_ran=len(ran) == len(plain)),
     }
+
+
+def _verdict(reached: int, needed: int, *, all_ran: bool) -> dict[str, Any]:
+    """A goal of reaching 90% in enough arms is met as soon as enough have reached it (a run not yet
+    made cannot undo a crossing), not met only when every run it names was made, else None."""
+    met = True if reached >= needed else (False if all_ran else None)
+    return {"met": met, "all_ran": all_ran}
 
 
 def _within_budget(figures: Mapping[str, Any]) -> bool:
@@ -218,7 +225,8 @@ def _within_budget(figures: Mapping[str, Any]) -> bool:
 
 def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     """Issue 37's goal over the reward-v4 arms: how many reached 90% within the budget in at least
-    `V4_SEEDS_NEEDED` seeds; `met` is None (not judged) unless all five ran with `V4_SEEDS` seeds or more."""
+    `V4_SEEDS_NEEDED` seeds; `met` as `_verdict` decides it, every run made when all five ran with
+    `V4_SEEDS` seeds or more."""
     v4 = [
         a.name
         for a in ARMS
@@ -230,7 +238,7 @@ def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
         for name in ran
         if sum(_within_budget(f) for f in result_arms[name]["per_seed"]) >= V4_SEEDS_NEEDED
     ]
-    judged = len(ran) == len(v4) and all(
+    all_ran = len(ran) == len(v4) and all(
         len(result_arms[name]["per_seed"]) >= V4_SEEDS for name in ran
     )
     return {
@@ -240,7 +248,7 @@ def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
         "of": len(v4),
         "ran": len(ran),
         "reached": reached,
-        "met": len(reached) >= V4_TASKS_NEEDED if judged else None,
+        **_verdict(len(reached), V4_TASKS_NEEDED, all_ran=all_ran),
     }
 
 
@@ -298,31 +306,30 @@ def _demos(run_dir: Path) -> dict[str, Any] | None:
     return next(iter(demos.values()), None)
 
 
+def _format_verdict(goal: Mapping[str, Any], runs_left: str) -> str:
+    if goal["met"] is None:
+        return f"not judged ({runs_left})"
+    if goal["all_ran"]:
+        return "met" if goal["met"] else "not met"
+    return f"met before every run was made ({runs_left}; a later run cannot undo a crossing)"
+
+
 def _format_rewards_alone(goal: Mapping[str, Any]) -> str:
-    verdict = {
-        True: "met",
-        False: "not met",
-        None: f"not judged ({goal['ran']} of {goal['of']} run)",
-    }
     reached = ", ".join(goal["reached"]) or "none"
+    verdict = _format_verdict(goal, f"{goal['ran']} of {goal['of']} run")
     return (
         f"goal: >= {goal['needed']} of the {goal['of']} demonstration-free arms >= 90% in at least one "
-        f"seed: {len(goal['reached'])} ({reached}): {verdict[goal['met']]}"
+        f"seed: {len(goal['reached'])} ({reached}): {verdict}"
     )
 
 
 def _format_v4(goal: Mapping[str, Any]) -> str:
-    verdict = {
-        True: "met",
-        False: "not met",
-        None: f"not judged ({goal['ran']} of {goal['of']} run, "
-        f"{goal['of_seeds']} seeds each needed)",
-    }
     reached = ", ".join(goal["reached"]) or "none"
+    runs_left = f"{goal['ran']} of {goal['of']} run, {goal['of_seeds']} seeds each needed"
     return (
         f"goal v4: >= {goal['needed']} of the {goal['of']} reward-v4 arms >= 90% in >= "
         f"{goal['seeds_needed']} of {goal['of_seeds']} seeds: {len(goal['reached'])} ({reached}): "
-        f"{verdict[goal['met']]}"
+        f"{_format_verdict(goal, runs_left)}"
     )
 
 
