@@ -258,6 +258,9 @@ def test_the_collapse_test_sets_each_seed_against_v4_alone() -> None:
         "collapse test, light-switch v4 + critic LN against light-switch v4, 2 seeds: final success "
         "0.9, 0.1 against 0.2, 0; evaluations >= 90% after the first 12, 0 against 1, 0"
     )
+    result_arms["light_switch_v4_critic_ln"]["per_seed"].pop()
+    (line,) = _format_collapse_test(collapse_test(result_arms), labels)
+    assert "light-switch v4, 1 seed: final success 0.9 against 0.2;" in line
 
 
 def test_a_run_a_session_left_unfinished_is_resumed_not_restarted(tmp_path) -> None:

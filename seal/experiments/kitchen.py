@@ -276,7 +276,7 @@ def collapse_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
 
 def _format_collapse_test(tests: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
     return [
-        f"collapse test, {labels[name]} against {labels[t['against']]}, {t['seeds']} seeds: final "
+        f"collapse test, {labels[name]} against {labels[t['against']]}, {t['seeds']} seed{'s' * (t['seeds'] != 1)}: final "
         f"success {_listed(t['final_success'])} against {_listed(t['final_success_alone'])}; "
         f"evaluations >= 90% after the first {_listed(t['held_90'])} against {_listed(t['held_90_alone'])}"
         for name, t in tests.items()
