@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 import warnings
 from pathlib import Path
 
@@ -155,6 +156,27 @@ def test_tiny_end_to_end(tmp_path, capsys) -> None:
     assert main(args + [a for value in tiny for a in ("--set", value)]) == 0
     again = json.loads(capsys.readouterr().out)
     assert again["reused"] == ["slide_cabinet_demos/seed-0"] and again["overrides"] == tiny
+    # A run record (the run without checkpoints/ and tb/, as results/ keeps one) is read by
+    # --no-run, which runs nothing and names the seed it did not find.
+    run = Path(result["run_dirs"]["slide_cabinet_demos/seed-0"])
+    record = tmp_path / "records" / run.relative_to(tmp_path)
+    shutil.copytree(run, record, ignore=shutil.ignore_patterns("checkpoints", "tb"))
+    args[args.index("--out") + 1] = str(tmp_path / "records")
+    args[args.index("--seeds") + 1] = "2"
+    args[args.index("--reuse")] = "--no-run"
+    assert main(args + [a for value in tiny for a in ("--set", value)]) == 0
+    read = json.loads(capsys.readouterr().out)
+    assert read["missing"] == ["slide_cabinet_demos/seed-1"]
+    assert read["run_dirs"] == {"slide_cabinet_demos/seed-0": str(record)}
+    assert read["arms"]["slide_cabinet_demos"]["per_seed"] == [{"seed": 0, **figures}]
+    assert read["arms"]["slide_cabinet_demos"]["reached"] == "0/1"
+    assert read["goal"]["met"] is False  # seed 0 already missed it
+    assert sorted(p.name for p in record.parent.parent.rglob("seed-*")) == ["seed-0"]
+    text = format_result(read)
+    assert "s0 5+ (0.00)" in text
+    assert "not run (--no-run found no finished run): slide_cabinet_demos/seed-1" in text
+    assert main(["bench", "--learn", "table1", "--no-run"]) == 2
+    assert "error: --no-run only applies to --learn kitchen" in capsys.readouterr().err
 
 
 def test_rewards_alone_goal_counts_arms_reached_in_any_seed_within_budget() -> None:
@@ -233,19 +255,19 @@ def test_the_collapse_test_sets_each_seed_against_v4_alone() -> None:
     def arm(label: str, *seeds: tuple[float, int]) -> dict:
         return {
             "label": label,
-            "per_seed": [{"final_success": f, "held_90": h} for f, h in seeds],
+            "per_seed": [{"seed": s, "final_success": f, "held_90": h} for s, f, h in seeds],
         }
 
     result_arms = {
-        "light_switch_v4": arm("light-switch v4", (0.2, 1), (0.0, 0), (1.0, 30)),
-        "light_switch_v4_critic_ln": arm("light-switch v4 + critic LN", (0.9, 12), (0.1, 0)),
-        "microwave_v4_critic_ln": arm("microwave v4 + critic LN", (1.0, 40)),  # v4 alone not run
+        "light_switch_v4": arm("light-switch v4", (0, 0.2, 1), (1, 0.0, 0), (2, 1.0, 30)),
+        "light_switch_v4_critic_ln": arm("light-switch v4 + critic LN", (0, 0.9, 12), (1, 0.1, 0)),
+        "microwave_v4_critic_ln": arm("microwave v4 + critic LN", (0, 1.0, 40)),  # v4 alone not run
     }
     tests = collapse_test(result_arms)
     assert tests == {  # the two seeds both arms ran, in seed order
         "light_switch_v4_critic_ln": {
             "against": "light_switch_v4",
-            "seeds": 2,
+            "seeds": [0, 1],
             "final_success": [0.9, 0.1],
             "final_success_alone": [0.2, 0.0],
             "held_90": [12, 0],
@@ -255,12 +277,16 @@ def test_the_collapse_test_sets_each_seed_against_v4_alone() -> None:
     labels = {k: a["label"] for k, a in result_arms.items()}
     (line,) = _format_collapse_test(tests, labels)
     assert line == (
-        "collapse test, light-switch v4 + critic LN against light-switch v4, 2 seeds: final success "
-        "0.9, 0.1 against 0.2, 0; evaluations >= 90% after the first 12, 0 against 1, 0"
+        "collapse test, light-switch v4 + critic LN against light-switch v4, seeds 0, 1: final "
+        "success 0.9, 0.1 against 0.2, 0; evaluations >= 90% after the first 12, 0 against 1, 0"
     )
-    result_arms["light_switch_v4_critic_ln"]["per_seed"].pop()
+    # Seeds are paired by number, not by position: seed 2 of the change against seed 2 alone.
+    result_arms["light_switch_v4_critic_ln"]["per_seed"] = arm("", (2, 0.7, 5))["per_seed"]
     (line,) = _format_collapse_test(collapse_test(result_arms), labels)
-    assert "light-switch v4, 1 seed: final success 0.9 against 0.2;" in line
+    assert "light-switch v4, seed 2: final success 0.7 against 1;" in line
+    # A change whose seeds v4 alone has not run is not set against it.
+    result_arms["light_switch_v4"]["per_seed"].pop()
+    assert collapse_test(result_arms) == {}
 
 
 def test_a_run_a_session_left_unfinished_is_resumed_not_restarted(tmp_path) -> None:

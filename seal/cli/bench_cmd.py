@@ -84,6 +84,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: take finished runs under --out whose resolved config is today's instead of running them again, and (except reach_sb3) resume unfinished ones from their last checkpoint",
     )
     parser.add_argument(
+        "--no-run",
+        action="store_true",
+        help="with --learn kitchen: run and resume nothing; report the finished runs under --out that --reuse would take (run records, say) and name the ones not found",
+    )
+    parser.add_argument(
         "--jobs",
         type=int,
         default=None,
@@ -188,6 +193,8 @@ def run(args: argparse.Namespace) -> int:
         raise SealError("--full only applies to --learn transfer")
     if args.fpr and (args.learn != "transfer" or args.full or args.arms):
         raise SealError("--fpr only applies to --learn transfer, without --full and --arms")
+    if args.no_run and args.learn != "kitchen":
+        raise SealError("--no-run only applies to --learn kitchen")
     if args.arms and args.learn not in LEARN_SETS:
         raise SealError(
             "--arms only applies to --learn transfer, kitchen, table1, quickstart and reach_sb3"
@@ -221,6 +228,8 @@ def run(args: argparse.Namespace) -> int:
             extra["full"] = args.full
         if args.learn in OVERRIDE_SETS:
             extra["overrides"] = args.overrides
+        if args.no_run:
+            extra["run"] = False
         result = getattr(bench, f"run_{args.learn}_bench")(
             seeds=default_seeds if args.seeds is None else args.seeds,
             out=args.out or default_out,

@@ -25,7 +25,13 @@ import numpy as np
 
 from seal.errors import SealError, SealWarning, UnknownNameError
 from seal.evaluation import SUCCESS_TOLERANCE
-from seal.experiments.transfer import Arm, code_versions, run_or_reuse, versions_note
+from seal.experiments.transfer import (
+    Arm,
+    code_versions,
+    finished_run,
+    run_or_reuse,
+    versions_note,
+)
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 from seal.protocols import load_protocol
 
@@ -140,8 +146,14 @@ def run_kitchen_bench(
     log: Callable[[str], None] = lambda _: None,
     only: Sequence[str] | None = None,
     reuse: bool = False,
+    run: bool = True,
 ) -> dict[str, Any]:
-    """Run (or, with `reuse`, take finished runs of) every arm's seeds; the figures as a JSON-able dict."""
+    """Run (or, with `reuse`, take finished runs of) every arm's seeds; the figures as a JSON-able dict.
+
+    Without `run`, nothing is run or resumed: the figures are those of the finished runs under `out`
+    that `reuse` would take (committed run records, say), and `missing` names the rest. An arm
+    with no such run is left out; the goals then count it as not run.
+    """
     from seal import load_run
     from seal.bench.timing import machine_load
 
@@ -151,29 +163,40 @@ def run_kitchen_bench(
     load_before = machine_load()
     started = time.monotonic()
     jobs = [(arm, seed) for seed in range(seeds) for arm in chosen]
-    run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
+    if run:
+        run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
+    else:
+        found = {(a.name, s): finished_run(a, s, Path(out), overrides) for a, s in jobs}
+        run_dirs = reused = {key: path for key, path in found.items() if path is not None}
     result_arms: dict[str, Any] = {}
     for arm in chosen:
-        runs = [load_run(run_dirs[(arm.name, s)]) for s in range(seeds)]
-        figures = [run_figures(r.metrics) for r in runs]
+        ran = [s for s in range(seeds) if (arm.name, s) in run_dirs]
+        if not ran:
+            continue
+        figures = [
+            {"seed": s, **run_figures(load_run(run_dirs[(arm.name, s)]).metrics)} for s in ran
+        ]
         within = [_within_budget(f) for f in figures]
         result_arms[arm.name] = {
             "label": arm.label,
             "protocol": str(arm.protocol.relative_to(KITCHEN_LEARN.parents[1])),
             "per_seed": figures,
-            "reached": f"{sum(f['reached'] for f in figures)}/{seeds}",
+            "reached": f"{sum(f['reached'] for f in figures)}/{len(ran)}",
             "env_steps_to_90_mean": float(np.mean([f["env_steps"] for f in figures])),
             "learned_within_budget": all(within),
-            "demos": [_demos(run_dirs[(arm.name, s)]) for s in range(seeds)],
-            "reward_versions": [_reward_version(run_dirs[(arm.name, s)]) for s in range(seeds)],
+            "demos": [_demos(run_dirs[(arm.name, s)]) for s in ran],
+            "reward_versions": [_reward_version(run_dirs[(arm.name, s)]) for s in ran],
         }
     shas = {key: load_run(path).provenance.get("git_sha") for key, path in run_dirs.items()}
+    missing = [f"{a.name}/seed-{s}" for a, s in jobs if (a.name, s) not in run_dirs]
+    failed = not all(a["learned_within_budget"] for a in result_arms.values())
     return {
         "arms": result_arms,
         "code_versions": code_versions(shas),
         "goal": {
             "env_steps_le": ENV_STEP_BUDGET,
-            "met": all(a["learned_within_budget"] for a in result_arms.values()),
+            # Not judged while runs are missing, unless a run made has already missed it.
+            "met": False if failed else (None if missing else True),
             "rewards_alone": rewards_alone_goal(result_arms),
             "v4": v4_goal(result_arms),
         },
@@ -182,6 +205,7 @@ def run_kitchen_bench(
         "overrides": list(overrides),
         "run_dirs": {f"{a}/seed-{s}": str(p) for (a, s), p in run_dirs.items()},
         "reused": sorted(f"{a}/seed-{s}" for a, s in reused),
+        "missing": missing,
         "wall_s": time.monotonic() - started,
         "parallel": parallel,
         "load_before": load_before,
@@ -254,17 +278,20 @@ def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
 
 def collapse_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     """Issue 37's collapse test, per collapse-test arm run beside its v4 arm: seed for seed (the
-    seeds both ran), the final success and the evaluations >= 90% after the first (`held_90`),
-    the change's and v4 alone's."""
+    seeds both ran), the final success and the evaluations >= 90% after the first (`held_90`), the
+    change's and v4 alone's."""
     out: dict[str, Any] = {}
     for name, arm in result_arms.items():
         alone = name.removesuffix(COLLAPSE_TEST_SUFFIX)
         if alone == name or alone not in result_arms:
             continue
-        pairs = list(zip(arm["per_seed"], result_arms[alone]["per_seed"], strict=False))
+        theirs = {f["seed"]: f for f in result_arms[alone]["per_seed"]}
+        pairs = [(f, theirs[f["seed"]]) for f in arm["per_seed"] if f["seed"] in theirs]
+        if not pairs:
+            continue
         out[name] = {
             "against": alone,
-            "seeds": len(pairs),
+            "seeds": [f["seed"] for f, _ in pairs],
             **{
                 f"{key}{side}": [p[i][key] for p in pairs]
                 for key in ("final_success", "held_90")
@@ -276,7 +303,8 @@ def collapse_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
 
 def _format_collapse_test(tests: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
     return [
-        f"collapse test, {labels[name]} against {labels[t['against']]}, {t['seeds']} seed{'s' * (t['seeds'] != 1)}: final "
+        f"collapse test, {labels[name]} against {labels[t['against']]}, "
+        f"seed{'s' * (len(t['seeds']) != 1)} {_listed(t['seeds'])}: final "
         f"success {_listed(t['final_success'])} against {_listed(t['final_success_alone'])}; "
         f"evaluations >= 90% after the first {_listed(t['held_90'])} against {_listed(t['held_90_alone'])}"
         for name, t in tests.items()
@@ -341,9 +369,11 @@ def format_result(result: Mapping[str, Any]) -> str:
         "-" * 92,
     ]
     for a in result["arms"].values():
+        # With runs missing (--no-run), each cell names its seed.
+        named = [f"s{f['seed']} " if result.get("missing") else "" for f in a["per_seed"]]
         cells = ", ".join(
-            f"{f['env_steps']:,}{'' if f['reached'] else '+'} ({f['updates_m']:.2f})"
-            for f in a["per_seed"]
+            f"{n}{f['env_steps']:,}{'' if f['reached'] else '+'} ({f['updates_m']:.2f})"
+            for n, f in zip(named, a["per_seed"], strict=True)
         )
         success = ", ".join(
             f"{f['best_success']:.1f}/{f['final_success']:.1f}/{f.get('held_90', 0)}"
@@ -351,6 +381,7 @@ def format_result(result: Mapping[str, Any]) -> str:
         )
         lines.append(f"{a['label']:<24} {a['reached']:>7}  {cells:<38} {success}")
     goal = result["goal"]
+    met = {True: "met", False: "not met", None: "not judged (runs missing)"}[goal["met"]]
     load = result["load_before"]
     note = versions_note(result["code_versions"])
     if note:
@@ -367,12 +398,16 @@ def format_result(result: Mapping[str, Any]) -> str:
     lines += [
         "env steps: the learner's own (demonstrations excluded) at the first evaluation >= 90%; "
         "+ = never reached, the run's total.",
-        f"goal: every arm >= 90% within {goal['env_steps_le']:,} env steps in every seed: "
-        f"{'met' if goal['met'] else 'not met'}",
+        f"goal: every arm >= 90% within {goal['env_steps_le']:,} env steps in every seed: {met}",
         _format_rewards_alone(goal["rewards_alone"]),
         _format_v4(goal["v4"]),
         *_format_collapse_test(
             result.get("collapse_test", {}), {k: a["label"] for k, a in result["arms"].items()}
+        ),
+        *(
+            [f"not run (--no-run found no finished run): {', '.join(result['missing'])}"]
+            if result.get("missing")
+            else []
         ),
         f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s wall"
         f"{reused}; load before "
