@@ -11,13 +11,17 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from seal import load_run
 from seal.errors import SealError, SealWarning
 from seal.experiments.kitchen import (
     ARMS,
+    _arm_config,
     _format_collapse_test,
     _format_v4,
+    _pinned_version,
     arms,
     collapse_test,
+    end_mean_q,
     format_result,
     rewards_alone_goal,
     run_figures,
@@ -58,9 +62,11 @@ def test_run_figures_first_crossing_and_censored_total() -> None:
         "best_success": 0.9,
         "final_success": 0.8,
         "held_90": 0,
+        "after_first": 1,
     }
-    # Kept: two more evaluations at >= 90% after the first crossing.
-    assert run_figures(_metrics([0.1, 0.9, 0.6, 1.0, 0.9]))["held_90"] == 2
+    # Kept: two more evaluations at >= 90% of the three after the first crossing.
+    kept = run_figures(_metrics([0.1, 0.9, 0.6, 1.0, 0.9]))
+    assert (kept["held_90"], kept["after_first"]) == (2, 3)
     # Never reached: censored at the run's last evaluation (epoch 20: 5,600 steps, 1,600 updates).
     censored = run_figures(_metrics([0.3, 0.7]))
     assert (censored["reached"], censored["env_steps"], censored["grad_steps"]) == (
@@ -69,6 +75,14 @@ def test_run_figures_first_crossing_and_censored_total() -> None:
         1600,
     )
     assert censored["updates_m"] == pytest.approx(0.4096)
+    assert (censored["held_90"], censored["after_first"]) == (0, 0)
+
+
+def test_end_mean_q_is_the_last_logged_mean_q() -> None:
+    rows = [(280, "mean_q", 5.0), (560, "alpha/microwave", 0.1), (840, "mean_q", 7.5)]
+    train = pd.DataFrame(rows[::-1], columns=["grad_steps", "key", "value"])  # out of order
+    assert end_mean_q(train) == 7.5
+    assert end_mean_q(train[train["key"] != "mean_q"]) is None
 
 
 def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() -> None:
@@ -312,3 +326,26 @@ def test_a_run_a_session_left_unfinished_is_resumed_not_restarted(tmp_path) -> N
     resumed = pd.read_csv(run / "metrics.csv")
     assert resumed["epoch"].tolist() == full["epoch"].tolist()  # epoch 2 run again, once
     assert json.loads((run / "provenance.json").read_text())["end_time"]
+
+
+RECORDS = Path(__file__).resolve().parents[1] / "results" / "kitchen_learn"
+"""The committed records of the kitchen learning runs (results/README.md)."""
+
+
+def test_every_committed_run_record_is_read_as_a_finished_run_of_todays_protocol() -> None:
+    """A record that today's code would not take (a default changed under it, a file missing) is
+    silently left out of `--no-run`'s table: this names it instead. The v3 arms ran with
+    `evaluation.stop_when_reached=false`, as the issue-37 table sets them beside v4."""
+    from seal.experiments.transfer import finished_run
+
+    by_protocol = {load_protocol(a.protocol).name: a for a in ARMS}
+    records = sorted(RECORDS.glob("*/*/seed-*"))
+    assert records, f"no run records under {RECORDS}"
+    for record in records:
+        arm = by_protocol[record.parents[1].name]
+        seed = int(record.name.removeprefix("seed-"))
+        found = finished_run(arm, seed, RECORDS, ["evaluation.stop_when_reached=false"])
+        assert found == record, f"{record}: not taken as the finished run of {arm.name} seed {seed}"
+        run = load_run(record)
+        assert run.metrics["epoch"].max() == _arm_config(arm).protocol.epochs  # stopping off
+        assert run.provenance["reward_versions"] == {"franka_kitchen_dense": _pinned_version(arm)}

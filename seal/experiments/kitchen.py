@@ -118,6 +118,8 @@ class RunFigures(TypedDict):
     final_success: float
     held_90: int
     """Evaluations at >= 90% after the first one (0 if never reached): how much of what was found is kept."""
+    after_first: int
+    """Evaluations after the first at >= 90% (0 if never reached): what `held_90` is out of."""
 
 
 def run_figures(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> RunFigures:
@@ -126,7 +128,7 @@ def run_figures(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> 
     ordered = metrics.sort_values(["epoch", "grad_steps"], kind="stable")
     last = ordered.iloc[-1]
     reached = bool(row.reached)
-    hits = int((ordered["success"] >= threshold - SUCCESS_TOLERANCE).sum())
+    hit = (ordered["success"] >= threshold - SUCCESS_TOLERANCE).to_numpy()
     return {
         "reached": reached,
         "env_steps": int(row.env_steps if reached else row.run_env_steps),
@@ -134,8 +136,16 @@ def run_figures(metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD) -> 
         "updates_m": float(row.updates if reached else row.run_updates),
         "best_success": float(metrics["success"].max()),
         "final_success": float(last["success"]),
-        "held_90": max(hits - 1, 0),
+        "held_90": max(int(hit.sum()) - 1, 0),
+        "after_first": int(len(hit) - 1 - hit.argmax()) if hit.any() else 0,
     }
+
+
+def end_mean_q(train: pd.DataFrame) -> float | None:
+    """The critics' mean Q at a run's last training log (`train.csv`'s mean_q), None if it logged
+    none: beside what a policy earns (at most ~1,190 under v4), how far its critic overestimates."""
+    q = train[train["key"] == "mean_q"].sort_values("grad_steps", kind="stable")
+    return float(q["value"].iloc[-1]) if len(q) else None
 
 
 def run_kitchen_bench(
@@ -168,13 +178,16 @@ def run_kitchen_bench(
     else:
         found = {(a.name, s): finished_run(a, s, Path(out), overrides) for a, s in jobs}
         run_dirs = reused = {key: path for key, path in found.items() if path is not None}
+    loaded = {key: load_run(path) for key, path in run_dirs.items()}
     result_arms: dict[str, Any] = {}
     for arm in chosen:
         ran = [s for s in range(seeds) if (arm.name, s) in run_dirs]
         if not ran:
             continue
+        runs = [loaded[(arm.name, s)] for s in ran]
         figures = [
-            {"seed": s, **run_figures(load_run(run_dirs[(arm.name, s)]).metrics)} for s in ran
+            {"seed": s, **run_figures(r.metrics), "end_mean_q": end_mean_q(r.train)}
+            for s, r in zip(ran, runs, strict=True)
         ]
         within = [_within_budget(f) for f in figures]
         result_arms[arm.name] = {
@@ -185,9 +198,12 @@ def run_kitchen_bench(
             "env_steps_to_90_mean": float(np.mean([f["env_steps"] for f in figures])),
             "learned_within_budget": all(within),
             "demos": [_demos(run_dirs[(arm.name, s)]) for s in ran],
-            "reward_versions": [_reward_version(run_dirs[(arm.name, s)]) for s in ran],
+            "reward_versions": [
+                (r.provenance.get("reward_versions") or {}).get("franka_kitchen_dense")
+                for r in runs
+            ],
         }
-    shas = {key: load_run(path).provenance.get("git_sha") for key, path in run_dirs.items()}
+    shas = {key: run.provenance.get("git_sha") for key, run in loaded.items()}
     missing = [f"{a.name}/seed-{s}" for a, s in jobs if (a.name, s) not in run_dirs]
     failed = not all(a["learned_within_budget"] for a in result_arms.values())
     return {
@@ -311,16 +327,12 @@ def _format_collapse_test(tests: Mapping[str, Any], labels: Mapping[str, str]) -
     ]
 
 
+def _q(value: float | None) -> str:
+    return "-" if value is None else f"{value:,.0f}"
+
+
 def _listed(values: Sequence[float]) -> str:
     return ", ".join(f"{v:g}" for v in values)
-
-
-def _reward_version(run_dir: Path) -> str | None:
-    """The kitchen reward version the run's provenance records (None if it records none)."""
-    from seal import load_run
-
-    versions = load_run(run_dir).provenance.get("reward_versions") or {}
-    return versions.get("franka_kitchen_dense")
 
 
 def _demos(run_dir: Path) -> dict[str, Any] | None:
@@ -363,9 +375,10 @@ def _format_v4(goal: Mapping[str, Any]) -> str:
 
 def format_result(result: Mapping[str, Any]) -> str:
     """The human-readable table of `run_kitchen_bench`."""
+    width = max([24, *(len(a["label"]) for a in result["arms"].values())])
     lines = [
-        f"{'arm':<24} {'reached':>7}  env steps to 90% per seed (M updates)   "
-        "best / final success / evaluations >= 90% after the first",
+        f"{'arm':<{width}} {'reached':>7}  env steps to 90% per seed (M updates)   "
+        "best / final success / evaluations >= 90% after the first (of) / end mean Q",
         "-" * 92,
     ]
     for a in result["arms"].values():
@@ -376,10 +389,11 @@ def format_result(result: Mapping[str, Any]) -> str:
             for n, f in zip(named, a["per_seed"], strict=True)
         )
         success = ", ".join(
-            f"{f['best_success']:.1f}/{f['final_success']:.1f}/{f.get('held_90', 0)}"
+            f"{f['best_success']:.1f}/{f['final_success']:.1f}/{f['held_90']} of {f['after_first']}"
+            f"/{_q(f['end_mean_q'])}"
             for f in a["per_seed"]
         )
-        lines.append(f"{a['label']:<24} {a['reached']:>7}  {cells:<38} {success}")
+        lines.append(f"{a['label']:<{width}} {a['reached']:>7}  {cells:<38} {success}")
     goal = result["goal"]
     met = {True: "met", False: "not met", None: "not judged (runs missing)"}[goal["met"]]
     load = result["load_before"]
