@@ -17,12 +17,14 @@ from seal.experiments.kitchen import (
     ARMS,
     _arm_config,
     _format_collapse_test,
+    _format_reward_test,
     _format_v4,
     _pinned_version,
     arms,
     collapse_test,
     end_mean_q,
     format_result,
+    reward_test,
     rewards_alone_goal,
     run_figures,
     run_kitchen_bench,
@@ -301,6 +303,126 @@ def test_the_collapse_test_sets_each_seed_against_v4_alone() -> None:
     # A change whose seeds v4 alone has not run is not set against it.
     result_arms["light_switch_v4"]["per_seed"].pop()
     assert collapse_test(result_arms) == {}
+
+
+def test_the_reward_test_sets_v4_against_v3_seed_for_seed_and_applies_the_rule() -> None:
+    def arm(label: str, *seeds: tuple[int, int | None, float], stops: bool = False) -> dict:
+        """Runs as (seed, env steps at the first crossing or None, final success)."""
+        return {
+            "label": label,
+            "stop_when_reached": stops,
+            "per_seed": [
+                {
+                    "seed": s,
+                    "reached": at is not None,
+                    "env_steps": 149_800 if at is None else at,
+                    "final_success": f,
+                }
+                for s, at, f in seeds
+            ],
+        }
+
+    result_arms = {
+        # v4 crosses in 3 of 3 and ends at >= 0.9 in 1 (0.9 counts); v3 crosses in 1 and ends in 1.
+        "light_switch_v4": arm(
+            "light-switch v4", (0, 14_000, 0.0), (1, 50_000, 0.9), (2, 90_000, 0.2)
+        ),
+        "light_switch": arm("light-switch", (2, 84_000, 1.0), (1, None, 0.0), (0, None, 0.0)),
+        # Seed 1 of v3 only: one pair; v4 never crosses, v3 does past the budget (not counted).
+        "microwave_v4": arm("microwave v4", (1, None, 0.0), (2, None, 0.1)),
+        "microwave": arm("microwave", (1, 151_200, 1.0)),
+        # A v3 run that stopped at its first crossing has no final success: not set against v4.
+        "slide_cabinet_v4": arm("slide-cabinet v4", (0, 11_200, 0.9)),
+        "slide_cabinet": arm("slide-cabinet", (0, 86_800, 0.9), stops=True),
+        # The collapse test's arm is not v4 against v3.
+        "light_switch_v4_critic_ln": arm("light-switch v4 + critic LN", (0, 8_400, 1.0)),
+    }
+    test = reward_test(result_arms)
+    assert test["tasks"] == {
+        "light_switch_v4": {
+            "against": "light_switch",
+            "seeds": [0, 1, 2],  # paired by seed number, not by position
+            "crossed": [True, True, True],
+            "crossed_v3": [False, False, True],
+            "ended_90": [False, True, False],
+            "ended_90_v3": [False, False, True],
+            "final_success": [0.0, 0.9, 0.2],
+            "final_success_v3": [0.0, 0.0, 1.0],
+        },
+        "microwave_v4": {
+            "against": "microwave",
+            "seeds": [1],
+            "crossed": [False],
+            "crossed_v3": [False],
+            "ended_90": [False],
+            "ended_90_v3": [True],
+            "final_success": [0.0],
+            "final_success_v3": [1.0],
+        },
+    }
+    assert {
+        k: test[k] for k in ("pairs", "of", "crossed", "crossed_v3", "ended_90", "ended_90_v3")
+    } == {
+        "pairs": 4,
+        "of": 15,  # five v4 tasks, three seeds
+        "crossed": 3,
+        "crossed_v3": 1,
+        "ended_90": 1,
+        "ended_90_v3": 2,
+    }
+    assert test["default"] is None  # 4 of 15 pairs made
+    labels = {k: a["label"] for k, a in result_arms.items()}
+    lines = _format_reward_test(test, labels)
+    assert lines[0] == (
+        "reward test, light-switch v4 against light-switch, seeds 0, 1, 2: crossed 90% 1, 1, 1 "
+        "against 0, 0, 1; final success 0, 0.9, 0.2 against 0, 0, 1"
+    )
+    assert lines[-1].endswith(
+        "ended >= 0.9 in 1 against 2; the default by the rule (v4 if it "
+        "crosses in more and ends in at least as many): not judged (4 of 15 pairs made)"
+    )
+
+    # Every pair made: v4 crosses in more runs but ends at >= 0.9 in fewer, so v3 stays.
+    full = {}
+    for task, label in [
+        ("slide_cabinet", "slide-cabinet"),
+        ("light_switch", "light-switch"),
+        ("bottom_left_burner", "bottom-left-burner"),
+        ("microwave", "microwave"),
+        ("bottom_right_burner", "bottom-right-burner"),
+    ]:
+        full[f"{task}_v4"] = arm(f"{label} v4", *[(s, 20_000, 0.0) for s in range(3)])
+        full[task] = arm(label, (0, 20_000, 1.0), (1, None, 0.0), (2, None, 0.0))
+    test = reward_test(full)
+    assert (
+        test["pairs"],
+        test["crossed"],
+        test["crossed_v3"],
+        test["ended_90"],
+        test["ended_90_v3"],
+    ) == (15, 15, 5, 0, 5)
+    assert test["default"] == "v3"
+    # v4 ending at >= 0.9 as often as v3 (here in seed 0 of each task) and crossing more: v4.
+    for task in (
+        "slide_cabinet",
+        "light_switch",
+        "bottom_left_burner",
+        "microwave",
+        "bottom_right_burner",
+    ):
+        full[f"{task}_v4"]["per_seed"][0]["final_success"] = 1.0
+    assert reward_test(full)["default"] == "v4"
+    # Crossing in as many runs as v3, not more: v3 stays.
+    for task in (
+        "slide_cabinet",
+        "light_switch",
+        "bottom_left_burner",
+        "microwave",
+        "bottom_right_burner",
+    ):
+        full[task] = arm(task, *[(s, 30_000, 1.0) for s in range(3)])
+        full[f"{task}_v4"] = arm(f"{task} v4", *[(s, 20_000, 1.0) for s in range(3)])
+    assert reward_test(full)["default"] == "v3"
 
 
 def test_a_run_a_session_left_unfinished_is_resumed_not_restarted(tmp_path) -> None:

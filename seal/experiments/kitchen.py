@@ -10,6 +10,8 @@ the 5 demonstration-free reward-v3 arms reach it in at least one seed (issue 25,
 under the candidate reward v4 (the `*_v4` arms, all 535 epochs run), at least 4 of the 5 tasks
 reach it in at least 2 of 3 seeds (issue 37, `goal.v4`). The `*_v4_critic_ln` arms are issue 37's
 collapse test, v4 with LayerNorm in the critics, set seed for seed against v4 alone (`collapse_test`).
+`reward_test` sets each v4 arm seed for seed against its v3 arm run with stopping off, and applies
+the rule that decides the default reward (envs/franka_kitchen_dense/README.md).
 """
 
 from __future__ import annotations
@@ -80,6 +82,10 @@ the candidate v4 for the `*_v4` arms (which run all 535 epochs: `evaluation.stop
 and for the collapse test's `*_v4_critic_ln` arms (v4 with `agent.critic_layer_norm`)."""
 COLLAPSE_TEST_SUFFIX = "_critic_ln"
 """A collapse-test arm is its v4 arm's name with this suffix: the same protocol with one change."""
+V4_SUFFIX = "_v4"
+"""A reward-v4 arm is its v3 arm's name with this suffix: the same protocol on the candidate reward."""
+ENDED_AT = 0.9
+"""The reward test counts the runs whose final evaluation is at least this (the success threshold)."""
 
 
 def _arm_config(arm: Arm) -> ProtocolConfig:
@@ -202,6 +208,8 @@ def run_kitchen_bench(
                 (r.provenance.get("reward_versions") or {}).get("franka_kitchen_dense")
                 for r in runs
             ],
+            # One value: `finished_run` takes only runs of the protocol as it resolves today.
+            "stop_when_reached": bool(runs[0].config["evaluation"]["stop_when_reached"]),
         }
     shas = {key: run.provenance.get("git_sha") for key, run in loaded.items()}
     missing = [f"{a.name}/seed-{s}" for a, s in jobs if (a.name, s) not in run_dirs]
@@ -217,6 +225,7 @@ def run_kitchen_bench(
             "v4": v4_goal(result_arms),
         },
         "collapse_test": collapse_test(result_arms),
+        "reward_test": reward_test(result_arms),
         "seeds": seeds,
         "overrides": list(overrides),
         "run_dirs": {f"{a}/seed-{s}": str(p) for (a, s), p in run_dirs.items()},
@@ -263,15 +272,20 @@ def _within_budget(figures: Mapping[str, Any]) -> bool:
     return bool(figures["reached"] and figures["env_steps"] <= ENV_STEP_BUDGET)
 
 
-def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
-    """Issue 37's goal over the reward-v4 arms: how many reached 90% within the budget in at least
-    `V4_SEEDS_NEEDED` seeds; `met` as `_verdict` decides it, every run made when all five ran with
-    `V4_SEEDS` seeds or more."""
-    v4 = [
+def _v4_arms() -> list[str]:
+    """The reward-v4 arms (the collapse test's are a learner change on v4, not v4's evidence)."""
+    return [
         a.name
         for a in ARMS
         if _pinned_version(a) == "v4" and not a.name.endswith(COLLAPSE_TEST_SUFFIX)
     ]
+
+
+def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
+    """Issue 37's goal over the reward-v4 arms: how many reached 90% within the budget in at least
+    `V4_SEEDS_NEEDED` seeds; `met` as `_verdict` decides it, every run made when all five ran with
+    `V4_SEEDS` seeds or more."""
+    v4 = _v4_arms()
     ran = [name for name in v4 if name in result_arms]
     reached = [
         result_arms[name]["label"]
@@ -292,6 +306,39 @@ def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+def _paired(
+    arm: Mapping[str, Any], other: Mapping[str, Any], keys: Sequence[str], side: str
+) -> dict[str, Any] | None:
+    """Two arms' figures seed for seed, over the seeds both ran (paired by number): `seeds`, and per
+    key the arm's list and the other's (`<key><side>`); None if they share no seed."""
+    theirs = {f["seed"]: f for f in other["per_seed"]}
+    pairs = [(f, theirs[f["seed"]]) for f in arm["per_seed"] if f["seed"] in theirs]
+    if not pairs:
+        return None
+    return {
+        "seeds": [f["seed"] for f, _ in pairs],
+        **{
+            f"{key}{suffix}": [p[i][key] for p in pairs]
+            for key in keys
+            for i, suffix in enumerate(("", side))
+        },
+    }
+
+
+def _judged(arm: Mapping[str, Any]) -> dict[str, Any]:
+    """An arm with each run's two reward-test verdicts: crossed 90% within the budget, ended at it."""
+    return {
+        "per_seed": [
+            {
+                **f,
+                "crossed": _within_budget(f),
+                "ended_90": f["final_success"] >= ENDED_AT - SUCCESS_TOLERANCE,
+            }
+            for f in arm["per_seed"]
+        ]
+    }
+
+
 def collapse_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     """Issue 37's collapse test, per collapse-test arm run beside its v4 arm: seed for seed (the
     seeds both ran), the final success and the evaluations >= 90% after the first (`held_90`), the
@@ -301,20 +348,43 @@ def collapse_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
         alone = name.removesuffix(COLLAPSE_TEST_SUFFIX)
         if alone == name or alone not in result_arms:
             continue
-        theirs = {f["seed"]: f for f in result_arms[alone]["per_seed"]}
-        pairs = [(f, theirs[f["seed"]]) for f in arm["per_seed"] if f["seed"] in theirs]
-        if not pairs:
-            continue
-        out[name] = {
-            "against": alone,
-            "seeds": [f["seed"] for f, _ in pairs],
-            **{
-                f"{key}{side}": [p[i][key] for p in pairs]
-                for key in ("final_success", "held_90")
-                for i, side in enumerate(("", "_alone"))
-            },
-        }
+        paired = _paired(arm, result_arms[alone], ("final_success", "held_90"), "_alone")
+        if paired is not None:
+            out[name] = {"against": alone, **paired}
     return out
+
+
+def reward_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
+    """Issue 37's v4 against v3, per task whose v4 arm and v3 arm both ran with stopping off, seed
+    for seed: first crossings within the budget and final successes; and the rule written before v3's
+    runs (the kitchen README): v4 becomes the default if, over every (task, seed) of the five
+    tasks' `V4_SEEDS` seeds, it crosses in more runs than v3 and ends at >= `ENDED_AT` in at least
+    as many. `default` is "v4" or "v3" once all those pairs are made, None before."""
+    tasks: dict[str, Any] = {}
+    for name, arm in result_arms.items():
+        v3 = name.removesuffix(V4_SUFFIX)
+        if v3 == name or v3 not in result_arms:
+            continue
+        if arm["stop_when_reached"] or result_arms[v3]["stop_when_reached"]:
+            continue  # a run that stopped at its first crossing has no final success to compare
+        paired = _paired(
+            _judged(arm), _judged(result_arms[v3]), ("crossed", "ended_90", "final_success"), "_v3"
+        )
+        if paired is not None:
+            tasks[name] = {"against": v3, **paired}
+    totals = {
+        key: sum(sum(t[key]) for t in tasks.values())
+        for key in ("crossed", "crossed_v3", "ended_90", "ended_90_v3")
+    }
+    of = len(_v4_arms()) * V4_SEEDS
+    pairs = sum(len(t["seeds"]) for t in tasks.values())
+    default = None
+    if pairs >= of:
+        wins = (
+            totals["crossed"] > totals["crossed_v3"] and totals["ended_90"] >= totals["ended_90_v3"]
+        )
+        default = "v4" if wins else "v3"
+    return {"tasks": tasks, "pairs": pairs, "of": of, **totals, "default": default}
 
 
 def _format_collapse_test(tests: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
@@ -325,6 +395,30 @@ def _format_collapse_test(tests: Mapping[str, Any], labels: Mapping[str, str]) -
         f"evaluations >= 90% after the first {_listed(t['held_90'])} against {_listed(t['held_90_alone'])}"
         for name, t in tests.items()
     ]
+
+
+def _format_reward_test(test: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
+    if not test["tasks"]:
+        return []
+    lines = [
+        f"reward test, {labels[name]} against {labels[t['against']]}, "
+        f"seed{'s' * (len(t['seeds']) != 1)} {_listed(t['seeds'])}: crossed 90% "
+        f"{_listed(t['crossed'])} against {_listed(t['crossed_v3'])}; final success "
+        f"{_listed(t['final_success'])} against {_listed(t['final_success_v3'])}"
+        for name, t in test["tasks"].items()
+    ]
+    verdict = (
+        f"not judged ({test['pairs']} of {test['of']} pairs made)"
+        if test["default"] is None
+        else test["default"]
+    )
+    lines.append(
+        f"reward test, v4 against v3 over {test['pairs']} (task, seed) pairs: crossed 90% in "
+        f"{test['crossed']} against {test['crossed_v3']} runs, ended >= {ENDED_AT:g} in "
+        f"{test['ended_90']} against {test['ended_90_v3']}; the default by the rule (v4 if it "
+        f"crosses in more and ends in at least as many): {verdict}"
+    )
+    return lines
 
 
 def _q(value: float | None) -> str:
@@ -409,15 +503,15 @@ def format_result(result: Mapping[str, Any]) -> str:
         listed = "; ".join(f"{v}: {', '.join(labels)}" for v, labels in sorted(rewards.items()))
         lines.append(f"note, runs on {len(rewards)} kitchen reward versions: {listed}")
     reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
+    by_name = {k: a["label"] for k, a in result["arms"].items()}
     lines += [
         "env steps: the learner's own (demonstrations excluded) at the first evaluation >= 90%; "
         "+ = never reached, the run's total.",
         f"goal: every arm >= 90% within {goal['env_steps_le']:,} env steps in every seed: {met}",
         _format_rewards_alone(goal["rewards_alone"]),
         _format_v4(goal["v4"]),
-        *_format_collapse_test(
-            result.get("collapse_test", {}), {k: a["label"] for k, a in result["arms"].items()}
-        ),
+        *_format_collapse_test(result.get("collapse_test", {}), by_name),
+        *_format_reward_test(result.get("reward_test", {"tasks": {}}), by_name),
         *(
             [f"not run (--no-run found no finished run): {', '.join(result['missing'])}"]
             if result.get("missing")
