@@ -162,7 +162,11 @@ def test_tiny_end_to_end(tmp_path, capsys) -> None:
     assert not arm["learned_within_budget"] and result["goal"]["met"] is False
     assert result["goal"]["rewards_alone"]["met"] is None  # one arm of five run
     assert result["goal"]["v4"]["met"] is None
+    # Its protocol stops at the first crossing; no v4 arm ran, so the reward test has nothing.
+    assert arm["stop_when_reached"] is True
+    assert result["reward_test"]["tasks"] == {} and result["reward_test"]["default"] is None
     assert "slide-cabinet + demos" in format_result(result)
+    assert "reward test" not in format_result(result)
     # A second call, through the CLI with the same --set values, takes the finished run instead of
     # running it again.
     from seal.cli.main import main
@@ -331,11 +335,14 @@ def test_the_reward_test_sets_v4_against_v3_seed_for_seed_and_applies_the_rule()
         # Seed 1 of v3 only: one pair; v4 never crosses, v3 does past the budget (not counted).
         "microwave_v4": arm("microwave v4", (1, None, 0.0), (2, None, 0.1)),
         "microwave": arm("microwave", (1, 151_200, 1.0)),
-        # A v3 run that stopped at its first crossing has no final success: not set against v4.
+        # A run that stopped at its first crossing has no final success: not set against the other.
         "slide_cabinet_v4": arm("slide-cabinet v4", (0, 11_200, 0.9)),
         "slide_cabinet": arm("slide-cabinet", (0, 86_800, 0.9), stops=True),
-        # The collapse test's arm is not v4 against v3.
-        "light_switch_v4_critic_ln": arm("light-switch v4 + critic LN", (0, 8_400, 1.0)),
+        "bottom_left_burner_v4": arm("bottom-left-burner v4", (0, 11_200, 0.9), stops=True),
+        "bottom_left_burner": arm("bottom-left-burner", (0, 86_800, 0.9)),
+        # Seed 3 is past the seeds the rule names: not counted.
+        "bottom_right_burner_v4": arm("bottom-right-burner v4", (3, 11_200, 1.0)),
+        "bottom_right_burner": arm("bottom-right-burner", (3, None, 0.0)),
     }
     test = reward_test(result_arms)
     assert test["tasks"] == {
@@ -374,55 +381,48 @@ def test_the_reward_test_sets_v4_against_v3_seed_for_seed_and_applies_the_rule()
     labels = {k: a["label"] for k, a in result_arms.items()}
     lines = _format_reward_test(test, labels)
     assert lines[0] == (
-        "reward test, light-switch v4 against light-switch, seeds 0, 1, 2: crossed 90% 1, 1, 1 "
+        "reward test, light-switch v4 against light-switch, seeds 0, 1, 2: crossed 90% within the budget 1, 1, 1 "
         "against 0, 0, 1; final success 0, 0.9, 0.2 against 0, 0, 1"
     )
     assert lines[-1].endswith(
-        "ended >= 0.9 in 1 against 2; the default by the rule (v4 if it "
+        "ended >= 90% in 1 against 2; the default by the rule (v4 if it "
         "crosses in more and ends in at least as many): not judged (4 of 15 pairs made)"
     )
 
+    five = (
+        "slide_cabinet",
+        "light_switch",
+        "bottom_left_burner",
+        "microwave",
+        "bottom_right_burner",
+    )
+    # Four tasks with seeds 0-3 (16 pairs) and the fifth not run: not judged.
+    full = {}
+    for task in five[:4]:
+        full[f"{task}_v4"] = arm(f"{task} v4", *[(s, 20_000, 1.0) for s in range(4)])
+        full[task] = arm(task, *[(s, None, 0.0) for s in range(4)])
+    assert (reward_test(full)["pairs"], reward_test(full)["default"]) == (12, None)
     # Every pair made: v4 crosses in more runs but ends at >= 0.9 in fewer, so v3 stays.
     full = {}
-    for task, label in [
-        ("slide_cabinet", "slide-cabinet"),
-        ("light_switch", "light-switch"),
-        ("bottom_left_burner", "bottom-left-burner"),
-        ("microwave", "microwave"),
-        ("bottom_right_burner", "bottom-right-burner"),
-    ]:
-        full[f"{task}_v4"] = arm(f"{label} v4", *[(s, 20_000, 0.0) for s in range(3)])
-        full[task] = arm(label, (0, 20_000, 1.0), (1, None, 0.0), (2, None, 0.0))
+    for task in five:
+        full[f"{task}_v4"] = arm(f"{task} v4", *[(s, 20_000, 0.0) for s in range(3)])
+        full[task] = arm(task, (0, 20_000, 1.0), (1, None, 0.0), (2, None, 0.0))
+    # The collapse test's arm is a learner change, not v4 against v3: it changes nothing.
+    full["light_switch_v4_critic_ln"] = arm("light-switch v4 + critic LN", (1, 8_400, 1.0))
     test = reward_test(full)
-    assert (
-        test["pairs"],
-        test["crossed"],
-        test["crossed_v3"],
-        test["ended_90"],
-        test["ended_90_v3"],
-    ) == (15, 15, 5, 0, 5)
+    totals = ("pairs", "crossed", "crossed_v3", "ended_90", "ended_90_v3")
+    assert [test[k] for k in totals] == [15, 15, 5, 0, 5]
     assert test["default"] == "v3"
     # v4 ending at >= 0.9 as often as v3 (here in seed 0 of each task) and crossing more: v4.
-    for task in (
-        "slide_cabinet",
-        "light_switch",
-        "bottom_left_burner",
-        "microwave",
-        "bottom_right_burner",
-    ):
+    for task in five:
         full[f"{task}_v4"]["per_seed"][0]["final_success"] = 1.0
     assert reward_test(full)["default"] == "v4"
-    # Crossing in as many runs as v3, not more: v3 stays.
-    for task in (
-        "slide_cabinet",
-        "light_switch",
-        "bottom_left_burner",
-        "microwave",
-        "bottom_right_burner",
-    ):
-        full[task] = arm(task, *[(s, 30_000, 1.0) for s in range(3)])
-        full[f"{task}_v4"] = arm(f"{task} v4", *[(s, 20_000, 1.0) for s in range(3)])
-    assert reward_test(full)["default"] == "v3"
+    # Crossing in as many runs as v3, not more: v3 stays, and a fourth seed that v4 alone crosses
+    # in does not tip it.
+    for task in five:
+        full[task] = arm(task, *[(s, 30_000, 1.0) for s in range(3)], (3, None, 0.0))
+        full[f"{task}_v4"] = arm(f"{task} v4", *[(s, 20_000, 1.0) for s in range(4)])
+    assert (reward_test(full)["pairs"], reward_test(full)["default"]) == (15, "v3")
 
 
 def test_a_run_a_session_left_unfinished_is_resumed_not_restarted(tmp_path) -> None:

@@ -84,8 +84,6 @@ COLLAPSE_TEST_SUFFIX = "_critic_ln"
 """A collapse-test arm is its v4 arm's name with this suffix: the same protocol with one change."""
 V4_SUFFIX = "_v4"
 """A reward-v4 arm is its v3 arm's name with this suffix: the same protocol on the candidate reward."""
-ENDED_AT = 0.9
-"""The reward test counts the runs whose final evaluation is at least this (the success threshold)."""
 
 
 def _arm_config(arm: Arm) -> ProtocolConfig:
@@ -307,10 +305,10 @@ def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _paired(
-    arm: Mapping[str, Any], other: Mapping[str, Any], keys: Sequence[str], side: str
+    arm: Mapping[str, Any], other: Mapping[str, Any], keys: Sequence[str], other_suffix: str
 ) -> dict[str, Any] | None:
     """Two arms' figures seed for seed, over the seeds both ran (paired by number): `seeds`, and per
-    key the arm's list and the other's (`<key><side>`); None if they share no seed."""
+    key the arm's list and the other's (`<key><other_suffix>`); None if they share no seed."""
     theirs = {f["seed"]: f for f in other["per_seed"]}
     pairs = [(f, theirs[f["seed"]]) for f in arm["per_seed"] if f["seed"] in theirs]
     if not pairs:
@@ -320,21 +318,23 @@ def _paired(
         **{
             f"{key}{suffix}": [p[i][key] for p in pairs]
             for key in keys
-            for i, suffix in enumerate(("", side))
+            for i, suffix in enumerate(("", other_suffix))
         },
     }
 
 
 def _judged(arm: Mapping[str, Any]) -> dict[str, Any]:
-    """An arm with each run's two reward-test verdicts: crossed 90% within the budget, ended at it."""
+    """An arm's runs of the seeds the reward test names (0 to `V4_SEEDS` - 1), each with its two
+    verdicts: crossed 90% within the budget, final success >= 90%."""
     return {
         "per_seed": [
             {
                 **f,
                 "crossed": _within_budget(f),
-                "ended_90": f["final_success"] >= ENDED_AT - SUCCESS_TOLERANCE,
+                "ended_90": f["final_success"] >= DEFAULT_THRESHOLD - SUCCESS_TOLERANCE,
             }
             for f in arm["per_seed"]
+            if f["seed"] < V4_SEEDS
         ]
     }
 
@@ -356,17 +356,19 @@ def collapse_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
 
 def reward_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     """Issue 37's v4 against v3, per task whose v4 arm and v3 arm both ran with stopping off, seed
-    for seed: first crossings within the budget and final successes; and the rule written before v3's
-    runs (the kitchen README): v4 becomes the default if, over every (task, seed) of the five
-    tasks' `V4_SEEDS` seeds, it crosses in more runs than v3 and ends at >= `ENDED_AT` in at least
-    as many. `default` is "v4" or "v3" once all those pairs are made, None before."""
+    for seed over seeds 0 to `V4_SEEDS` - 1: first crossings within the budget and final successes;
+    and the rule written before the other 14 of v3's runs (the kitchen README): v4 becomes the
+    default if, over those seeds of the five tasks, it crosses in more runs than v3 and ends at
+    >= 90% in at least as many. `default` is "v4" or "v3" once every such pair is made, None before."""
     tasks: dict[str, Any] = {}
-    for name, arm in result_arms.items():
+    for name in _v4_arms():
         v3 = name.removesuffix(V4_SUFFIX)
-        if v3 == name or v3 not in result_arms:
+        if name not in result_arms or v3 not in result_arms:
             continue
-        if arm["stop_when_reached"] or result_arms[v3]["stop_when_reached"]:
-            continue  # a run that stopped at its first crossing has no final success to compare
+        arm = result_arms[name]
+        # A run that stopped at its first crossing has no final success to set against another's.
+        if arm.get("stop_when_reached", True) or result_arms[v3].get("stop_when_reached", True):
+            continue
         paired = _paired(
             _judged(arm), _judged(result_arms[v3]), ("crossed", "ended_90", "final_success"), "_v3"
         )
@@ -377,9 +379,9 @@ def reward_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
         for key in ("crossed", "crossed_v3", "ended_90", "ended_90_v3")
     }
     of = len(_v4_arms()) * V4_SEEDS
-    pairs = sum(len(t["seeds"]) for t in tasks.values())
+    pairs = sum(len(t["seeds"]) for t in tasks.values())  # distinct (task, seed < V4_SEEDS) pairs
     default = None
-    if pairs >= of:
+    if pairs == of:
         wins = (
             totals["crossed"] > totals["crossed_v3"] and totals["ended_90"] >= totals["ended_90_v3"]
         )
@@ -398,11 +400,11 @@ def _format_collapse_test(tests: Mapping[str, Any], labels: Mapping[str, str]) -
 
 
 def _format_reward_test(test: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
-    if not test["tasks"]:
+    if not any(name in labels for name in _v4_arms()):
         return []
     lines = [
         f"reward test, {labels[name]} against {labels[t['against']]}, "
-        f"seed{'s' * (len(t['seeds']) != 1)} {_listed(t['seeds'])}: crossed 90% "
+        f"seed{'s' * (len(t['seeds']) != 1)} {_listed(t['seeds'])}: crossed 90% within the budget "
         f"{_listed(t['crossed'])} against {_listed(t['crossed_v3'])}; final success "
         f"{_listed(t['final_success'])} against {_listed(t['final_success_v3'])}"
         for name, t in test["tasks"].items()
@@ -414,7 +416,7 @@ def _format_reward_test(test: Mapping[str, Any], labels: Mapping[str, str]) -> l
     )
     lines.append(
         f"reward test, v4 against v3 over {test['pairs']} (task, seed) pairs: crossed 90% in "
-        f"{test['crossed']} against {test['crossed_v3']} runs, ended >= {ENDED_AT:g} in "
+        f"{test['crossed']} against {test['crossed_v3']} runs, ended >= 90% in "
         f"{test['ended_90']} against {test['ended_90_v3']}; the default by the rule (v4 if it "
         f"crosses in more and ends in at least as many): {verdict}"
     )
@@ -511,7 +513,7 @@ def format_result(result: Mapping[str, Any]) -> str:
         _format_rewards_alone(goal["rewards_alone"]),
         _format_v4(goal["v4"]),
         *_format_collapse_test(result.get("collapse_test", {}), by_name),
-        *_format_reward_test(result.get("reward_test", {"tasks": {}}), by_name),
+        *(_format_reward_test(result["reward_test"], by_name) if "reward_test" in result else []),
         *(
             [f"not run (--no-run found no finished run): {', '.join(result['missing'])}"]
             if result.get("missing")
