@@ -367,26 +367,31 @@ def test_the_reward_test_sets_v4_against_v3_seed_for_seed_and_applies_the_rule()
             "final_success_v3": [1.0],
         },
     }
+    # Each side's runs count on their own: v4 over light-switch 0-2, microwave 1-2, slide-cabinet 0;
+    # v3 over light-switch 0-2, microwave 1, bottom-left-burner 0 (its v4 arm stopped).
     assert {
-        k: test[k] for k in ("pairs", "of", "crossed", "crossed_v3", "ended_90", "ended_90_v3")
+        k: test[k]
+        for k in ("of", "made", "made_v3", "crossed", "crossed_v3", "ended_90", "ended_90_v3")
     } == {
-        "pairs": 4,
         "of": 15,  # five v4 tasks, three seeds
-        "crossed": 3,
-        "crossed_v3": 1,
-        "ended_90": 1,
-        "ended_90_v3": 2,
+        "made": 6,
+        "made_v3": 5,
+        "crossed": 4,
+        "crossed_v3": 2,
+        "ended_90": 2,
+        "ended_90_v3": 3,
     }
-    assert test["default"] is None  # 4 of 15 pairs made
+    assert test["default"] is None  # 9 and 10 runs left: either way is still open
     labels = {k: a["label"] for k, a in result_arms.items()}
     lines = _format_reward_test(test, labels)
     assert lines[0] == (
         "reward test, light-switch v4 against light-switch, seeds 0, 1, 2: crossed 90% within the budget 1, 1, 1 "
         "against 0, 0, 1; final success 0, 0.9, 0.2 against 0, 0, 1"
     )
-    assert lines[-1].endswith(
-        "ended >= 90% in 1 against 2; the default by the rule (v4 if it "
-        "crosses in more and ends in at least as many): not judged (4 of 15 pairs made)"
+    assert lines[-1] == (
+        "reward test, v4 against v3, seeds 0-2 of 5 tasks: crossed 90% in 4 of 6 runs made against "
+        "2 of 5, ended >= 90% in 2 against 3; the default by the rule (v4 if it crosses in more "
+        "runs and ends in at least as many, of 15 each): not decided (the runs left could change it)"
     )
 
     five = (
@@ -396,12 +401,29 @@ def test_the_reward_test_sets_v4_against_v3_seed_for_seed_and_applies_the_rule()
         "microwave",
         "bottom_right_burner",
     )
-    # Four tasks with seeds 0-3 (16 pairs) and the fifth not run: not judged.
+    # Four tasks with seeds 0-3 and the fifth not run: v4 crosses and ends at >= 0.9 in 12 runs, v3
+    # in none; the fifth task's 3 runs a side cannot change it, so v4 is decided with 12 of 15 made.
     full = {}
     for task in five[:4]:
         full[f"{task}_v4"] = arm(f"{task} v4", *[(s, 20_000, 1.0) for s in range(4)])
         full[task] = arm(task, *[(s, None, 0.0) for s in range(4)])
-    assert (reward_test(full)["pairs"], reward_test(full)["default"]) == (12, None)
+    test = reward_test(full)
+    assert (test["made"], test["made_v3"], test["default"]) == (12, 12, "v4")
+    assert _format_reward_test(test, {n: a["label"] for n, a in full.items()})[-1].endswith(
+        ": v4 (no run left to make can change it)"
+    )
+    # v3 ends at >= 0.9 in 4 runs; v4 in none of 12, so at most 3 with its 3 runs left: v3.
+    early = {
+        "slide_cabinet": arm("slide-cabinet", *[(s, 20_000, 1.0) for s in range(3)]),
+        "light_switch": arm("light-switch", (0, 20_000, 1.0)),
+        "slide_cabinet_v4": arm("slide-cabinet v4", (0, 20_000, 0.0)),
+        "light_switch_v4": arm("light-switch v4", (0, 20_000, 0.0), (1, 20_000, 0.0)),
+        **{f"{t}_v4": arm(t, *[(s, 20_000, 0.0) for s in range(3)]) for t in five[2:]},
+    }
+    assert reward_test(early)["default"] == "v3"
+    # v3 at >= 0.9 in 3: v4's 3 runs left could all end there and tie it, so it is open again.
+    early["light_switch"]["per_seed"][0]["final_success"] = 0.0
+    assert reward_test(early)["default"] is None
     # Every pair made: v4 crosses in more runs but ends at >= 0.9 in fewer, so v3 stays.
     full = {}
     for task in five:
@@ -410,8 +432,8 @@ def test_the_reward_test_sets_v4_against_v3_seed_for_seed_and_applies_the_rule()
     # The collapse test's arm is a learner change, not v4 against v3: it changes nothing.
     full["light_switch_v4_critic_ln"] = arm("light-switch v4 + critic LN", (1, 8_400, 1.0))
     test = reward_test(full)
-    totals = ("pairs", "crossed", "crossed_v3", "ended_90", "ended_90_v3")
-    assert [test[k] for k in totals] == [15, 15, 5, 0, 5]
+    totals = ("made", "made_v3", "crossed", "crossed_v3", "ended_90", "ended_90_v3")
+    assert [test[k] for k in totals] == [15, 15, 15, 5, 0, 5]
     assert test["default"] == "v3"
     # v4 ending at >= 0.9 as often as v3 (here in seed 0 of each task) and crossing more: v4.
     for task in five:
@@ -422,7 +444,7 @@ def test_the_reward_test_sets_v4_against_v3_seed_for_seed_and_applies_the_rule()
     for task in five:
         full[task] = arm(task, *[(s, 30_000, 1.0) for s in range(3)], (3, None, 0.0))
         full[f"{task}_v4"] = arm(f"{task} v4", *[(s, 20_000, 1.0) for s in range(4)])
-    assert (reward_test(full)["pairs"], reward_test(full)["default"]) == (15, "v3")
+    assert (reward_test(full)["made"], reward_test(full)["default"]) == (15, "v3")
 
 
 def test_a_run_a_session_left_unfinished_is_resumed_not_restarted(tmp_path) -> None:

@@ -355,38 +355,50 @@ def collapse_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def reward_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
-    """Issue 37's v4 against v3, per task whose v4 arm and v3 arm both ran with stopping off, seed
-    for seed over seeds 0 to `V4_SEEDS` - 1: first crossings within the budget and final successes;
+    """Issue 37's v4 against v3 over seeds 0 to `V4_SEEDS` - 1 of the five tasks, runs with stopping
+    off only: per task whose two arms share a seed, their first crossings within the budget and
+    final successes seed for seed; per side, the runs made and how many crossed and ended at >= 90%;
     and the rule written before the other 14 of v3's runs (the kitchen README): v4 becomes the
-    default if, over those seeds of the five tasks, it crosses in more runs than v3 and ends at
-    >= 90% in at least as many. `default` is "v4" or "v3" once every such pair is made, None before."""
+    default if it crosses in more runs than v3 and ends at >= 90% in at least as many. `default` is
+    "v4" or "v3" as soon as no run left to make could change it (as `_verdict` decides a goal),
+    None before; with every run made it is the rule applied to the totals."""
     tasks: dict[str, Any] = {}
+    totals = dict.fromkeys(
+        ("made", "made_v3", "crossed", "crossed_v3", "ended_90", "ended_90_v3"), 0
+    )
     for name in _v4_arms():
-        v3 = name.removesuffix(V4_SUFFIX)
-        if name not in result_arms or v3 not in result_arms:
-            continue
-        arm = result_arms[name]
-        # A run that stopped at its first crossing has no final success to set against another's.
-        if arm.get("stop_when_reached", True) or result_arms[v3].get("stop_when_reached", True):
-            continue
-        paired = _paired(
-            _judged(arm), _judged(result_arms[v3]), ("crossed", "ended_90", "final_success"), "_v3"
-        )
-        if paired is not None:
-            tasks[name] = {"against": v3, **paired}
-    totals = {
-        key: sum(sum(t[key]) for t in tasks.values())
-        for key in ("crossed", "crossed_v3", "ended_90", "ended_90_v3")
-    }
+        judged = {}
+        for suffix, arm_name in (("", name), ("_v3", name.removesuffix(V4_SUFFIX))):
+            arm = result_arms.get(arm_name)
+            # A run that stopped at its first crossing has no final success to set against another's.
+            if arm is None or arm.get("stop_when_reached", True):
+                continue
+            judged[suffix] = _judged(arm)
+            runs = judged[suffix]["per_seed"]
+            totals[f"made{suffix}"] += len(runs)
+            totals[f"crossed{suffix}"] += sum(f["crossed"] for f in runs)
+            totals[f"ended_90{suffix}"] += sum(f["ended_90"] for f in runs)
+        if len(judged) == 2:
+            paired = _paired(
+                judged[""], judged["_v3"], ("crossed", "ended_90", "final_success"), "_v3"
+            )
+            if paired is not None:
+                tasks[name] = {"against": name.removesuffix(V4_SUFFIX), **paired}
     of = len(_v4_arms()) * V4_SEEDS
-    pairs = sum(len(t["seeds"]) for t in tasks.values())  # distinct (task, seed < V4_SEEDS) pairs
+
+    def bounds(key: str) -> tuple[int, int]:
+        """The fewest and the most runs of `key` once every run is made: each run left may go either way."""
+        left = of - totals["made_v3" if key.endswith("_v3") else "made"]
+        return totals[key], totals[key] + left
+
+    crossed, crossed_v3 = bounds("crossed"), bounds("crossed_v3")
+    ended, ended_v3 = bounds("ended_90"), bounds("ended_90_v3")
     default = None
-    if pairs == of:
-        wins = (
-            totals["crossed"] > totals["crossed_v3"] and totals["ended_90"] >= totals["ended_90_v3"]
-        )
-        default = "v4" if wins else "v3"
-    return {"tasks": tasks, "pairs": pairs, "of": of, **totals, "default": default}
+    if crossed[0] > crossed_v3[1] and ended[0] >= ended_v3[1]:
+        default = "v4"
+    elif crossed[1] <= crossed_v3[0] or ended[1] < ended_v3[0]:
+        default = "v3"
+    return {"tasks": tasks, "of": of, **totals, "default": default}
 
 
 def _format_collapse_test(tests: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
@@ -410,15 +422,16 @@ def _format_reward_test(test: Mapping[str, Any], labels: Mapping[str, str]) -> l
         for name, t in test["tasks"].items()
     ]
     verdict = (
-        f"not judged ({test['pairs']} of {test['of']} pairs made)"
+        "not decided (the runs left could change it)"
         if test["default"] is None
-        else test["default"]
+        else f"{test['default']} (no run left to make can change it)"
     )
     lines.append(
-        f"reward test, v4 against v3 over {test['pairs']} (task, seed) pairs: crossed 90% in "
-        f"{test['crossed']} against {test['crossed_v3']} runs, ended >= 90% in "
-        f"{test['ended_90']} against {test['ended_90_v3']}; the default by the rule (v4 if it "
-        f"crosses in more and ends in at least as many): {verdict}"
+        f"reward test, v4 against v3, seeds 0-{V4_SEEDS - 1} of {test['of'] // V4_SEEDS} tasks: "
+        f"crossed 90% in {test['crossed']} of {test['made']} runs made against "
+        f"{test['crossed_v3']} of {test['made_v3']}, ended >= 90% in {test['ended_90']} against "
+        f"{test['ended_90_v3']}; the default by the rule (v4 if it crosses in more runs and ends "
+        f"in at least as many, of {test['of']} each): {verdict}"
     )
     return lines
 
