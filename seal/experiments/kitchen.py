@@ -386,13 +386,12 @@ def reward_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
                 tasks[name] = {"against": name.removesuffix(V4_SUFFIX), **paired}
     of = len(_v4_arms()) * V4_SEEDS
 
-    def bounds(key: str) -> tuple[int, int]:
-        """The fewest and the most runs of `key` once every run is made: each run left may go either way."""
-        left = of - totals["made_v3" if key.endswith("_v3") else "made"]
-        return totals[key], totals[key] + left
+    def bounds(key: str, suffix: str) -> tuple[int, int]:
+        """The fewest and the most runs of `key` once all are made (a run left may go either way)."""
+        return totals[key + suffix], totals[key + suffix] + of - totals["made" + suffix]
 
-    crossed, crossed_v3 = bounds("crossed"), bounds("crossed_v3")
-    ended, ended_v3 = bounds("ended_90"), bounds("ended_90_v3")
+    crossed, crossed_v3 = bounds("crossed", ""), bounds("crossed", "_v3")
+    ended, ended_v3 = bounds("ended_90", ""), bounds("ended_90", "_v3")
     default = None
     if crossed[0] > crossed_v3[1] and ended[0] >= ended_v3[1]:
         default = "v4"
