@@ -28,7 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "--learn kitchen runs only the kitchen learning protocols (protocols/kitchen_learn: "
             "slide-cabinet, light-switch and bottom-left-burner with and without demonstrations, "
             "microwave and bottom-right-burner without, all on reward v3; the five without "
-            "demonstrations again on the candidate reward v4 (<task>_v4, all 535 epochs run; goal.v4), "
+            "demonstrations again on reward v4 (<task>_v4, all 535 epochs run; goal.v4), "
             "and light-switch and microwave v4 with LayerNorm in the critics (<task>_v4_critic_ln; "
             "collapse_test, seed for seed against v4 alone); reward_test sets each v4 arm against its "
             "v3 arm seed for seed when both ran with stopping off and applies the rule that decides "

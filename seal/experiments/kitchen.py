@@ -7,7 +7,7 @@ steps (the learner's own: demonstrations are not counted) and the updates (milli
 transitions) at the first evaluation at >= 90%; a run that never got there is censored at its total.
 Goals: every arm's task reaches 90% within 150k env steps in every seed (issue 11); at least 4 of
 the 5 demonstration-free reward-v3 arms reach it in at least one seed (issue 25, `goal.rewards_alone`);
-under the candidate reward v4 (the `*_v4` arms, all 535 epochs run), at least 4 of the 5 tasks
+under reward v4 (the `*_v4` arms, all 535 epochs run), at least 4 of the 5 tasks
 reach it in at least 2 of 3 seeds (issue 37, `goal.v4`). The `*_v4_critic_ln` arms are issue 37's
 collapse test, v4 with LayerNorm in the critics, set seed for seed against v4 alone (`collapse_test`).
 `reward_test` sets each v4 arm seed for seed against its v3 arm run with stopping off, and applies
@@ -78,16 +78,16 @@ ARMS: tuple[Arm, ...] = (
     _arm("microwave_v4_critic_ln", "microwave v4 + critic LN"),
 )
 """The arms, each pinned to a reward version by its protocol's `options.reward_version`: v3, and
-the candidate v4 for the `*_v4` arms (which run all 535 epochs: `evaluation.stop_when_reached = false`)
+v4 for the `*_v4` arms (which run all 535 epochs: `evaluation.stop_when_reached = false`)
 and for the collapse test's `*_v4_critic_ln` arms (v4 with `agent.critic_layer_norm`)."""
 COLLAPSE_TEST_SUFFIX = "_critic_ln"
 """A collapse-test arm is its v4 arm's name with this suffix: the same protocol with one change."""
 V4_SUFFIX = "_v4"
-"""A reward-v4 arm is its v3 arm's name with this suffix: the same protocol on the candidate reward."""
+"""A reward-v4 arm is its v3 arm's name with this suffix: the same protocol on reward v4."""
 
 
 def _arm_config(arm: Arm) -> ProtocolConfig:
-    """An arm's protocol, read to classify it: the candidate-reward warning a run of it gives is not
+    """An arm's protocol, read to classify it: the reward-version warning a run of it gives is not
     the reader's to see (the goals read every arm, run or not)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SealWarning)

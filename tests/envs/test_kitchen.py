@@ -19,7 +19,14 @@ import pytest
 from franka_kitchen_dense import TASK_NAMES, gym_id
 from franka_kitchen_dense.adapter import CLOSING_ACTION, FrankaKitchenDenseAdapter
 from franka_kitchen_dense.env import FrankaKitchenDenseEnv
-from franka_kitchen_dense.rewards import Constants, Reading, compute_reward, grip_effort
+from franka_kitchen_dense.rewards import (
+    POTENTIAL_SCALE,
+    SHAPING_GAMMA,
+    Constants,
+    Reading,
+    compute_reward,
+    grip_effort,
+)
 
 from seal.envs import make_adapter
 from seal.errors import UnknownNameError
@@ -389,14 +396,25 @@ def test_slide_cabinet_reset_reward_in_the_env(
     v2.close()
 
 
-def test_rewards_stay_in_range_under_random_actions(
-    kitchen: Callable[[str], FrankaKitchenDenseEnv],
-) -> None:
-    env = kitchen("kettle")
+@pytest.mark.parametrize("version", ["v3", "v4"])
+def test_rewards_stay_in_range_under_random_actions(version: str) -> None:
+    # v3 in [0, 10]; v4 adds F = gamma Phi(s') - Phi(s) = k d - gamma k d' after the clip, so its
+    # rewards lie in [-k d_max, 10 + k d_max], d_max the largest gripper-to-site distance.
+    env = FrankaKitchenDenseEnv("kettle", seed=0, reward_version=version)
+    env.reset(seed=0)
     rng = np.random.default_rng(0)
+    previous = env.potential()
     for _ in range(30):
         _, reward, terminated, _, info = env.step(rng.uniform(-1, 1, 9).astype(np.float32))
-        assert 0.0 <= reward <= 10.0 and not terminated and info["success"] in (0.0, 1.0)
+        assert not terminated and info["success"] in (0.0, 1.0)
+        shaping = info.get("approach", 0.0)
+        assert 0.0 <= reward - shaping <= 10.0
+        if version == "v4":
+            assert shaping == pytest.approx(SHAPING_GAMMA * info["potential"] - previous, abs=1e-12)
+            d_max = max(previous, info["potential"]) / -POTENTIAL_SCALE
+            assert -POTENTIAL_SCALE * d_max <= reward <= 10.0 + POTENTIAL_SCALE * d_max
+            previous = info["potential"]
+    env.close()
 
 
 # ---- episodes, spaces, seeding, registration -----------------------------------------------------
@@ -456,8 +474,8 @@ def test_gymnasium_ids_are_registered() -> None:
     ids = {gym_id(t) for t in TASK_NAMES}
     assert ids <= set(gym.registry)
     assert {gym_id(t, "v2") for t in TASK_NAMES} <= set(gym.registry)  # v2 stays available
-    assert gym_id("light-switch") == "seal/FrankaKitchenDense-light-switch-v3"
-    env = gym.make("seal/FrankaKitchenDense-light-switch-v3", episode_length=2)
+    assert gym_id("light-switch") == "seal/FrankaKitchenDense-light-switch-v4"
+    env = gym.make("seal/FrankaKitchenDense-light-switch-v4", episode_length=2)
     assert (
         isinstance(env.unwrapped, FrankaKitchenDenseEnv)
         and env.unwrapped.task.joint == "light_switch"

@@ -17,6 +17,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from franka_kitchen_dense import REWARD_VERSION
+
 ROOT = Path(__file__).resolve().parents[2]
 TINY = [
     "protocol.epochs=1",
@@ -50,5 +52,5 @@ def test_one_epoch_of_the_quickstart_warns_only_of_the_old_reward(tmp_path: Path
     lines = [line for line in done.stderr.splitlines() if "warn" in line.lower()]
     assert lines == [
         "seal: warning: adapter 'franka_kitchen_dense': reward_version = 'v2' is an older reward "
-        "than the default 'v3'; its successes and update counts compare only with runs on 'v2'"
+        f"than the default {REWARD_VERSION!r}; its successes and update counts compare only with runs on 'v2'"
     ], done.stderr[-3000:]
