@@ -411,7 +411,7 @@ def test_rewards_stay_in_range_under_random_actions(version: str) -> None:
         assert 0.0 <= reward - shaping <= 10.0
         if version == "v4":
             assert shaping == pytest.approx(SHAPING_GAMMA * info["potential"] - previous, abs=1e-12)
-            d_max = max(previous, info["potential"]) / -POTENTIAL_SCALE
+            d_max = -min(previous, info["potential"]) / POTENTIAL_SCALE  # Phi = -k d
             assert -POTENTIAL_SCALE * d_max <= reward <= 10.0 + POTENTIAL_SCALE * d_max
             previous = info["potential"]
     env.close()
