@@ -222,6 +222,10 @@ def test_rewards_alone_goal_counts_arms_reached_in_any_seed_within_budget() -> N
     assert (rewards_alone_goal(five)["met"], rewards_alone_goal(five)["all_ran"]) == (True, False)
     five["microwave"] = arm("microwave", (False, 149_800), (False, 149_800))
     assert rewards_alone_goal(five)["met"] is None
+    # Not met before every arm has run once the arms not run cannot make up the shortfall: two
+    # reached, bottom-left-burner alone not run.
+    five["slide_cabinet"] = arm("slide-cabinet", (False, 149_800), (False, 149_800))
+    assert (rewards_alone_goal(five)["met"], rewards_alone_goal(five)["all_ran"]) == (False, False)
 
 
 def test_v4_goal_counts_tasks_reached_in_two_of_three_seeds_within_budget() -> None:
@@ -261,6 +265,19 @@ def test_v4_goal_counts_tasks_reached_in_two_of_three_seeds_within_budget() -> N
     five["bottom_right_burner_v4"] = arm("bottom-right-burner v4", yes, no)
     assert (len(v4_goal(five)["reached"]), v4_goal(five)["met"]) == (3, None)
     assert _format_v4(v4_goal(five)).endswith(": not judged (5 of 5 run, 3 seeds each needed)")
+    # Not met as soon as the seeds left cannot bring a fourth task to two. Two tasks have (slide-
+    # cabinet, bottom-left-burner), light-switch cannot (one of three); bottom-right-burner and
+    # microwave could in their third seed: not judged, until microwave's second seed misses too.
+    five["microwave_v4"] = arm("microwave v4", yes, no)
+    assert (len(v4_goal(five)["reached"]), v4_goal(five)["met"]) == (2, None)
+    five["microwave_v4"] = arm("microwave v4", no, no)
+    assert (v4_goal(five)["met"], v4_goal(five)["all_ran"]) == (False, False)
+    assert _format_v4(v4_goal(five)).endswith(
+        ": 2 (slide-cabinet v4, bottom-left-burner v4): not met before every run was made (5 of 5 "
+        "run, 3 seeds each needed; the runs left cannot make up the shortfall)"
+    )
+    del five["microwave_v4"]  # an arm not run at all could still cross in two of its three seeds
+    assert (v4_goal(five)["ran"], v4_goal(five)["met"]) == (4, None)
     five["bottom_right_burner_v4"] = arm("bottom-right-burner v4", yes, no, no)
     five["microwave_v4"] = arm("microwave v4", yes, yes, no)  # every run made, 3 tasks reached
     assert v4_goal(five)["met"] is False and _format_v4(v4_goal(five)).endswith(": not met")

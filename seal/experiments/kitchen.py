@@ -255,14 +255,21 @@ def rewards_alone_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
         "of": len(plain),
         "ran": len(ran),
         "reached": reached,
-        **_verdict(len(reached), REWARDS_ALONE_NEEDED, all_ran=len(ran) == len(plain)),
+        # An arm not yet run may still reach it (as for `all_ran`, an arm has run once any seed has).
+        **_verdict(
+            len(reached),
+            len(reached) + len(plain) - len(ran),
+            REWARDS_ALONE_NEEDED,
+            all_ran=len(ran) == len(plain),
+        ),
     }
 
 
-def _verdict(reached: int, needed: int, *, all_ran: bool) -> dict[str, Any]:
-    """A goal of reaching 90% in enough arms is met as soon as enough have reached it (a run not yet
-    made cannot undo a crossing), not met only when every run it names was made, else None."""
-    met = True if reached >= needed else (False if all_ran else None)
+def _verdict(reached: int, reachable: int, needed: int, *, all_ran: bool) -> dict[str, Any]:
+    """A goal of reaching 90% in enough arms is met as soon as `reached` arms have (a run not yet
+    made cannot undo a crossing), not met as soon as `reachable`, the most that could once every
+    run is made, falls short, else None (undecided)."""
+    met = True if reached >= needed else (False if reachable < needed else None)
     return {"met": met, "all_ran": all_ran}
 
 
@@ -285,14 +292,12 @@ def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     `V4_SEEDS` seeds or more."""
     v4 = _v4_arms()
     ran = [name for name in v4 if name in result_arms]
-    reached = [
-        result_arms[name]["label"]
-        for name in ran
-        if sum(_within_budget(f) for f in result_arms[name]["per_seed"]) >= V4_SEEDS_NEEDED
-    ]
-    all_ran = len(ran) == len(v4) and all(
-        len(result_arms[name]["per_seed"]) >= V4_SEEDS for name in ran
-    )
+    seeds = {name: result_arms[name]["per_seed"] if name in ran else [] for name in v4}
+    crossed = {name: sum(_within_budget(f) for f in runs) for name, runs in seeds.items()}
+    # A seed not yet run may still cross: the most seeds each arm can have crossed in.
+    most = {name: crossed[name] + max(0, V4_SEEDS - len(seeds[name])) for name in v4}
+    reached = [result_arms[name]["label"] for name in ran if crossed[name] >= V4_SEEDS_NEEDED]
+    all_ran = all(len(runs) >= V4_SEEDS for runs in seeds.values())
     return {
         "needed": V4_TASKS_NEEDED,
         "seeds_needed": V4_SEEDS_NEEDED,
@@ -300,7 +305,12 @@ def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
         "of": len(v4),
         "ran": len(ran),
         "reached": reached,
-        **_verdict(len(reached), V4_TASKS_NEEDED, all_ran=all_ran),
+        **_verdict(
+            len(reached),
+            sum(n >= V4_SEEDS_NEEDED for n in most.values()),
+            V4_TASKS_NEEDED,
+            all_ran=all_ran,
+        ),
     }
 
 
@@ -459,7 +469,9 @@ def _format_verdict(goal: Mapping[str, Any], runs_left: str) -> str:
         return f"not judged ({runs_left})"
     if goal["all_ran"]:
         return "met" if goal["met"] else "not met"
-    return f"met before every run was made ({runs_left}; a later run cannot undo a crossing)"
+    if goal["met"]:
+        return f"met before every run was made ({runs_left}; a later run cannot undo a crossing)"
+    return f"not met before every run was made ({runs_left}; the runs left cannot make up the shortfall)"
 
 
 def _format_rewards_alone(goal: Mapping[str, Any]) -> str:
