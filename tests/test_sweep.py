@@ -302,21 +302,23 @@ def test_a_search_space_the_schema_rejects_fails_at_load_without_ray(tmp_path: P
 
 @pytest.fixture(scope="module")
 def ray_session():  # noqa: ANN201 - yields the ray module
-    """One local Ray for every test below (startup costs seconds); sweeps reuse an initialised Ray."""
-    import ray  # the dev extra installs it; a missing Ray fails these tests rather than skipping them
+    """One local Ray for every test below (startup costs seconds), started as `seal sweep` starts
+    one; sweeps reuse an initialised Ray. The dev extra installs Ray: a missing one fails these
+    tests rather than skipping them."""
+    from seal.sweep.ray_session import RaySession
 
-    if ray.is_initialized():  # another module's session: use it, leave it to its owner
+    with RaySession(num_cpus=2) as ray:  # an initialised Ray (another module's) is used, kept
         yield ray
-        return
-    ray.init(
-        address="local",
-        num_cpus=2,
-        include_dashboard=False,
-        log_to_driver=False,
-        logging_level="warning",
-    )
-    yield ray
-    ray.shutdown()
+
+
+def test_trials_run_at_the_priority_of_the_sweep(ray_session) -> None:  # noqa: ANN001
+    # Ray's default worker niceness, 15, starves a trial beside any busy process: a 16 s search
+    # took over 8 min beside two learning runs on 2 cores.
+    @ray_session.remote
+    def niceness() -> int:
+        return os.nice(0)
+
+    assert ray_session.get(niceness.remote()) == os.nice(0)
 
 
 SEARCH_SPACE = """
