@@ -312,8 +312,8 @@ def ray_session():  # noqa: ANN201 - yields the ray module
 
 
 def test_trials_run_at_the_priority_of_the_sweep(ray_session) -> None:  # noqa: ANN001
-    # Ray's default worker niceness, 15, starves a trial beside any busy process: a 16 s search
-    # took over 8 min beside two learning runs on 2 cores.
+    # Ray's default worker niceness, 15, starves a trial beside any busy process: a search of 16 s
+    # alone was still running after 8 min beside two learning runs on 2 cores (23 s at 0).
     @ray_session.remote
     def niceness() -> int:
         return os.nice(0)

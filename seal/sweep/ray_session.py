@@ -48,8 +48,8 @@ class RaySession:
             # Ray counts the machine's CPUs itself (cgroup limits included) unless told otherwise.
             kwargs.update(address="local", **({"num_cpus": self.num_cpus} if self.num_cpus else {}))
             # Trials at the priority of the sweep that started them, as `seal run` is: Ray's default
-            # worker niceness, 15, starves them beside any other busy process (a 16 s test trial
-            # took over 8 min beside two learning runs on 2 cores).
+            # worker niceness, 15, starves them beside any other busy process (a test search of 16 s
+            # alone was still running after 8 min beside two learning runs on 2 cores; 23 s at 0).
             kwargs["_system_config"] = {"worker_niceness": 0}
         else:
             kwargs["address"] = self.address
