@@ -88,7 +88,7 @@ def test_end_mean_q_is_the_last_logged_mean_q() -> None:
 
 
 def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() -> None:
-    with warnings.catch_warnings():  # the v3 arms' older-reward warning (once per process)
+    with warnings.catch_warnings():  # the v4 arms' candidate-reward warning (once per process)
         warnings.simplefilter("ignore", SealWarning)
         configs = {arm.name: load_protocol(arm.protocol) for arm in ARMS}
     for name, config in configs.items():
@@ -500,7 +500,7 @@ def test_every_committed_run_record_is_read_as_a_finished_run_of_todays_protocol
     by_protocol = {_arm_config(a).name: a for a in ARMS}
     records = sorted(RECORDS.glob("*/*/seed-*"))
     assert records, f"no run records under {RECORDS}"
-    with warnings.catch_warnings():  # the v3 records' older-reward warning, expected here
+    with warnings.catch_warnings():  # the v4 records' candidate-reward warning, expected here
         warnings.simplefilter("ignore", SealWarning)
         taken = {r: _taken(r, by_protocol) for r in records}
     for record, (arm, found) in taken.items():

@@ -119,9 +119,11 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
             # Said here, in SEAL's words and once per process, rather than by gymnasium at every
             # `make` of an older "-v<N>" id (see `make`). A set, not Python's "default" filter,
             # keeps it once: that filter forgets what it showed whenever any code changes filters.
-            _WARNED_VERSIONS.add(version)  # the default is the newest: any other is older
+            _WARNED_VERSIONS.add(version)
+            newer = REWARD_VERSIONS.index(version) > REWARD_VERSIONS.index(REWARD_VERSION)
             warnings.warn(
-                f"adapter {self.name!r}: reward_version = {version!r} is an older reward than the "
+                f"adapter {self.name!r}: reward_version = {version!r} is "
+                f"{'a candidate reward newer' if newer else 'an older reward'} than the "
                 f"default {REWARD_VERSION!r}; its successes and update counts compare only with "
                 f"runs on {version!r}",
                 SealWarning,
