@@ -28,6 +28,7 @@ from franka_kitchen_dense.tasks import (
     SHAPED_VERSIONS,
     TASK_NAMES,
     gym_id,
+    newer_than_default,
 )
 from seal.envs.base import EnvAdapter, ObsLayout
 from seal.errors import SealError, SealWarning, UnknownNameError
@@ -120,10 +121,9 @@ class FrankaKitchenDenseAdapter(EnvAdapter):
             # `make` of an older "-v<N>" id (see `make`). A set, not Python's "default" filter,
             # keeps it once: that filter forgets what it showed whenever any code changes filters.
             _WARNED_VERSIONS.add(version)
-            newer = REWARD_VERSIONS.index(version) > REWARD_VERSIONS.index(REWARD_VERSION)
             warnings.warn(
                 f"adapter {self.name!r}: reward_version = {version!r} is "
-                f"{'a candidate reward newer' if newer else 'an older reward'} than the "
+                f"{'a candidate reward newer' if newer_than_default(version) else 'an older reward'} than the "
                 f"default {REWARD_VERSION!r}; its successes and update counts compare only with "
                 f"runs on {version!r}",
                 SealWarning,

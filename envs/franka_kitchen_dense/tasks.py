@@ -114,6 +114,11 @@ SHAPED_VERSIONS: tuple[str, ...] = ("v4",)
 """Versions whose reward adds the potential-based approach term (`rewards.approach_shaping`)."""
 
 
+def newer_than_default(version: str) -> bool:
+    """Whether reward `version` is newer than the default (a candidate: its own id name, its own warning)."""
+    return REWARD_VERSIONS.index(version) > REWARD_VERSIONS.index(REWARD_VERSION)
+
+
 def gym_id(task: str, version: str = REWARD_VERSION) -> str:
     """The gymnasium id registered for `task` under reward `version`, e.g. "seal/FrankaKitchenDense-kettle-v3".
 
@@ -121,5 +126,4 @@ def gym_id(task: str, version: str = REWARD_VERSION) -> str:
     "seal/FrankaKitchenDenseCandidate-<task>-<version>": gymnasium calls an id "out of date" when a
     higher "-v<N>" of the same name exists, which would otherwise hit every `gym.make` of the default.
     """
-    newer = REWARD_VERSIONS.index(version) > REWARD_VERSIONS.index(REWARD_VERSION)
-    return f"seal/FrankaKitchenDense{'Candidate' if newer else ''}-{task}-{version}"
+    return f"seal/FrankaKitchenDense{'Candidate' if newer_than_default(version) else ''}-{task}-{version}"
