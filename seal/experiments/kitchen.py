@@ -76,6 +76,14 @@ ARMS: tuple[Arm, ...] = (
     _arm("bottom_right_burner_v4", "bottom-right-burner v4"),
     _arm("light_switch_v4_critic_ln", "light-switch v4 + critic LN"),
     _arm("microwave_v4_critic_ln", "microwave v4 + critic LN"),
+    _arm("slide_cabinet_v4_critic_ln", "slide-cabinet v4 + critic LN"),
+    _arm("bottom_left_burner_v4_critic_ln", "bottom-left-burner v4 + critic LN"),
+    _arm("bottom_right_burner_v4_critic_ln", "bottom-right-burner v4 + critic LN"),
+    _arm("slide_cabinet_critic_ln", "slide-cabinet + critic LN"),
+    _arm("light_switch_critic_ln", "light-switch + critic LN"),
+    _arm("bottom_left_burner_critic_ln", "bottom-left-burner + critic LN"),
+    _arm("microwave_critic_ln", "microwave + critic LN"),
+    _arm("bottom_right_burner_critic_ln", "bottom-right-burner + critic LN"),
 )
 """The arms, each pinned to a reward version by its protocol's `options.reward_version`: v3, and
 v4 for the `*_v4` arms (which run all 535 epochs: `evaluation.stop_when_reached = false`)
@@ -242,7 +250,9 @@ def rewards_alone_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     plain = [
         a.name
         for a in ARMS
-        if _arm_config(a).training.demo_episodes == 0 and _pinned_version(a) == "v3"
+        if _arm_config(a).training.demo_episodes == 0
+        and _pinned_version(a) == "v3"
+        and not a.name.endswith(COLLAPSE_TEST_SUFFIX)
     ]
     ran = [name for name in plain if name in result_arms]
     reached = [
