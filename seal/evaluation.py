@@ -24,6 +24,7 @@ from seal.errors import SealError
 if TYPE_CHECKING:
     from seal.envs.alignment import Alignment
     from seal.learner.collection import Collector, Policy
+    from seal.learner.critic_probe import CriticProbe
     from seal.learner.sac import Agent
 
 PolicyFn = Callable[[str, np.ndarray, np.ndarray], np.ndarray]
@@ -71,6 +72,22 @@ class AgentPolicy:
         ids = self.alignment.task_ids(name)[np.asarray(task_ids, dtype=np.intp)]
         return self.agent_env.get(env, env), aligned, ids
 
+    def critic_q(
+        self, env: str, obs: np.ndarray, task_ids: np.ndarray, actions: np.ndarray
+    ) -> np.ndarray:
+        """The lower twin critic's Q (N,) of raw `obs` and `env`'s own `actions` (a
+        `seal.learner.critic_probe.Critic`)."""
+        name, agent_obs, ids = self.agent_inputs(env, obs, task_ids)
+        if self.alignment is not None:
+            actions = self.alignment.pad_action(self.alignment_names.get(env, env), actions)
+        return self.agent.q_values(name, agent_obs, actions, ids).min(axis=0)
+
+    def critic_probe(self, gamma: float) -> CriticProbe:
+        """A probe of this policy's episodes against the agent's own critic, discounted at `gamma`."""
+        from seal.learner.critic_probe import CriticProbe
+
+        return CriticProbe(self.critic_q, self, gamma)
+
     def __call__(self, env: str, obs: np.ndarray, task_ids: np.ndarray) -> np.ndarray:
         name, agent_obs, ids = self.agent_inputs(env, obs, task_ids)
         actions = np.asarray(self.agent.act(name, agent_obs, ids, self.deterministic))
@@ -89,8 +106,11 @@ def evaluate(
     collector: Collector | None = None,
     backend: str = "auto",
     draw: int | None = None,
+    probe: CriticProbe | None = None,
 ) -> dict[str, dict[str, dict[str, float]]]:
-    """Success rate and mean return per task: {env: {task: {"success": s, "return": r}}}.
+    """Success rate and mean return per task: {env: {task: {"success": s, "return": r}}}, and with
+    a `probe` the critic's mean Q at the episodes' first states and what they earned ("q_start",
+    "earned": `seal.learner.critic_probe`).
 
     `policy` should be deterministic. Pass a persistent `collector` (built with a seed of its
     own, ideally with `evaluation_replicas` replicas) to avoid rebuilding envs; otherwise one is
@@ -110,13 +130,17 @@ def evaluate(
         replicas = evaluation_replicas(episodes, count)
         collector = Collector(adapters, seed=seed, tasks=tasks, backend=backend, replicas=replicas)
     try:
-        raw = collector.evaluate(policy, episodes, draw=draw)
+        raw = collector.evaluate(policy, episodes, draw=draw, probe=probe)
     finally:
         if own:
             collector.close()
     return {
         env: {
-            task: {"success": float(v["success_rate"]), "return": float(v["mean_return"])}
+            task: {
+                "success": float(v["success_rate"]),
+                "return": float(v["mean_return"]),
+                **{k: float(v[k]) for k in ("q_start", "earned") if k in v},
+            }
             for task, v in per_task.items()
         }
         for env, per_task in raw.items()

@@ -23,6 +23,7 @@ from seal.experiments.kitchen import (
     arms,
     collapse_test,
     end_mean_q,
+    end_q_ratio,
     format_result,
     reward_test,
     rewards_alone_goal,
@@ -87,6 +88,14 @@ def test_end_mean_q_is_the_last_logged_mean_q() -> None:
     assert end_mean_q(train[train["key"] != "mean_q"]) is None
 
 
+def test_end_q_ratio_is_the_last_evaluations_probe_ratio() -> None:
+    rows = [(280, "eval_q_ratio/microwave", 4.0), (560, "mean_q", 9.0)]
+    rows += [(840, "eval_q_ratio/microwave", 1.25), (840, "eval_q/microwave", 500.0)]
+    train = pd.DataFrame(rows[::-1], columns=["grad_steps", "key", "value"])  # out of order
+    assert end_q_ratio(train) == 1.25
+    assert end_q_ratio(train[train["key"] == "mean_q"]) is None  # a run from before the probe
+
+
 def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() -> None:
     with warnings.catch_warnings():  # the v4 arms' candidate-reward warning (once per process)
         warnings.simplefilter("ignore", SealWarning)
@@ -95,7 +104,9 @@ def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() ->
         assert config.evaluation.mode == "async", name  # off the loop's critical path
         assert config.kind == "baseline" and config.envs["fk"].adapter == "franka_kitchen_dense"
         v4 = "_v4" in name
-        assert config.evaluation.stop_when_reached is not v4, name  # v4 arms run all epochs
+        # v4 arms and the learner tests run all epochs
+        runs_on = v4 or name.endswith("_critic_ln")
+        assert config.evaluation.stop_when_reached is not runs_on, name
         assert config.envs["fk"].options == {"reward_version": "v4" if v4 else "v3"}, name
         # 535 epochs x 280 steps = 149,800 env steps: within the issue's 150k budget.
         assert config.protocol.epochs * config.envs["fk"].episode_length == 149_800
@@ -123,16 +134,20 @@ def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() ->
             v3.envs["fk"].tasks,
         )
         assert v4.protocol.seeds == 3
-    for task in ("light_switch", "microwave"):  # the collapse test: one change to the v4 arm
-        v4, changed = configs[f"{task}_v4"], configs[f"{task}_v4_critic_ln"]
-        assert changed.agent == dataclasses.replace(v4.agent, critic_layer_norm=True)
-        assert not v4.agent.critic_layer_norm
-        assert (changed.training, changed.envs, changed.evaluation, changed.protocol.seeds) == (
-            v4.training,
-            v4.envs,
-            v4.evaluation,
-            v4.protocol.seeds,
-        )
+        # The learner tests (issue 54; issue 37's collapse test on v4): one change to the arm,
+        # with the v3 arm's stopping turned off as its records were made.
+        for base in (task, f"{task}_v4"):
+            plain, changed = configs[base], configs[f"{base}_critic_ln"]
+            assert changed.agent == dataclasses.replace(plain.agent, critic_layer_norm=True)
+            assert not plain.agent.critic_layer_norm
+            assert (changed.training, changed.envs, changed.protocol.seeds) == (
+                plain.training,
+                plain.envs,
+                3,
+            )
+            assert changed.evaluation == dataclasses.replace(
+                plain.evaluation, stop_when_reached=False
+            )
     with pytest.raises(SealError, match="unknown kitchen arm 'nope'"):
         arms(["nope"])
 

@@ -118,7 +118,10 @@ CONFIGS = {
 
 # Critic losses logged every epoch, per environment (Fig. 7).
 TRAIN = {
-    "baseline_mw": "{s},train,1,500,mw,critic_loss,{a}\n{s},train,2,1000,mw,critic_loss,{b}\n{s},train,2,1000,mw,actor_loss,-3.0\n",
+    "baseline_mw": "{s},train,1,500,mw,critic_loss,{a}\n{s},train,2,1000,mw,critic_loss,{b}\n{s},train,2,1000,mw,actor_loss,-3.0\n"
+    # The critic probe at each evaluation (issue 54): Q at the first states over what was earned.
+    "{s},train,1,500,mw,eval_q_ratio/drawer-close-v3,{a}\n{s},train,2,1000,mw,eval_q_ratio/drawer-close-v3,{b}\n"
+    "{s},train,1,500,mw,eval_q_ratio/reach-v3,{b}\n{s},train,2,1000,mw,eval_q_ratio/reach-v3,{a}\n",
     "high_fk": "{s},train,1,500,mw,critic_loss,{a}\n{s},train,1,500,fk,critic_loss,{b}\n{s},train,2,1000,mw,critic_loss,{b}\n{s},train,2,1000,fk,critic_loss,{a}\n",
 }
 
@@ -377,6 +380,7 @@ def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path
         "changes_fk.png",
         "changes_mw.png",
         "critic_loss.png",
+        "critic_overestimation.png",
         "success_fk.png",
         "success_mw.png",
     ]
@@ -400,7 +404,11 @@ def test_single_run_writes_into_the_run(groups: dict[str, Path]) -> None:
     run = groups["baseline_fk"] / "seed-0"
     result = report([run])
     assert result.out_dir == run and (run / "tables" / "update_counts.csv").is_file()
-    assert result.skipped == ["critic_loss.png: no critic_loss rows in the runs' train.csv"]
+    assert result.skipped == [
+        "critic_loss.png: no critic_loss rows in the runs' train.csv",
+        "critic_overestimation.png: no eval_q_ratio rows in the runs' train.csv "
+        "(runs from before the critic probe, or rewards that earn nothing positive)",
+    ]
 
 
 def test_several_groups_default_to_a_new_comparison_directory(groups: dict[str, Path]) -> None:

@@ -554,12 +554,12 @@ HUNG_SWEEP_S = 900
 """How long the SIGTERM test waits for a sweep's next step before calling it hung."""
 
 
-def _wait_until(ready, child: subprocess.Popen[str], what: str) -> None:  # noqa: ANN001
+def _wait_until(ready, child: subprocess.Popen[str], what: str, err: Path) -> None:  # noqa: ANN001
     # Only a hung sweep gets there: 180 s was reached once by a sweep that was working, starting Ray
     # and two trials on 2 cores beside three kitchen runs (round 11's full suite).
     deadline = time.monotonic() + HUNG_SWEEP_S
     while not ready():
-        assert child.poll() is None, f"the sweep ended before {what}: {child.communicate()[1]}"
+        assert child.poll() is None, f"the sweep ended before {what}: {err.read_text()}"
         assert time.monotonic() < deadline, f"never {what}"
         time.sleep(0.05)
 
@@ -579,38 +579,55 @@ def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
     sets = ["checkpoint.save_replay=true", "protocol.epochs=40", "evaluation.interval=2"]
     args = ["sweep", str(protocol), "--seeds", "0-1", "--out", str(tmp_path / "out")]
     args += ["--num-cpus", "2"] + [a for s in sets for a in ("--set", s)]
-    driver = subprocess.Popen(
-        [sys.executable, "-m", "seal.cli.main", *args],
-        env={**os.environ, "OMP_NUM_THREADS": "1"},
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        runs = tmp_path / "out" / "stop"
-        _wait_until(
-            lambda: (
-                all(len(read_evaluations(r)) >= 1 for r in runs.glob("*/seed-[01]"))
-                and len(list(runs.glob("*/seed-[01]"))) == 2
-            ),
-            driver,
-            "both trials evaluated",
+    stderr = tmp_path / "driver.err"
+    with stderr.open("w") as err_file:
+        driver = subprocess.Popen(
+            [sys.executable, "-m", "seal.cli.main", *args],
+            env={**os.environ, "OMP_NUM_THREADS": "1"},
+            stdout=subprocess.DEVNULL,
+            stderr=err_file,
+            text=True,
         )
+    runs = tmp_path / "out" / "stop"
+
+    def evaluated(seed: int) -> bool:
+        return any(len(read_evaluations(r)) >= 1 for r in runs.glob(f"*/seed-{seed}"))
+
+    def worker(seed: int) -> int:
+        (run,) = runs.glob(f"*/seed-{seed}")
+        return json.loads((run / ".seal.lock").read_text())["pid"]
+
+    # Seed 0 must still be running when the driver's SIGTERM comes, whatever the machine's speed:
+    # its worker is held (SIGSTOP) from its first evaluation until the driver has begun stopping
+    # the sweep, so its 40 epochs cannot finish first (issue 55: they did on a loaded machine).
+    held = None
+    try:
+        _wait_until(lambda: evaluated(0), driver, "seed 0 evaluated", stderr)
+        held = worker(0)
+        os.kill(held, signal.SIGSTOP)
+        _wait_until(lambda: evaluated(1), driver, "seed 1 evaluated", stderr)
         (group,) = runs.iterdir()
-        worker = json.loads((group / "seed-1" / ".seal.lock").read_text())["pid"]
-        os.kill(worker, signal.SIGTERM)  # a trial's worker gets the signal itself
+        os.kill(worker(1), signal.SIGTERM)  # a trial's worker gets the signal itself
 
         def seed_1_preempted() -> bool:
             trials = json.loads((group / "sweep.json").read_text())["trials"]
             return trials[1]["status"] == "preempted"
 
-        _wait_until(seed_1_preempted, driver, "seed 1 was recorded preempted")
+        _wait_until(seed_1_preempted, driver, "seed 1 was recorded preempted", stderr)
         driver.send_signal(signal.SIGTERM)
-        err = driver.communicate(timeout=HUNG_SWEEP_S)[1]
+        _wait_until(
+            lambda: "SIGTERM: stopping" in stderr.read_text(), driver, "the driver stopping", stderr
+        )
+        os.kill(held, signal.SIGCONT)  # now the driver's gentle cancel reaches it mid-run
+        held = None
+        driver.wait(timeout=HUNG_SWEEP_S)
     finally:
+        if held is not None:
+            os.kill(held, signal.SIGCONT)
         if driver.poll() is None:
             driver.kill()
             driver.wait()
+    err = stderr.read_text()
     assert driver.returncode == 143, err
     assert err.strip().splitlines()[-1] == (
         f"seal sweep: SIGTERM: stopped the sweep (2 preempted); resume with: seal sweep --resume {group}"

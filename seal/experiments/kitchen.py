@@ -160,6 +160,14 @@ def end_mean_q(train: pd.DataFrame) -> float | None:
     return float(q["value"].iloc[-1]) if len(q) else None
 
 
+def end_q_ratio(train: pd.DataFrame) -> float | None:
+    """The critic probe's ratio at a run's last evaluation (train.csv's `eval_q_ratio/<task>`, the
+    one task's: `seal.learner.critic_probe`), None for a run made before the probe: its critic's Q at
+    the evaluation episodes' first states over what they earned."""
+    q = train[train["key"].astype(str).str.startswith("eval_q_ratio/")]
+    return float(q.sort_values("grad_steps", kind="stable")["value"].iloc[-1]) if len(q) else None
+
+
 def run_kitchen_bench(
     seeds: int = 2,
     out: str | os.PathLike[str] = "reports/bench_kitchen",
@@ -198,7 +206,12 @@ def run_kitchen_bench(
             continue
         runs = [loaded[(arm.name, s)] for s in ran]
         figures = [
-            {"seed": s, **run_figures(r.metrics), "end_mean_q": end_mean_q(r.train)}
+            {
+                "seed": s,
+                **run_figures(r.metrics),
+                "end_mean_q": end_mean_q(r.train),
+                "end_q_ratio": end_q_ratio(r.train),
+            }
             for s, r in zip(ran, runs, strict=True)
         ]
         within = [_within_budget(f) for f in figures]
@@ -459,6 +472,10 @@ def _q(value: float | None) -> str:
     return "-" if value is None else f"{value:,.0f}"
 
 
+def _ratio(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
 def _listed(values: Sequence[float]) -> str:
     return ", ".join(f"{v:g}" for v in values)
 
@@ -508,7 +525,7 @@ def format_result(result: Mapping[str, Any]) -> str:
     width = max([24, *(len(a["label"]) for a in result["arms"].values())])
     lines = [
         f"{'arm':<{width}} {'reached':>7}  env steps to 90% per seed (M updates)   "
-        "best / final success / evaluations >= 90% after the first (of) / end mean Q",
+        "best / final success / evaluations >= 90% after the first (of) / end mean Q / end Q ratio",
         "-" * 92,
     ]
     for a in result["arms"].values():
@@ -520,7 +537,7 @@ def format_result(result: Mapping[str, Any]) -> str:
         )
         success = ", ".join(
             f"{f['best_success']:.1f}/{f['final_success']:.1f}/{f['held_90']} of {f['after_first']}"
-            f"/{_q(f['end_mean_q'])}"
+            f"/{_q(f['end_mean_q'])}/{_ratio(f.get('end_q_ratio'))}"
             for f in a["per_seed"]
         )
         lines.append(f"{a['label']:<{width}} {a['reached']:>7}  {cells:<38} {success}")

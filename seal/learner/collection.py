@@ -42,6 +42,7 @@ import numpy as np
 
 from seal.envs.base import EnvAdapter
 from seal.errors import SealError, UnknownNameError
+from seal.learner.critic_probe import CriticProbe
 
 BACKENDS = ("auto", "sync", "subproc-batched", "inline-batched", "gym-async")
 # inline-batched: how long the main process spins for a worker's answer (and a worker for the next
@@ -796,14 +797,20 @@ class Collector:
         policy: Policy | None,
         random_actions: bool,
         sink: TransitionSink | None,
+        probe: CriticProbe | None = None,
     ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
-        """One episode on each selected instance: per-instance (returns, successes, lengths)."""
+        """One episode on each selected instance: per-instance (returns, successes, lengths).
+        A `probe` sees every episode's first state and action and every step."""
         size = {env: len(ids) for env, ids in self._instance_ids.items()}
         returns = {env: np.zeros(k) for env, k in size.items()}
         successes = {env: np.zeros(k, dtype=bool) for env, k in size.items()}
         lengths = {env: np.zeros(k, dtype=np.int64) for env, k in size.items()}
         obs = self._backend.reset(running, seeds)
         actions = self._actions(policy, random_actions, running, obs)
+        if probe is not None:
+            probe.start(size)
+            for env, run in running.items():
+                probe.first(env, run, self._instance_ids[env][run], obs[env], actions[env])
         self._backend.step_async(running, actions)
         t = 0
         while running:
@@ -827,6 +834,8 @@ class Collector:
             for env, (next_obs, rewards, terminated, _, success) in results.items():
                 run = step_running[env]
                 returns[env][run] += rewards
+                if probe is not None:
+                    probe.step(env, run, rewards, next_obs, terminated)
                 successes[env][run] |= success > 0.5
                 lengths[env][run] += 1
                 if self.replicas == 1:
@@ -875,8 +884,11 @@ class Collector:
         episodes: int,
         active: Mapping[str, Sequence[bool] | np.ndarray] | None = None,
         draw: int | None = None,
+        probe: CriticProbe | None = None,
     ) -> dict[str, dict[str, dict[str, float]]]:
         """Mean success rate and return over `episodes` episodes per task: {env: {task: {...}}}.
+
+        With a `probe` (`seal.learner.critic_probe`), also the means of its `q_start` and `earned`.
 
         Pass a deterministic policy and use a Collector seeded apart from the training one.
         Episode e of a task resets with `episode_seed(seed, env, task, draw, e)`, so the results
@@ -898,6 +910,8 @@ class Collector:
         whole = isinstance(self._backend, _GymAsyncBackend)
         succ = {env: np.zeros((episodes, len(ts)), dtype=bool) for env, ts in self.tasks.items()}
         rets = {env: np.zeros((episodes, len(ts))) for env, ts in self.tasks.items()}
+        q_start = {env: np.zeros((episodes, len(ts))) for env, ts in self.tasks.items()}
+        earned = {env: np.zeros((episodes, len(ts))) for env, ts in self.tasks.items()}
         for first in range(0, episodes, reps):
             count = reps if whole else min(reps, episodes - first)
             running: Selection = {}
@@ -914,13 +928,16 @@ class Collector:
                     ],
                     dtype=np.uint32,
                 )
-            returns, successes, _ = self._run(running, seeds, policy, False, None)
+            returns, successes, _ = self._run(running, seeds, policy, False, None, probe)
             for env, run in running.items():
                 keep = first + run // len(self.tasks[env]) < episodes
                 run = run[keep]
                 rows, cols = first + run // len(self.tasks[env]), run % len(self.tasks[env])
                 succ[env][rows, cols] = successes[env][run]
                 rets[env][rows, cols] = returns[env][run]
+                if probe is not None:
+                    ids = self._instance_ids[env][run]
+                    q_start[env][rows, cols], earned[env][rows, cols] = probe.finish(env, run, ids)
         out: dict[str, dict[str, dict[str, float]]] = {}
         for env, ts in self.tasks.items():
             for i, task in enumerate(ts):
@@ -930,6 +947,9 @@ class Collector:
                         "mean_return": float(np.mean(rets[env][:, i])),
                         "episodes": float(episodes),
                     }
+                    if probe is not None:
+                        out[env][task]["q_start"] = float(np.mean(q_start[env][:, i]))
+                        out[env][task]["earned"] = float(np.mean(earned[env][:, i]))
         return out
 
     def _active_mask(

@@ -45,14 +45,15 @@ WANDB_EXTRA_HINT = 'pip install -e ".[wandb]"'
 
 
 def eval_scalars(loop: PhaseLoop) -> dict[str, float]:
-    """The scalars of the loop's latest evaluation: per-task success and return, per-env mean success."""
+    """The scalars of the loop's latest evaluation: per-task success and return, per-env mean
+    success, and the critic probe's rows (charts/<env>/eval_q_ratio/<task>, ...)."""
     scalars: dict[str, float] = {}
     for r in loop.last_rows:
         scalars[f"eval/{r['env']}/{r['task']}/success"] = float(r["success"])
         scalars[f"eval/{r['env']}/{r['task']}/return"] = float(r["return"])
     for env, per_task in loop.state.last_success.items():
         scalars[f"charts/{env}/mean_success"] = float(np.mean(list(per_task.values())))
-    return scalars
+    return {**scalars, **train_scalars(loop.last_critic_rows)}
 
 
 def train_scalars(rows: Sequence[TrainRow]) -> dict[str, float]:

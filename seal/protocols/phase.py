@@ -309,6 +309,8 @@ class PhaseLoop:
         self.batch_now: dict[str, np.ndarray] = {}
         """The per-task batch of the latest update (metrics.csv's `batch`)."""
         self.last_rows: list[MetricsRow] = []
+        self.last_critic_rows: list[TrainRow] = []
+        """The latest evaluation's critic-probe train rows (`critic_rows`)."""
         """metrics.csv rows of the latest evaluation, one per (env, task)."""
         self.pending_logs: dict[tuple[str, ...], torch.Tensor] = {}
         """Sums on the device of the agent's log values (by name tuple) since `_read_logs`."""
@@ -807,6 +809,7 @@ class PhaseLoop:
                     seed=0,
                     collector=self._eval_collector(),
                     draw=state.grad_steps,  # one evaluation per grad-step count: its own episode seeds
+                    probe=self.eval_policy.critic_probe(self.cfg.agent.gamma),
                 )
                 self.evaluated = Evaluated(state.epoch, state.grad_steps, agent)
                 self._record_evaluation(self._eval_rows(), results)
@@ -857,8 +860,10 @@ class PhaseLoop:
         """Write an evaluation's rows and pass it on: first crossings, scheduler, best.pt."""
         state, model, phase = self.state, self.model, self.phase
         rows = self._fill_rows(rows, results)
+        self.last_critic_rows = critic_rows(rows, results)
         with self.timed("log"), self.stop.protected():
             self.owner.rundir.log_eval(rows)
+            self.owner.rundir.log_train(self.last_critic_rows)
         self.last_rows = rows
         state.last_success = {
             e: {t: results[e][t]["success"] for t in model.env_tasks[e]} for e in phase.envs
@@ -1080,6 +1085,36 @@ _TRAIN_KEYS = {
     "charts/mean_q": "mean_q",
     "charts/entropy": "entropy",
 }
+
+
+def critic_rows(rows: Sequence[MetricsRow], results: Results) -> list[TrainRow]:
+    """train.csv rows of an evaluation's critic probe (`seal.learner.critic_probe`), per task:
+    `eval_q/<task>` (the critic's mean Q at the episodes' first states), `eval_earned/<task>` (what
+    they earned, bootstrapped past the time limit) and `eval_q_ratio/<task>` (their ratio, left out
+    where the episodes earned nothing positive)."""
+    from seal.learner.critic_probe import overestimation
+
+    out: list[TrainRow] = []
+    for row in rows:
+        r = results[row["env"]][row["task"]]
+        if "q_start" not in r:
+            continue
+        ratio = overestimation(r["q_start"], r["earned"])
+        values = {"eval_q": r["q_start"], "eval_earned": r["earned"], "eval_q_ratio": ratio}
+        out += [
+            {
+                "seed": row["seed"],
+                "phase": row["phase"],
+                "epoch": row["epoch"],
+                "grad_steps": row["grad_steps"],
+                "env": row["env"],
+                "key": f"{key}/{row['task']}",
+                "value": float(value),
+            }
+            for key, value in values.items()
+            if np.isfinite(value)
+        ]
+    return out
 
 
 def train_rows_for(key: str, value: float, model: PhaseModel) -> list[tuple[str, str, float]]:

@@ -331,6 +331,7 @@ class _Evaluation:
             seed=0,
             collector=self.collector,
             draw=int(request["draw"]),
+            probe=self.policy.critic_probe(self.config.agent.gamma),
         )
 
     def close(self) -> None:

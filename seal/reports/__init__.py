@@ -54,6 +54,7 @@ from seal.reports.load import RunData, _is_run_dir, load_run, run_dirs
 from seal.reports.plots import (
     XAxis,
     _plot_critic_loss,
+    _plot_overestimation,
     _plot_schedulers,
     _safe,
     column_colours,
@@ -419,6 +420,14 @@ def report(
         skipped.append("critic_loss.png: no critic_loss rows in the runs' train.csv")
     else:
         plots.append(loss_plot)
+    ratio_plot = _plot_overestimation(train, x, colours, layout.labels, plots_dir)
+    if ratio_plot is None:
+        skipped.append(
+            "critic_overestimation.png: no eval_q_ratio rows in the runs' train.csv "
+            "(runs from before the critic probe, or rewards that earn nothing positive)"
+        )
+    else:
+        plots.append(ratio_plot)
     plots.extend(_plot_schedulers(groups, plots_dir, skipped))
 
     return ReportResult(

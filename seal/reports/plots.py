@@ -360,6 +360,52 @@ def _plot_critic_loss(
     return _save(fig, plots / "critic_loss.png")
 
 
+def _plot_overestimation(
+    train: pd.DataFrame, x: XAxis, colours: dict[str, str], labels: dict[str, str], plots: Path
+) -> Path | None:
+    """plots/critic_overestimation.png: per task, the critic's Q at the evaluation episodes' first
+    states over what they earned (train.csv's `eval_q_ratio/<task>`, `seal.learner.critic_probe`),
+    mean ± std over seeds, per column; 1 is a critic that says what the policy earns."""
+    if train.empty:
+        return None
+    ratio = train[train["key"].astype(str).str.startswith("eval_q_ratio/")].copy()
+    if ratio.empty:
+        return None
+    task = ratio["key"].str.removeprefix("eval_q_ratio/")
+    ratio["env"] = ratio["env"].fillna("all").astype(str) + "\0" + task
+    curves = _mean_std_over_seeds(ratio, x, "value")
+    panels = list(dict.fromkeys(ratio["env"]))
+    across = min(len(panels), 5)
+    down = -(-len(panels) // across)
+    fig = Figure(figsize=(4.0 * across, 3.2 * down))
+    axes = fig.subplots(down, across, squeeze=False).ravel()
+    for ax, panel in zip(axes, panels, strict=False):
+        env, task_name = panel.split("\0")
+        panel_curves = curves[curves["env"] == panel]
+        for column in sorted(panel_curves["column"].unique(), key=_column_rank):
+            curve = panel_curves[panel_curves["column"] == column].sort_values("x")
+            std = curve["std"].fillna(0.0)
+            ax.plot(curve["x"], curve["mean"], color=colours[column], label=column)
+            ax.fill_between(
+                curve["x"],
+                curve["mean"] - std,
+                curve["mean"] + std,
+                color=colours[column],
+                alpha=0.2,
+                linewidth=0,
+            )
+        ax.axhline(1.0, color="black", linewidth=0.8, linestyle="--")
+        ax.set_xlabel("gradient steps" if x == "grad_steps" else "epoch")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.set_ylabel("Q at start / earned")
+        ax.set_title(f"{labels.get(env, env)}: {task_name}", fontsize="small")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize="x-small")
+    for ax in axes[len(panels) :]:
+        ax.set_visible(False)
+    return _save(fig, plots / "critic_overestimation.png")
+
+
 def _plot_schedulers(groups: Sequence[_Group], plots: Path, skipped: list[str]) -> list[Path]:
     """plots/scheduler_membership.png (and scheduler_budget.png for SMT) of runs with a scheduler.csv.
 
