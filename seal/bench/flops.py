@@ -24,6 +24,7 @@ import torch
 from seal.bench.timing import _timeit
 from seal.device import torch_threads
 from seal.errors import SealError
+from seal.learner.networks import critic_layers
 
 if TYPE_CHECKING:
     from seal.learner import Agent, AgentConfig, Batch, EnvSpec
@@ -261,11 +262,13 @@ def agent_update_shapes(
     (shared). The shared trunk is counted once per env's rows: an ideal implementation that ran
     both envs' rows through it in one product does the same multiply-adds. act_pad_to is ignored.
     """
+    trunk = critic_layers(getattr(config, config.critic_trunk_key), config.critic_block)
     if config.architecture == "seal":
         actor_hidden = (*config.translator_hidden, config.latent_dim, *config.trunk_hidden)
-        critic_hidden = config.critic_hidden if config.critic_sharing == "per_env" else actor_hidden
+        translator = (*config.translator_hidden, config.latent_dim)
+        critic_hidden = trunk if config.critic_sharing == "per_env" else (*translator, *trunk)
     else:
-        actor_hidden = critic_hidden = config.hidden
+        actor_hidden, critic_hidden = config.hidden, trunk
     return [
         UpdateShape(
             obs_dim=s.obs_dim,

@@ -97,6 +97,12 @@ class AgentConfig:
     # over ~1,190): LayerNorm bounds what the critic extrapolates (Ball et al. 2023, RLPD; Nauman et al. 2024, BRO).
     critic_layer_norm: bool = False
     """LayerNorm (a gain and bias per unit, per twin) between each hidden layer's affine map and its ReLU in the critics; the Q output layer stays linear."""
+    # Issue 54's second candidate, run only if LayerNorm leaves >= 3 of its 15 kitchen runs ending
+    # below 0.9 after crossing. Widths and depth from BRO's public code (naumix/BiggerRegularizedOptimistic,
+    # jaxrl/networks/critic_net.py: hidden_dims = 512, depth = 2, ~1.1 M parameters a critic), not the
+    # paper's ~5 M figure; the kitchen's MTMHSAC critic would take hidden = [512, 512] for that size.
+    critic_block: Literal["mlp", "bronet"] = "mlp"
+    """The critic trunk: "mlp" = ReLU layers of the widths key (LayerNorm with critic_layer_norm); "bronet" = BRO's residual net (`seal.learner.networks.ResidualMLP`): a Dense -> LN -> ReLU stem of the key's one width, then one block x + LN(Dense(ReLU(LN(Dense(x))))) per entry of the key (the widths key: `critic_trunk_key`). SEAL's shared-critic translators stay MLPs."""
     target_entropy: float | None = None
     """Target entropy of every task; None means -|A| of each env's own action size."""
     one_hot: bool = True
@@ -177,6 +183,7 @@ class AgentConfig:
                 f"agent.architecture: unknown value {self.architecture!r}; valid: {', '.join(ARCHITECTURES)}"
             )
         for key, valid in (
+            ("critic_block", ("mlp", "bronet")),
             ("shared_update", SHARED_UPDATES),
             ("critic_sharing", CRITIC_SHARINGS),
             ("init", INITS),
@@ -186,6 +193,12 @@ class AgentConfig:
                 raise ConfigError(
                     f"agent.{key}: unknown value {getattr(self, key)!r}; valid: {', '.join(valid)}"
                 )
+        trunk = getattr(self, self.critic_trunk_key)
+        if self.critic_block == "bronet" and len(set(trunk)) != 1:
+            raise ConfigError(
+                f'agent.{self.critic_trunk_key} = {list(trunk)}: agent.critic_block = "bronet" '
+                "needs one width (a residual block keeps its width), e.g. [512, 512] for BRO's 2 blocks of 512"
+            )
         if not isinstance(self.max_grad_norm, int | float) or not (
             math.isfinite(self.max_grad_norm) and self.max_grad_norm >= 0
         ):
@@ -218,6 +231,14 @@ class AgentConfig:
             raise ConfigError(
                 f"agent.target_entropy: expected a finite number or None, got {self.target_entropy!r}"
             )
+
+    @property
+    def critic_trunk_key(self) -> str:
+        """The widths key of the critic trunk: hidden (MTMHSAC), critic_hidden (SEAL's per-env
+        critics) or trunk_hidden (SEAL's shared critic)."""
+        if self.architecture == "mtmhsac":
+            return "hidden"
+        return "critic_hidden" if self.critic_sharing == "per_env" else "trunk_hidden"
 
     @property
     def critic_multi_head(self) -> bool:

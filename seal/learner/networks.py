@@ -116,25 +116,75 @@ class StackedMLP(nn.Module):
                 gain.fill_(1.0)
                 shift.zero_()
 
+    def layer(self, i: int, x: torch.Tensor) -> torch.Tensor:
+        """Layer i's affine map, then its LayerNorm if it has one (no activation)."""
+        weight, bias = self.weights[i], self.biases[i]
+        if self.ensemble == 1:
+            # squeeze, not [0]: its backward is a view, select's allocates and copies.
+            x = torch.addmm(bias.squeeze(0), x, weight.squeeze(0))
+        else:
+            if x.dim() == 2:
+                x = x.expand(self.ensemble, *x.shape)
+            x = torch.baddbmm(bias, x, weight)
+        if self.norm_gains:
+            gain, shift = self.norm_gains[i], self.norm_biases[i]
+            if self.ensemble == 1:
+                gain, shift = gain.squeeze(0), shift.squeeze(0)
+            x = torch.addcmul(shift, F.layer_norm(x, x.shape[-1:]), gain)
+        return x
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Apply all layers; see the class docstring for shapes."""
-        norms = zip(self.norm_gains, self.norm_biases, strict=True) if self.norm_gains else None
-        for weight, bias in zip(self.weights, self.biases, strict=True):
-            if self.ensemble == 1:
-                # squeeze, not [0]: its backward is a view, select's allocates and copies.
-                x = torch.addmm(bias.squeeze(0), x, weight.squeeze(0))
-            else:
-                if x.dim() == 2:
-                    x = x.expand(self.ensemble, *x.shape)
-                x = torch.baddbmm(bias, x, weight)
-            if norms is not None:
-                gain, shift = next(norms)
-                if self.ensemble == 1:
-                    gain, shift = gain.squeeze(0), shift.squeeze(0)
-                x = torch.addcmul(shift, F.layer_norm(x, x.shape[-1:]), gain)
+        for i in range(len(self.weights)):
             # In place: addmm/baddbmm keep their inputs, not their output, for backward.
-            x = F.relu(x, inplace=True)
+            x = F.relu(self.layer(i, x), inplace=True)
         return x
+
+
+class ResidualMLP(StackedMLP):
+    """BroNet (Nauman et al. 2024, "Bigger, Regularized, Optimistic"), for `ensemble` members: a
+    stem Dense -> LN -> ReLU of width w, then `blocks` residual blocks
+    x + LN(Dense(ReLU(LN(Dense(x))))); no activation after the last block (the Q head follows).
+
+    Its layers are a `StackedMLP`'s with LayerNorm, (1 + 2 * blocks) of width w in order (stem,
+    then each block's two), so checkpoints, transfer and the memory estimate read it as one.
+    `residual_widths` maps a widths key to it: `blocks` = the key's length, w its one width.
+    """
+
+    def __init__(self, in_dim: int, widths: Sequence[int], ensemble: int = 1) -> None:
+        if len(set(widths)) != 1:
+            raise ValueError(f"a residual MLP has one width, got {tuple(widths)}")
+        self.blocks = len(widths)
+        super().__init__(in_dim, residual_widths(widths), ensemble, layer_norm=True)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """The stem, then the blocks; shapes as `StackedMLP`'s."""
+        x = F.relu(self.layer(0, x), inplace=True)
+        for b in range(self.blocks):
+            h = F.relu(self.layer(1 + 2 * b, x), inplace=True)
+            x = x + self.layer(2 + 2 * b, h)
+        return x
+
+
+def residual_widths(widths: Sequence[int]) -> tuple[int, ...]:
+    """The layer widths of a `ResidualMLP` given a widths key: the stem and two layers per block
+    (one block per entry; BRO's default critic, 512 wide with 2 blocks, is [512, 512])."""
+    return tuple(widths[:1]) * (1 + 2 * len(widths))
+
+
+def critic_layers(widths: Sequence[int], block: str) -> tuple[int, ...]:
+    """The hidden layer widths one sample passes through in a critic trunk of `widths` under
+    `AgentConfig.critic_block` ("mlp": `widths` itself)."""
+    return residual_widths(widths) if block == "bronet" else tuple(widths)
+
+
+def hidden_stack(
+    in_dim: int, widths: Sequence[int], ensemble: int, layer_norm: bool, block: str = "mlp"
+) -> StackedMLP:
+    """A trunk of `widths`: a ReLU MLP (LayerNorm with `layer_norm`) or, for "bronet", a `ResidualMLP`."""
+    if block == "bronet":
+        return ResidualMLP(in_dim, widths, ensemble)
+    return StackedMLP(in_dim, widths, ensemble, layer_norm)
 
 
 class MultiHeadLinear(nn.Module):
@@ -244,6 +294,7 @@ class TaskNetwork(nn.Module):
         head_hidden: Sequence[int] = (),
         head_per_task: bool = False,
         layer_norm: bool = False,
+        block: str = "mlp",
     ) -> None:
         super().__init__()
         if head_hidden and ensemble != 1:
@@ -266,7 +317,7 @@ class TaskNetwork(nn.Module):
                     layer_norm,
                 )
             trunk_in = latent_dim
-        self.trunk = StackedMLP(trunk_in, trunk_hidden, ensemble, layer_norm)
+        self.trunk = hidden_stack(trunk_in, trunk_hidden, ensemble, layer_norm, block)
         self.heads = nn.ModuleDict(
             {
                 key: MLPHead(
@@ -347,6 +398,7 @@ class PerEnvCritic(nn.Module):
         hidden: Sequence[int],
         ensemble: int = 2,
         layer_norm: bool = False,
+        block: str = "mlp",
     ) -> None:
         super().__init__()
         self.segments = dict(segments)
@@ -360,6 +412,7 @@ class PerEnvCritic(nn.Module):
                     None,
                     ensemble,
                     layer_norm=layer_norm,
+                    block=block,
                 )
                 for key, segs in segments.items()
             }

@@ -193,6 +193,7 @@ class Agent:
                 config.critic_hidden,
                 ensemble=2,
                 layer_norm=config.critic_layer_norm,
+                block=config.critic_block,
             )
         else:
             self.critic = TaskNetwork(
@@ -203,6 +204,7 @@ class Agent:
                 translator,
                 ensemble=2,  # twin Q: qf1 and qf2 as one stacked network
                 layer_norm=config.critic_layer_norm,
+                block=config.critic_block,
             )
         self.log_alpha = nn.ParameterDict(
             {keys[s.name]: nn.Parameter(torch.empty(s.num_tasks)) for s in specs}

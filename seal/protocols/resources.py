@@ -29,6 +29,7 @@ from seal.device import ThreadChoice, choose_threads
 from seal.envs.base import EnvAdapter
 from seal.errors import ConfigError
 from seal.learner.config import AgentConfig, EnvSpec
+from seal.learner.networks import critic_layers
 from seal.learner.replay import available_memory_bytes, replay_bytes
 from seal.learner.sac import Agent
 from seal.protocols.config import ProtocolConfig
@@ -175,12 +176,14 @@ def _parameter_counts(agent: AgentConfig, specs: list[EnvSpec]) -> tuple[int, in
 
 
 def _widths(agent: AgentConfig, num_envs: int) -> tuple[int, int]:
-    """Summed hidden widths one sample passes through in the actor and in one critic."""
+    """Summed hidden widths one sample passes through in the actor and in one critic (a BroNet
+    trunk's stem and two layers per block: `critic_layers`)."""
+    trunk = sum(critic_layers(getattr(agent, agent.critic_trunk_key), agent.critic_block))
     if agent.architecture == "mtmhsac":
-        return sum(agent.hidden), sum(agent.hidden)
+        return sum(agent.hidden), trunk
     # Every env's translator sees only its own samples, so one translator's widths count.
     actor = sum(agent.translator_hidden) + agent.latent_dim + sum(agent.trunk_hidden)
-    critic = sum(agent.critic_hidden) if agent.critic_sharing == "per_env" else actor
+    critic = trunk if agent.critic_sharing == "per_env" else actor - sum(agent.trunk_hidden) + trunk
     return actor, critic
 
 

@@ -50,6 +50,9 @@ SHRINK = [
     "evaluation.episodes=1",
     "training.warmup_steps=0",
     "training.batch_per_task=4",
+    # A few updates an epoch: at --scale 0.0001 an update-count grid (evaluation.every_grad_steps)
+    # shrinks to ~2, so the protocols' 500-update epochs evaluated ~250 times (issue 55: 89 s).
+    "training.grad_steps_per_epoch=4",
     "agent.hidden=[8]",
     "agent.translator_hidden=[8]",
     "agent.latent_dim=8",
