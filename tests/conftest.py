@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -9,6 +12,37 @@ import pytest
 import torch
 
 from seal.envs.point import PointAdapter
+
+_INDUCTOR_CACHE = "TORCHINDUCTOR_CACHE_DIR"
+_OWN_CACHE = pytest.StashKey[str]()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """One inductor cache for the whole test run (issue 55), unless the caller chose one: the
+    compile tests share their kernels, and a cache another run filled (under other kernel caps:
+    DEVELOPERS.md, "Things learnt") is never read. Subprocesses inherit it."""
+    if _INDUCTOR_CACHE not in os.environ:
+        os.environ[_INDUCTOR_CACHE] = tempfile.mkdtemp(prefix="seal-test-inductor-")
+        config.stash[_OWN_CACHE] = os.environ[_INDUCTOR_CACHE]
+
+
+SLOW_TIMEOUT_S = 900
+"""pytest-timeout's limit for a slow test (pyproject's `timeout`, 300 s, is the fast tier's): the
+slowest, the compiled checkpoint round trip, took 157 s beside two kitchen runs (issue 55)."""
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """A slow test without a timeout of its own gets `SLOW_TIMEOUT_S`."""
+    for item in items:
+        if item.get_closest_marker("slow") and not item.get_closest_marker("timeout"):
+            item.add_marker(pytest.mark.timeout(SLOW_TIMEOUT_S))
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    own = config.stash.get(_OWN_CACHE, None)
+    if own is not None:
+        shutil.rmtree(own, ignore_errors=True)
+        del os.environ[_INDUCTOR_CACHE]
 
 
 @pytest.fixture

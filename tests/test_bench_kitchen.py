@@ -165,6 +165,7 @@ TINY = [
 """A kitchen arm shrunk to seconds: the plumbing only (epochs are each test's)."""
 
 
+@pytest.mark.slow
 def test_tiny_end_to_end(tmp_path, capsys) -> None:
     tiny = ["protocol.epochs=1", *TINY]
     result = run_kitchen_bench(seeds=1, out=tmp_path, overrides=tiny, only=["slide_cabinet_demos"])
@@ -479,6 +480,7 @@ def test_the_reward_test_sets_v4_against_v3_seed_for_seed_and_applies_the_rule()
     assert (reward_test(full)["made"], reward_test(full)["default"]) == (15, "v3")
 
 
+@pytest.mark.slow
 def test_a_run_a_session_left_unfinished_is_resumed_not_restarted(tmp_path) -> None:
     """`--reuse` continues an unfinished run from its last checkpoint (`seal run --resume`) in
     its own directory, where it used to start the seed again from epoch 1."""

@@ -31,6 +31,7 @@ def test_only_the_quickstart_arm() -> None:
         arms(["nope"])
 
 
+@pytest.mark.slow
 def test_tiny_end_to_end_writes_the_readme_pieces(tmp_path: Path) -> None:
     # Two seeds of the shipped file at tiny sizes (2 epochs of 2 updates): the plumbing only.
     docs = tmp_path / "docs"

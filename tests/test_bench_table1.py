@@ -108,6 +108,7 @@ TINY = [
 ]
 
 
+@pytest.mark.slow
 def test_tiny_end_to_end(tmp_path: Path) -> None:
     # One seed of High FK and its references, 2 epochs of 2 updates, 8-wide: the plumbing only.
     result = run_table1_bench(seeds=1, out=tmp_path, parallel=2, overrides=TINY, only=["high_fk"])

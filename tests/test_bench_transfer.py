@@ -210,6 +210,7 @@ TINY = [
 ]
 
 
+@pytest.mark.slow
 def test_tiny_end_to_end(tmp_path) -> None:
     # One seed of the minimum set, 2 epochs of 2 updates: the point is the plumbing, not learning.
     result = run_transfer_bench(seeds=1, out=tmp_path, parallel=4, overrides=TINY)

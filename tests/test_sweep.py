@@ -358,6 +358,7 @@ def tune_draws(tmp_path: Path, seed: int) -> list[dict[str, object]]:
     return [by_index[i] for i in range(len(by_index))]
 
 
+@pytest.mark.slow
 def test_tune_draws_the_same_samples_for_the_same_seed(ray_session, tmp_path: Path) -> None:  # noqa: ANN001
     samples = tune_draws(tmp_path, seed=7)
     # Tune's grid semantics: each of the 3 draws is made for every grid point, in grid order.
@@ -411,6 +412,7 @@ def test_two_seeds_give_two_run_dirs_and_one_table(
     assert data["failed"] == []
 
 
+@pytest.mark.slow
 def test_search_ranks_the_config_that_cannot_learn_last(ray_session, tmp_path: Path) -> None:  # noqa: ANN001
     from seal.sweep.search import search
 
@@ -444,6 +446,7 @@ def test_search_ranks_the_config_that_cannot_learn_last(ray_session, tmp_path: P
     assert metrics.stat().st_mtime_ns == before
 
 
+@pytest.mark.slow
 def test_resume_runs_the_pending_samples_as_drawn_and_keeps_finished_ones(
     ray_session, tmp_path: Path
 ) -> None:  # noqa: ANN001
@@ -564,6 +567,8 @@ def _wait_until(ready, child: subprocess.Popen[str], what: str, err: Path) -> No
         time.sleep(0.05)
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(3 * HUNG_SWEEP_S)  # its own waits give up at HUNG_SWEEP_S each
 def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
     ray_session, tmp_path: Path
 ) -> None:  # noqa: ANN001

@@ -38,6 +38,7 @@ def _tiny_group(out: Path, demos: int, capsys: pytest.CaptureFixture[str]) -> Pa
     return run.parent
 
 
+@pytest.mark.slow
 def test_tutorial_notebook_runs(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -516,6 +516,7 @@ def test_broken_kitchen_adapters_fail_the_semantic_check() -> None:
     assert blind["ok"] is False and blind["goal_reward"] < 9.0 and blind["spearman"] < 0.0
 
 
+@pytest.mark.slow
 def test_the_exploit_check_fails_a_reward_that_pays_for_hovering() -> None:
     sys.path.insert(0, str(pathlib.Path(__file__).parent))
     try:

@@ -148,6 +148,7 @@ def _broken(name: str) -> type:
     return getattr(broken_adapters, name)
 
 
+@pytest.mark.slow
 def test_the_approach_cycle_fails_a_reward_with_the_approach_term_inside_the_clip() -> None:
     # The kettle: v3 pays ~0.13 per step near its handle, so the clip eats the retreat's negative F.
     broken = _broken("ApproachPayingKitchen")(tasks=["kettle"]).semantic_check(

@@ -139,7 +139,11 @@ def _newest_epoch(run_dir: Path) -> int:
     return int(read_checkpoint(newest)["epoch"])
 
 
-@pytest.mark.parametrize("moment", range(MOMENTS))
+@pytest.mark.parametrize(
+    # Moments 0-3 in the fast tier, the later (longer) ones in the slow tier (issue 55).
+    "moment",
+    [m if m < 4 else pytest.param(m, marks=pytest.mark.slow) for m in range(MOMENTS)],
+)
 def test_a_signal_at_a_seeded_moment_saves_the_last_finished_epoch_and_resume_matches(
     moment: int,
     protocol: Path,
@@ -207,6 +211,7 @@ def test_a_signal_at_a_seeded_moment_saves_the_last_finished_epoch_and_resume_ma
     assert not list((run_dir / "checkpoints").glob(".*"))
 
 
+@pytest.mark.slow
 def test_an_epoch_that_outlasts_the_budget_is_rolled_back_when_it_runs_out(
     protocol: Path, references: Reference, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -267,6 +272,7 @@ def test_a_second_signal_during_the_save_aborts_it_and_the_previous_checkpoint_s
     _assert_same_rows(run_dir, references(_newest_epoch(run_dir)))
 
 
+@pytest.mark.slow
 def test_a_rollback_with_both_workers_busy_and_the_ring_full_resumes_exactly(
     protocol: Path, references: Reference, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -8,6 +8,7 @@ import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 # Runs in a fresh interpreter: a small SEAL agent (two envs, widths 32) and replay filled from the
 # seed, then 100 updates; prints the critic and actor losses of every update as JSON.
@@ -60,6 +61,7 @@ def _losses(seeds: list[int]) -> list[np.ndarray]:
     return results
 
 
+@pytest.mark.slow
 def test_same_seed_same_losses_in_separate_processes_other_seed_differs() -> None:
     first, second, other = _losses([0, 0, 1])
     assert first.shape == (100, 4)

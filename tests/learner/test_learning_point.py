@@ -7,9 +7,12 @@ the policy which of the 4 goals to reach.
 
 from __future__ import annotations
 
+import pytest
+
 from seal.experiments.learn import point_evidence
 
 
+@pytest.mark.slow
 def test_mtmhsac_solves_every_point_task_and_needs_the_one_hot() -> None:
     result = point_evidence(seed=0)
     # Uniform random actions spread the point ~0.1 * sqrt(50 / 3) = 0.4 per axis in 50 steps, so

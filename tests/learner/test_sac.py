@@ -450,6 +450,7 @@ def test_compiled_stages_are_cuda_graphs_on_cuda_only(monkeypatch: pytest.Monkey
     assert modes == [None, None]  # the critic's and the actor's stage, CPU's default mode
 
 
+@pytest.mark.slow
 def test_compiled_update_agrees_with_eager_and_is_deterministic() -> None:
     # A SEAL agent with both kinds of env (3 and 1 tasks: gathered and single Q heads), weighted.
     specs = [EnvSpec("mw", 6, 2, 3), EnvSpec("fk", 8, 3, 1)]
@@ -473,6 +474,7 @@ def test_compiled_update_agrees_with_eager_and_is_deterministic() -> None:
     np.testing.assert_allclose(got[19], want[19], rtol=1e-3)
 
 
+@pytest.mark.slow
 def test_cuda_mode_compiles_wherever_the_cpu_mode_does_and_agrees(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

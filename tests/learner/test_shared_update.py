@@ -202,6 +202,7 @@ _SCRIPT = textwrap.dedent(
 
 
 @pytest.mark.parametrize(("mode", "critics"), MODES)
+@pytest.mark.slow
 def test_same_seed_same_losses_in_two_processes_in_every_mode(mode: str, critics: str) -> None:
     procs = [
         subprocess.Popen(

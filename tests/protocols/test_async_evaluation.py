@@ -77,6 +77,7 @@ def _never_done(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(EvaluationWorker, "done", lambda self: False)
 
 
+@pytest.mark.slow
 def test_async_rows_equal_sync_rows_on_point(tmp_path: Path) -> None:
     path = tmp_path / "async_eval.toml"
     path.write_text(PROTOCOL)
@@ -99,6 +100,7 @@ class _Crash(LoopCallback):
             raise KeyboardInterrupt
 
 
+@pytest.mark.slow
 def test_a_pending_evaluation_is_rerun_on_resume(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -139,6 +141,7 @@ QUICKSTART_SMALL = [
 ]
 
 
+@pytest.mark.slow
 def test_async_rows_equal_sync_rows_on_the_quickstart_shape(tmp_path: Path) -> None:
     sync = run_seed(load_protocol(QUICKSTART, QUICKSTART_SMALL), 0, tmp_path / "sync")
     asyn = run_seed(

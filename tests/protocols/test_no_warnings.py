@@ -17,6 +17,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from franka_kitchen_dense import REWARD_VERSION
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -38,6 +39,7 @@ TINY = [
 ]
 
 
+@pytest.mark.slow
 def test_one_epoch_of_the_quickstart_warns_only_of_the_old_reward(tmp_path: Path) -> None:
     command = [sys.executable, "-W", "error::DeprecationWarning", "-m", "seal.cli.main", "run"]
     command += [str(ROOT / "protocols" / "quickstart.toml"), "--scale", "0.01", "--seeds", "0"]

@@ -78,6 +78,7 @@ def protocol(tmp_path: Path) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_overlap_is_deterministic_across_processes(protocol: Path, tmp_path: Path) -> None:
     here = run_seed(load_protocol(protocol), 0, tmp_path / "here").run_dir
     child = subprocess.run(
@@ -113,6 +114,7 @@ class _Crash(LoopCallback):
             raise KeyboardInterrupt
 
 
+@pytest.mark.slow
 def test_overlap_resumes_bitwise_after_a_checkpoint(protocol: Path, tmp_path: Path) -> None:
     config = load_protocol(protocol)
     reference = run_seed(config, 0, tmp_path / "ref").run_dir
