@@ -5,7 +5,9 @@
 With N > 0, the N-th epoch checkpoint's save is held after its temporary file is written and
 fsynced, just before the rename: the child creates MARKER and sleeps until the test kills it,
 exactly where a kill inside `atomic_save` leaves a full temporary file and no new checkpoint.
-With N = 0 the child runs `seal run` unchanged.
+With N = 0 the child runs `seal run` unchanged, except that its last epoch never ends: it sleeps
+there until the test kills it, so a kill at any delay lands on a run still going, however fast the
+machine (issue 55). Nothing before that point changes.
 """
 
 from __future__ import annotations
@@ -42,8 +44,23 @@ def _pause_in_nth_checkpoint(marker: Path, nth: int) -> None:
     checkpoint.os = patched  # type: ignore[assignment]
 
 
+def _hold_in_the_last_epoch() -> None:
+    import seal.protocols.phase as phase
+
+    real_end = phase.PhaseLoop._end_epoch
+
+    def end_epoch(loop: phase.PhaseLoop) -> bool:
+        if loop.state.epoch + 1 >= loop.phase.epochs:
+            time.sleep(600)
+        return real_end(loop)
+
+    phase.PhaseLoop._end_epoch = end_epoch  # type: ignore[method-assign]
+
+
 if __name__ == "__main__":
     marker, nth = Path(sys.argv[1]), int(sys.argv[2])
     if nth > 0:
         _pause_in_nth_checkpoint(marker, nth)
+    else:
+        _hold_in_the_last_epoch()
     sys.exit(main(sys.argv[3:]))

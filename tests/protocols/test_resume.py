@@ -75,8 +75,12 @@ def test_sigkill_then_resume_matches_uninterrupted_run(tmp_path: Path) -> None:
     # The same protocol in a child process, killed with SIGKILL at a random point after its
     # second checkpoint (epoch 6) and well before its end (epoch 24).
     out = tmp_path / "out"
+    # The child holds in its last epoch (tests/faults/pausing_child.py with N = 0), so the kill
+    # lands on a run still going however fast the machine is (issue 55).
+    holding = Path(__file__).resolve().parents[1] / "faults" / "pausing_child.py"
     child = subprocess.Popen(
-        _cli("run", str(path), "--out", str(out), "--quiet", "--no-report"),
+        [sys.executable, str(holding), str(out / "paused"), "0"]
+        + ["run", str(path), "--out", str(out), "--quiet", "--no-report"],
         env=_env(),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
