@@ -25,6 +25,7 @@ from seal.experiments.kitchen import (
     end_mean_q,
     end_q_ratio,
     format_result,
+    learner_test,
     reward_test,
     rewards_alone_goal,
     run_figures,
@@ -478,6 +479,59 @@ def test_the_reward_test_sets_v4_against_v3_seed_for_seed_and_applies_the_rule()
         full[task] = arm(task, *[(s, 30_000, 1.0) for s in range(3)], (3, None, 0.0))
         full[f"{task}_v4"] = arm(f"{task} v4", *[(s, 20_000, 1.0) for s in range(4)])
     assert (reward_test(full)["made"], reward_test(full)["default"]) == (15, "v3")
+
+
+def test_the_learner_test_applies_issue_54s_rule_and_the_reward_test_pairs_by_learner() -> None:
+    def arm(*seeds: tuple[int, bool, float]) -> dict:
+        """Runs as (seed, crossed within the budget, final success), stopping off."""
+        return {
+            "label": "",
+            "stop_when_reached": False,
+            "per_seed": [
+                {"seed": s, "reached": c, "env_steps": 30_000, "final_success": f}
+                for s, c, f in seeds
+            ],
+        }
+
+    five = (
+        "slide_cabinet",
+        "light_switch",
+        "bottom_left_burner",
+        "microwave",
+        "bottom_right_burner",
+    )
+    # Today's v3 records in shape: crossed in 8 of 15, ended >= 0.9 in 2.
+    plain = [[(0, True, 1.0), (1, True, 1.0), (2, True, 0.1)]] + [
+        [(0, True, 0.0), (1, i < 1, 0.0), (2, False, 0.0)] for i in range(4)
+    ]
+    runs = {t: arm(*p) for t, p in zip(five, plain, strict=True)}
+    # LayerNorm: crosses in 8 and ends in 3 of its first 14 runs; its last run cannot change it.
+    ln = [[(0, True, 1.0), (1, True, 1.0), (2, True, 1.0)]] + [
+        [(0, True, 0.0), (1, i < 1, 0.0), (2, False, 0.0)] for i in range(4)
+    ]
+    ln[-1].pop()
+    runs |= {f"{t}_critic_ln": arm(*p) for t, p in zip(five, ln, strict=True)}
+    test = learner_test(runs)
+    totals = ("made", "made_plain", "crossed", "crossed_plain", "ended_90", "ended_90_plain")
+    assert [test[k] for k in totals] == [14, 15, 8, 8, 3, 2]
+    assert test["default"] == "critic LN"  # more endings, as many crossings: decided at 14 of 15
+    assert test["tasks"]["slide_cabinet_critic_ln"]["ended_90_plain"] == [True, True, False]
+    # One fewer crossing: the last run could make it up, so it is open again.
+    runs["slide_cabinet_critic_ln"]["per_seed"][2]["reached"] = False
+    assert learner_test(runs)["default"] is None
+    # Ending in no more runs than the plain critic, with every run made: the plain critic stays.
+    runs["bottom_right_burner_critic_ln"]["per_seed"].append(
+        {"seed": 2, "reached": True, "env_steps": 30_000, "final_success": 0.0}
+    )
+    runs["slide_cabinet_critic_ln"]["per_seed"][2]["final_success"] = 0.0
+    assert learner_test(runs)["default"] == "plain"
+    # The reward test on the LayerNorm learner pairs <task>_v4_critic_ln with <task>_critic_ln,
+    # and the plain learner's reward test sees none of them.
+    runs["microwave_v4_critic_ln"] = arm((0, True, 1.0))
+    with_ln = reward_test(runs, "_critic_ln")
+    assert with_ln["tasks"]["microwave_v4_critic_ln"]["against"] == "microwave_critic_ln"
+    assert (with_ln["made"], with_ln["made_v3"]) == (1, 15)
+    assert reward_test(runs)["made"] == 0
 
 
 @pytest.mark.slow

@@ -27,6 +27,15 @@ import numpy as np
 
 from seal.errors import SealError, SealWarning, UnknownNameError
 from seal.evaluation import SUCCESS_TOLERANCE
+from seal.experiments.kitchen_rules import (
+    ENV_STEP_BUDGET,
+    RULE_SEEDS,
+    format_collapse_test,
+    format_rule_test,
+    rule_test,
+    within_budget,
+)
+from seal.experiments.kitchen_rules import collapse_test as _collapse_test
 from seal.experiments.transfer import (
     Arm,
     code_versions,
@@ -44,15 +53,13 @@ if TYPE_CHECKING:
 
 KITCHEN_LEARN = Path(__file__).resolve().parents[2] / "protocols" / "kitchen_learn"
 """The kitchen learning protocols."""
-ENV_STEP_BUDGET = 150_000
-"""Env steps per task within which each arm must reach 90% (issue 11)."""
 REWARDS_ALONE_NEEDED = 4
 """Issue 25: of the demonstration-free arms, at least this many reach 90% within the budget in at least one seed."""
 V4_TASKS_NEEDED = 4
 """Issue 37: of the five reward-v4 arms, at least this many reach 90% within the budget in ..."""
 V4_SEEDS_NEEDED = 2
 """... at least this many of ..."""
-V4_SEEDS = 3
+V4_SEEDS = RULE_SEEDS
 """... this many seeds."""
 
 
@@ -214,7 +221,7 @@ def run_kitchen_bench(
             }
             for s, r in zip(ran, runs, strict=True)
         ]
-        within = [_within_budget(f) for f in figures]
+        within = [within_budget(f) for f in figures]
         result_arms[arm.name] = {
             "label": arm.label,
             "protocol": str(arm.protocol.relative_to(KITCHEN_LEARN.parents[1])),
@@ -245,6 +252,8 @@ def run_kitchen_bench(
         },
         "collapse_test": collapse_test(result_arms),
         "reward_test": reward_test(result_arms),
+        "learner_test": learner_test(result_arms),
+        "reward_test_critic_ln": reward_test(result_arms, COLLAPSE_TEST_SUFFIX),
         "seeds": seeds,
         "overrides": list(overrides),
         "run_dirs": {f"{a}/seed-{s}": str(p) for (a, s), p in run_dirs.items()},
@@ -271,7 +280,7 @@ def rewards_alone_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     reached = [
         result_arms[name]["label"]
         for name in ran
-        if any(_within_budget(f) for f in result_arms[name]["per_seed"])
+        if any(within_budget(f) for f in result_arms[name]["per_seed"])
     ]
     return {
         "needed": REWARDS_ALONE_NEEDED,
@@ -296,10 +305,6 @@ def _verdict(reached: int, reachable: int, needed: int, *, all_ran: bool) -> dic
     return {"met": met, "all_ran": all_ran}
 
 
-def _within_budget(figures: Mapping[str, Any]) -> bool:
-    return bool(figures["reached"] and figures["env_steps"] <= ENV_STEP_BUDGET)
-
-
 def _v4_arms() -> list[str]:
     """The reward-v4 arms (the collapse test's are a learner change on v4, not v4's evidence)."""
     return [
@@ -316,7 +321,7 @@ def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     v4 = _v4_arms()
     ran = [name for name in v4 if name in result_arms]
     seeds = {name: result_arms[name]["per_seed"] if name in ran else [] for name in v4}
-    crossed = {name: sum(_within_budget(f) for f in runs) for name, runs in seeds.items()}
+    crossed = {name: sum(within_budget(f) for f in runs) for name, runs in seeds.items()}
     # A seed not yet run may still cross: the most seeds each arm can have crossed in.
     most = {name: crossed[name] + max(0, V4_SEEDS - len(seeds[name])) for name in v4}
     reached = [result_arms[name]["label"] for name in ran if crossed[name] >= V4_SEEDS_NEEDED]
@@ -337,135 +342,58 @@ def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-def _paired(
-    arm: Mapping[str, Any], other: Mapping[str, Any], keys: Sequence[str], other_suffix: str
-) -> dict[str, Any] | None:
-    """Two arms' figures seed for seed, over the seeds both ran (paired by number): `seeds`, and per
-    key the arm's list and the other's (`<key><other_suffix>`); None if they share no seed."""
-    theirs = {f["seed"]: f for f in other["per_seed"]}
-    pairs = [(f, theirs[f["seed"]]) for f in arm["per_seed"] if f["seed"] in theirs]
-    if not pairs:
-        return None
-    return {
-        "seeds": [f["seed"] for f, _ in pairs],
-        **{
-            f"{key}{suffix}": [p[i][key] for p in pairs]
-            for key in keys
-            for i, suffix in enumerate(("", other_suffix))
-        },
-    }
-
-
-def _judged(arm: Mapping[str, Any]) -> dict[str, Any]:
-    """An arm's runs of the seeds the reward test names (0 to `V4_SEEDS` - 1), each with its two
-    verdicts: crossed 90% within the budget, final success >= 90%."""
-    return {
-        "per_seed": [
-            {
-                **f,
-                "crossed": _within_budget(f),
-                "ended_90": f["final_success"] >= DEFAULT_THRESHOLD - SUCCESS_TOLERANCE,
-            }
-            for f in arm["per_seed"]
-            if f["seed"] < V4_SEEDS
-        ]
-    }
+def _tasks() -> list[str]:
+    """The five demonstration-free tasks the rules compare, as their v3 arms' names."""
+    return [name.removesuffix(V4_SUFFIX) for name in _v4_arms()]
 
 
 def collapse_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
-    """Issue 37's collapse test, per collapse-test arm run beside its v4 arm: seed for seed (the
-    seeds both ran), the final success and the evaluations >= 90% after the first (`held_90`), the
-    change's and v4 alone's."""
-    out: dict[str, Any] = {}
-    for name, arm in result_arms.items():
-        alone = name.removesuffix(COLLAPSE_TEST_SUFFIX)
-        if alone == name or alone not in result_arms:
-            continue
-        paired = _paired(arm, result_arms[alone], ("final_success", "held_90"), "_alone")
-        if paired is not None:
-            out[name] = {"against": alone, **paired}
-    return out
+    """Each `*_critic_ln` arm run beside its arm, seed for seed (`kitchen_rules.collapse_test`):
+    issue 37's collapse test on v4, issue 54's learner change on v3."""
+    return _collapse_test(result_arms, COLLAPSE_TEST_SUFFIX)
 
 
-def reward_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
-    """Issue 37's v4 against v3 over seeds 0 to `V4_SEEDS` - 1 of the five tasks, runs with stopping
-    off only: per task whose two arms share a seed, their first crossings within the budget and
-    final successes seed for seed; per side, the runs made and how many crossed and ended at >= 90%;
-    and the rule written before the other 14 of v3's runs (the kitchen README): v4 becomes the
-    default if it crosses in more runs than v3 and ends at >= 90% in at least as many. `default` is
-    "v4" or "v3" as soon as no run left to make could change it (as `_verdict` decides a goal),
-    None before; with every run made it is the rule applied to the totals."""
-    tasks: dict[str, Any] = {}
-    totals = dict.fromkeys(
-        ("made", "made_v3", "crossed", "crossed_v3", "ended_90", "ended_90_v3"), 0
-    )
-    for name in _v4_arms():
-        judged = {}
-        for suffix, arm_name in (("", name), ("_v3", name.removesuffix(V4_SUFFIX))):
-            arm = result_arms.get(arm_name)
-            # A run that stopped at its first crossing has no final success to set against another's.
-            if arm is None or arm.get("stop_when_reached", True):
-                continue
-            judged[suffix] = _judged(arm)
-            runs = judged[suffix]["per_seed"]
-            totals[f"made{suffix}"] += len(runs)
-            totals[f"crossed{suffix}"] += sum(f["crossed"] for f in runs)
-            totals[f"ended_90{suffix}"] += sum(f["ended_90"] for f in runs)
-        if len(judged) == 2:
-            paired = _paired(
-                judged[""], judged["_v3"], ("crossed", "ended_90", "final_success"), "_v3"
-            )
-            if paired is not None:
-                tasks[name] = {"against": name.removesuffix(V4_SUFFIX), **paired}
-    of = len(_v4_arms()) * V4_SEEDS
+def reward_test(result_arms: Mapping[str, Any], learner: str = "") -> dict[str, Any]:
+    """Issue 37's rule, v4 against v3 on one learner ("" the plain critic, `COLLAPSE_TEST_SUFFIX`
+    LayerNorm): `kitchen_rules.rule_test`, the old side's keys ending in "_v3"; `default` "v4" if
+    v4 crosses in more runs and ends at >= 90% in at least as many, "v3" if not, None while the
+    runs left could change it."""
+    pairs = [(f"{t}{V4_SUFFIX}{learner}", f"{t}{learner}") for t in _tasks()]
+    test = rule_test(result_arms, pairs, "_v3", strict="crossed", weak="ended_90")
+    wins = test["new_wins"]
+    return {**test, "default": None if wins is None else ("v4" if wins else "v3")}
 
-    def bounds(key: str, suffix: str) -> tuple[int, int]:
-        """The fewest and the most runs of `key` once all are made (a run left may go either way)."""
-        return totals[key + suffix], totals[key + suffix] + of - totals["made" + suffix]
 
-    crossed, crossed_v3 = bounds("crossed", ""), bounds("crossed", "_v3")
-    ended, ended_v3 = bounds("ended_90", ""), bounds("ended_90", "_v3")
-    default = None
-    if crossed[0] > crossed_v3[1] and ended[0] >= ended_v3[1]:
-        default = "v4"
-    elif crossed[1] <= crossed_v3[0] or ended[1] < ended_v3[0]:
-        default = "v3"
-    return {"tasks": tasks, "of": of, **totals, "default": default}
+def learner_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
+    """Issue 54's rule on the default reward (docs/hyperparameters.md): critic LayerNorm against
+    the plain critic on the five v3 arms; `default` "critic LN" if it ends at >= 90% in more runs
+    and crosses in at least as many, "plain" if not, None while the runs left could change it.
+    The old side's keys end in "_plain"."""
+    pairs = [(f"{t}{COLLAPSE_TEST_SUFFIX}", t) for t in _tasks()]
+    test = rule_test(result_arms, pairs, "_plain", strict="ended_90", weak="crossed")
+    wins = test["new_wins"]
+    return {**test, "default": None if wins is None else ("critic LN" if wins else "plain")}
 
 
 def _format_collapse_test(tests: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
-    return [
-        f"collapse test, {labels[name]} against {labels[t['against']]}, "
-        f"seed{'s' * (len(t['seeds']) != 1)} {_listed(t['seeds'])}: final "
-        f"success {_listed(t['final_success'])} against {_listed(t['final_success_alone'])}; "
-        f"evaluations >= 90% after the first {_listed(t['held_90'])} against {_listed(t['held_90_alone'])}"
-        for name, t in tests.items()
-    ]
+    return format_collapse_test(tests, labels)
 
 
-def _format_reward_test(test: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
-    if not any(name in labels for name in _v4_arms()):
+def _format_reward_test(
+    test: Mapping[str, Any], labels: Mapping[str, str], learner: str = ""
+) -> list[str]:
+    if not any(name + learner in labels for name in _v4_arms()):
         return []
-    lines = [
-        f"reward test, {labels[name]} against {labels[t['against']]}, "
-        f"seed{'s' * (len(t['seeds']) != 1)} {_listed(t['seeds'])}: crossed 90% within the budget "
-        f"{_listed(t['crossed'])} against {_listed(t['crossed_v3'])}; final success "
-        f"{_listed(t['final_success'])} against {_listed(t['final_success_v3'])}"
-        for name, t in test["tasks"].items()
-    ]
-    verdict = (
-        "not decided (the runs left could change it)"
-        if test["default"] is None
-        else f"{test['default']} (no run left to make can change it)"
-    )
-    lines.append(
-        f"reward test, v4 against v3, seeds 0-{V4_SEEDS - 1} of {test['of'] // V4_SEEDS} tasks: "
-        f"crossed 90% in {test['crossed']} of {test['made']} runs made against "
-        f"{test['crossed_v3']} of {test['made_v3']}, ended >= 90% in {test['ended_90']} against "
-        f"{test['ended_90_v3']}; the default by the rule (v4 if it crosses in more runs and ends "
-        f"in at least as many, of {test['of']} each): {verdict}"
-    )
-    return lines
+    what = "reward test" + (" with critic LN" if learner else "")
+    rule = "v4 if it crosses in more runs and ends in at least as many"
+    return format_rule_test(test, labels, what, "_v3", ("v4", "v3"), rule)
+
+
+def _format_learner_test(test: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
+    if not any(f"{t}{COLLAPSE_TEST_SUFFIX}" in labels for t in _tasks()):
+        return []
+    rule = "critic LN if it ends >= 90% in more runs and crosses in at least as many"
+    return format_rule_test(test, labels, "learner test", "_plain", ("critic LN", "plain"), rule)
 
 
 def _q(value: float | None) -> str:
@@ -474,10 +402,6 @@ def _q(value: float | None) -> str:
 
 def _ratio(value: float | None) -> str:
     return "-" if value is None else f"{value:.2f}"
-
-
-def _listed(values: Sequence[float]) -> str:
-    return ", ".join(f"{v:g}" for v in values)
 
 
 def _demos(run_dir: Path) -> dict[str, Any] | None:
@@ -565,6 +489,16 @@ def format_result(result: Mapping[str, Any]) -> str:
         _format_v4(goal["v4"]),
         *_format_collapse_test(result.get("collapse_test", {}), by_name),
         *(_format_reward_test(result["reward_test"], by_name) if "reward_test" in result else []),
+        *(
+            _format_learner_test(result["learner_test"], by_name)
+            if "learner_test" in result
+            else []
+        ),
+        *(
+            _format_reward_test(result["reward_test_critic_ln"], by_name, COLLAPSE_TEST_SUFFIX)
+            if "reward_test_critic_ln" in result
+            else []
+        ),
         *(
             [f"not run (--no-run found no finished run): {', '.join(result['missing'])}"]
             if result.get("missing")
