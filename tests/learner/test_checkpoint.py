@@ -61,7 +61,8 @@ def _params(agent: Agent) -> list[torch.Tensor]:
 
 @pytest.mark.parametrize(
     ("compile", "norm"),
-    [(False, False), (True, False), (False, True)],
+    # The compiled round trip is slow (157 s beside two kitchen runs: issue 55).
+    [(False, False), pytest.param(True, False, marks=pytest.mark.slow), (False, True)],
     ids=["eager", "compiled", "critic_layer_norm"],
 )
 def test_resume_then_update_is_bitwise_identical_to_updating_without_the_round_trip(
