@@ -78,8 +78,10 @@ class AgentPolicy:
         """The lower twin critic's Q (N,) of raw `obs` and `env`'s own `actions` (a
         `seal.learner.critic_probe.Critic`)."""
         name, agent_obs, ids = self.agent_inputs(env, obs, task_ids)
-        if self.alignment is not None:
-            actions = self.alignment.pad_action(self.alignment_names.get(env, env), actions)
+        actions = np.asarray(actions, dtype=np.float32)
+        width = self.agent.specs[name].act_dim
+        if actions.shape[1] < width:  # pad-and-fine-tune: the env's own entries, zeros after
+            actions = np.pad(actions, ((0, 0), (0, width - actions.shape[1])))
         return self.agent.q_values(name, agent_obs, actions, ids).min(axis=0)
 
     def critic_probe(self, gamma: float) -> CriticProbe:
