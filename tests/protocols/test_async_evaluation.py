@@ -56,7 +56,12 @@ interval = 4
 
 def _frames(run_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     metrics = pd.read_csv(run_dir / "metrics.csv").drop(columns="wall_s")
-    return metrics, pd.read_csv(run_dir / "train.csv")
+    # An asynchronous evaluation's critic-probe rows (eval_q/..., train.csv) are appended when its
+    # results come in, so their place among the training rows depends on timing: the same rows,
+    # compared in one order.
+    train = pd.read_csv(run_dir / "train.csv")
+    train = train.sort_values(["phase", "epoch", "grad_steps", "env", "key"], kind="stable")
+    return metrics, train.reset_index(drop=True)
 
 
 def _actor(path: Path) -> dict[str, torch.Tensor]:
