@@ -13,10 +13,11 @@ import torch
 import torch.nn.functional as F
 
 from seal.errors import ConfigError
-from seal.learner import Agent, AgentConfig, Batch, EnvSpec
+from seal.learner import Agent, AgentConfig, EnvSpec
 from seal.learner.checkpoint import read_checkpoint, save_checkpoint
 from seal.learner.networks import ResidualMLP
 from seal.learner.replay import MultiTaskReplay
+from tests.learner.test_shared_update import _batch
 
 SPEC = EnvSpec("fk", 59, 9, 1)
 SEAL_SPECS = [EnvSpec("mw", 5, 2, 3), EnvSpec("fk", 7, 3, 2)]
@@ -110,19 +111,6 @@ def test_memory_estimate_and_flop_count_learn_the_block() -> None:
     assert shape.actor_dims == [60, 64, 64, 18]
 
 
-def _batch(spec: EnvSpec, seed: int) -> Batch:
-    g = torch.Generator().manual_seed(seed)
-    n = 8
-    return Batch(
-        torch.randn(n, spec.obs_dim, generator=g),
-        torch.rand(n, spec.act_dim, generator=g) * 2 - 1,
-        torch.randn(n, generator=g),
-        torch.randn(n, spec.obs_dim, generator=g),
-        torch.zeros(n),
-        torch.randint(0, spec.num_tasks, (n,), generator=g),
-    )
-
-
 VARIANTS = {"layer_norm": {"critic_layer_norm": True}, "bronet": {"critic_block": "bronet"}}
 
 
@@ -135,7 +123,7 @@ def test_compiled_update_equals_eager(variant: str) -> None:
     eager = Agent(SEAL_SPECS, config, seed=0)
     compiled = Agent(SEAL_SPECS, replace(config, compile=True), seed=0)
     for step in range(3):
-        batches = {s.name: _batch(s, step) for s in SEAL_SPECS}
+        batches = {s.name: _batch(s, 8, step) for s in SEAL_SPECS}
         got, want = compiled.update(batches), eager.update(batches)
         assert got.keys() == want.keys()
         for key in want:  # fused kernels may round differently: close, not bitwise
