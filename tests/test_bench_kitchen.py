@@ -343,6 +343,10 @@ def test_the_collapse_test_sets_each_seed_against_v4_alone() -> None:
     assert collapse_test(result_arms) == {}
 
 
+FIVE = ("slide_cabinet", "light_switch", "bottom_left_burner", "microwave", "bottom_right_burner")
+"""The five demonstration-free tasks the rules compare."""
+
+
 def test_the_reward_test_sets_v4_against_v3_seed_for_seed_and_applies_the_rule() -> None:
     def arm(label: str, *seeds: tuple[int, int | None, float], stops: bool = False) -> dict:
         """Runs as (seed, env steps at the first crossing or None, final success)."""
@@ -428,13 +432,7 @@ def test_the_reward_test_sets_v4_against_v3_seed_for_seed_and_applies_the_rule()
         "runs and ends in at least as many, of 15 each): not decided (the runs left could change it)"
     )
 
-    five = (
-        "slide_cabinet",
-        "light_switch",
-        "bottom_left_burner",
-        "microwave",
-        "bottom_right_burner",
-    )
+    five = FIVE
     # Four tasks with seeds 0-3 and the fifth not run: v4 crosses and ends at >= 0.9 in 12 runs, v3
     # in none; the fifth task's 3 runs a side cannot change it, so v4 is decided with 12 of 15 made.
     full = {}
@@ -493,13 +491,7 @@ def test_the_learner_test_applies_issue_54s_rule_and_the_reward_test_pairs_by_le
             ],
         }
 
-    five = (
-        "slide_cabinet",
-        "light_switch",
-        "bottom_left_burner",
-        "microwave",
-        "bottom_right_burner",
-    )
+    five = FIVE
     # Today's v3 records in shape: crossed in 8 of 15, ended >= 0.9 in 2.
     plain = [[(0, True, 1.0), (1, True, 1.0), (2, True, 0.1)]] + [
         [(0, True, 0.0), (1, i < 1, 0.0), (2, False, 0.0)] for i in range(4)
