@@ -8,6 +8,8 @@ handler that lets the run go on sleeps out the rest):
 - ``none``: nowhere, `seal run` runs unchanged;
 - ``paced``: nowhere, but every epoch sleeps SECONDS after its collection and again before its
   evaluation, so that a test's seeded delay lands inside the epoch it aims at on any machine;
+  and its last epoch never ends before a signal comes (a test starved by a loaded machine finds
+  the run still going, issue 55);
 - ``evaluation``: at the start of the N-th evaluation;
 - ``epoch-end``: at the end of the N-th epoch's work, its collection in the replay (with
   `training.overlap` too), before its training curves and evaluation;
@@ -65,6 +67,18 @@ def _paced(seconds: float) -> None:
     phase.PhaseLoop._train = train  # type: ignore[method-assign]
 
 
+def _hold_in_the_last_epoch() -> None:
+    """The last epoch sleeps before its end until a signal's handling cuts the sleep short."""
+    real_end = phase.PhaseLoop._end_epoch
+
+    def end_epoch(loop: phase.PhaseLoop) -> bool:
+        if loop.state.epoch + 1 >= loop.phase.epochs:
+            time.sleep(600)
+        return real_end(loop)
+
+    phase.PhaseLoop._end_epoch = end_epoch  # type: ignore[method-assign]
+
+
 def _in_evaluation(marker: Path, nth: int, seconds: float) -> None:
     real_evaluate, seen = phase.evaluate, 0
 
@@ -114,6 +128,7 @@ if __name__ == "__main__":
         _at_epoch_end(marker, nth, seconds)
     elif where == "paced":
         _paced(seconds)
+        _hold_in_the_last_epoch()
     elif where in ("checkpoint", "signal-save"):
         _in_checkpoint_write(marker, nth, seconds, after_signal=where == "signal-save")
     elif where != "none":

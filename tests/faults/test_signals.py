@@ -182,6 +182,9 @@ def test_a_signal_at_a_seeded_moment_saves_the_last_finished_epoch_and_resume_ma
             print(f"moment {moment}: {signum.name} while held in {where} {nth}")
         before = _epochs_out(out)
         child.send_signal(signum)
+        # Rows out by now bound those out when the signal came from above: on a loaded machine
+        # this test may be descheduled between reading `before` and the signal (issue 55).
+        rows_after = _epochs_out(out)
         err = child.communicate(timeout=120)[1]
     finally:
         if child.poll() is None:
@@ -205,11 +208,12 @@ def test_a_signal_at_a_seeded_moment_saves_the_last_finished_epoch_and_resume_ma
     elif where == "checkpoint":  # held in the write of epoch nth * INTERVAL's checkpoint
         assert epoch == nth * INTERVAL and f"after epoch {epoch}" in line
     else:
-        assert before - 1 <= epoch <= before + 1, line
-        if epoch == before + 1:
-            assert "finished it" in line
-        if epoch == before - 1:  # its rows were out, its end not reached
-            assert "rolled back" in line
+        assert before - 1 <= epoch <= rows_after + 1, line
+        if before == rows_after:  # the rows out when the signal came are known exactly
+            if epoch == before + 1:
+                assert "finished it" in line
+            if epoch == before - 1:  # its rows were out, its end not reached
+                assert "rolled back" in line
 
     _resume(protocol, run_dir, capsys)
     _assert_same_rows(run_dir, references(epoch))
