@@ -16,7 +16,7 @@ handler that lets the run go on sleeps out the rest):
 - ``checkpoint``: inside the N-th epoch checkpoint's atomic write, its temporary file written
   and fsynced, before the rename;
 - ``signal-save``: inside the write of the checkpoint saved after a signal (the one a second
-  signal must abort), before the rename.
+  signal must abort), before the rename; its last epoch never ends before a signal, as ``paced``.
 """
 
 from __future__ import annotations
@@ -131,6 +131,8 @@ if __name__ == "__main__":
         _hold_in_the_last_epoch()
     elif where in ("checkpoint", "signal-save"):
         _in_checkpoint_write(marker, nth, seconds, after_signal=where == "signal-save")
+        if where == "signal-save":  # its first signal comes after a row seen, not at a hold
+            _hold_in_the_last_epoch()
     elif where != "none":
         raise SystemExit(f"signal_child.py: unknown WHERE {where!r}")
     sys.exit(main(sys.argv[5:]))
