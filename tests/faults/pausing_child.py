@@ -17,6 +17,8 @@ import sys
 import time
 from pathlib import Path
 
+from holds import hold_in_the_last_epoch  # this folder, on sys.path for a script
+
 import seal.learner.checkpoint as checkpoint
 from seal.cli.main import main
 
@@ -44,23 +46,10 @@ def _pause_in_nth_checkpoint(marker: Path, nth: int) -> None:
     checkpoint.os = patched  # type: ignore[assignment]
 
 
-def _hold_in_the_last_epoch() -> None:
-    import seal.protocols.phase as phase
-
-    real_end = phase.PhaseLoop._end_epoch
-
-    def end_epoch(loop: phase.PhaseLoop) -> bool:
-        if loop.state.epoch + 1 >= loop.phase.epochs:
-            time.sleep(600)
-        return real_end(loop)
-
-    phase.PhaseLoop._end_epoch = end_epoch  # type: ignore[method-assign]
-
-
 if __name__ == "__main__":
     marker, nth = Path(sys.argv[1]), int(sys.argv[2])
     if nth > 0:
         _pause_in_nth_checkpoint(marker, nth)
     else:
-        _hold_in_the_last_epoch()
+        hold_in_the_last_epoch()
     sys.exit(main(sys.argv[3:]))

@@ -27,6 +27,8 @@ import sys
 import time
 from pathlib import Path
 
+from holds import hold_in_the_last_epoch  # this folder, on sys.path for a script
+
 import seal.learner.checkpoint as checkpoint
 import seal.protocols.phase as phase
 from seal.cli.main import main
@@ -65,18 +67,6 @@ def _paced(seconds: float) -> None:
 
     phase.evaluate = evaluate  # type: ignore[assignment]
     phase.PhaseLoop._train = train  # type: ignore[method-assign]
-
-
-def _hold_in_the_last_epoch() -> None:
-    """The last epoch sleeps before its end until a signal's handling cuts the sleep short."""
-    real_end = phase.PhaseLoop._end_epoch
-
-    def end_epoch(loop: phase.PhaseLoop) -> bool:
-        if loop.state.epoch + 1 >= loop.phase.epochs:
-            time.sleep(600)
-        return real_end(loop)
-
-    phase.PhaseLoop._end_epoch = end_epoch  # type: ignore[method-assign]
 
 
 def _in_evaluation(marker: Path, nth: int, seconds: float) -> None:
@@ -128,11 +118,11 @@ if __name__ == "__main__":
         _at_epoch_end(marker, nth, seconds)
     elif where == "paced":
         _paced(seconds)
-        _hold_in_the_last_epoch()
+        hold_in_the_last_epoch()
     elif where in ("checkpoint", "signal-save"):
         _in_checkpoint_write(marker, nth, seconds, after_signal=where == "signal-save")
         if where == "signal-save":  # its first signal comes after a row seen, not at a hold
-            _hold_in_the_last_epoch()
+            hold_in_the_last_epoch()
     elif where != "none":
         raise SystemExit(f"signal_child.py: unknown WHERE {where!r}")
     sys.exit(main(sys.argv[5:]))
