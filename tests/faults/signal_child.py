@@ -2,8 +2,8 @@
 
     python signal_child.py MARKER WHERE N SECONDS seal-run-args...
 
-WHERE is where the child creates MARKER and sleeps SECONDS (a signal interrupts the sleep; a
-handler that lets the run go on sleeps out the rest):
+WHERE is where the child creates MARKER and holds until a signal has come and been handled, then
+SECONDS more (a handler that stops the run ends the hold at once):
 
 - ``none``: nowhere, `seal run` runs unchanged;
 - ``paced``: nowhere, but every epoch sleeps SECONDS after its collection and again before its
@@ -35,10 +35,35 @@ from seal.cli.main import main
 
 
 def _hold(marker: Path, seconds: float, text: str) -> None:
+    """Create the marker, then hold until a signal has come and been handled (600 s at most: only
+    a test that never signals reaches it), then `seconds` more. A hold of a fixed duration was
+    missed by a test starved on a loaded machine (issue 55)."""
+    came: list[int] = []
+    originals = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+
+    def handler(sig: int, frame: object) -> None:
+        came.append(sig)
+        original = originals[signal.Signals(sig)]
+        if callable(original):
+            original(sig, frame)
+        elif original == signal.SIG_DFL:  # the default action: die by the signal
+            signal.signal(sig, signal.SIG_DFL)
+            os.kill(os.getpid(), sig)
+
+    for s in originals:
+        signal.signal(s, handler)
     staged = marker.with_name(marker.name + ".tmp")
     staged.write_text(text)
     os.replace(staged, marker)  # the marker appears with its text
-    time.sleep(seconds)
+    try:
+        deadline = time.monotonic() + 600
+        while not came and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(seconds)
+    finally:
+        for s, original in originals.items():
+            if signal.getsignal(s) is handler:  # the run's own changes to its handlers stay
+                signal.signal(s, original)
 
 
 def _at_epoch_end(marker: Path, nth: int, seconds: float) -> None:
