@@ -56,6 +56,19 @@ class AgentPolicy:
         self.alignment_names = dict(
             alignment_names or {}
         )  # env name -> the alignment's (adapter) name
+        from seal.learner.task_encoder import BeliefMemory
+
+        self.memory = (
+            None
+            if agent.encoders is None
+            else BeliefMemory(lambda env: agent.encoder(self.agent_env.get(env, env)), agent.device)
+        )
+        """SMT's task encoder state per running instance (agent.task_encoder = "smt_gru"), else
+        None: the Collector steps it and hands this policy [obs | belief | step]."""
+        if self.memory is not None and alignment is not None:
+            raise SealError(
+                'agent.task_encoder = "smt_gru" does not run through a pad-and-fine-tune alignment; use "one_hot" or "none" in this phase'
+            )
 
     def agent_inputs(
         self, env: str, obs: np.ndarray, task_ids: np.ndarray

@@ -56,7 +56,7 @@ def test_seal_update_flop_formula_by_hand() -> None:
         latent_dim=3,
         trunk_hidden=(3,),
         critic_hidden=(3,),
-        one_hot=False,
+        task_encoder="none",
     )
     shapes = agent_update_shapes([EnvSpec("a", 2, 1, 1), EnvSpec("b", 2, 1, 1)], config, 1)
     assert shapes[0].actor_dims == [2, 3, 3, 3, 2] and shapes[0].critic_dims == [3, 3, 1]

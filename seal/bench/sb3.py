@@ -78,7 +78,7 @@ def _twin_sacs(
     # torch's Adam eps).
     config = AgentConfig(
         hidden=widths,
-        one_hot=False,
+        task_encoder="none",
         multi_head_policy=False,
         max_grad_norm=0.0,
         adam_eps=1e-8,

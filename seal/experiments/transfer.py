@@ -484,7 +484,7 @@ def _same_tables(saved: Mapping[str, Any], want: Mapping[str, Any]) -> bool:
         if table not in saved:
             continue
         defaults = _defaults(cls)
-        old = dict(saved[table])
+        old = AgentConfig.upgrade(saved[table]) if table == "agent" else dict(saved[table])
         for key, value in want.get(table, {}).items():
             if key not in old and key in defaults:
                 old[key] = defaults[key]

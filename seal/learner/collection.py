@@ -35,7 +35,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
-from typing import Protocol, cast
+from typing import TYPE_CHECKING, Protocol, cast
 
 import gymnasium as gym
 import numpy as np
@@ -43,6 +43,9 @@ import numpy as np
 from seal.envs.base import EnvAdapter
 from seal.errors import SealError, UnknownNameError
 from seal.learner.critic_probe import CriticProbe
+
+if TYPE_CHECKING:
+    from seal.learner.task_encoder import BeliefMemory
 
 BACKENDS = ("auto", "sync", "subproc-batched", "inline-batched", "gym-async")
 # inline-batched: how long the main process spins for a worker's answer (and a worker for the next
@@ -805,17 +808,27 @@ class Collector:
         returns = {env: np.zeros(k) for env, k in size.items()}
         successes = {env: np.zeros(k, dtype=bool) for env, k in size.items()}
         lengths = {env: np.zeros(k, dtype=np.int64) for env, k in size.items()}
+        # A policy with a task encoder (`seal.learner.task_encoder.BeliefMemory`) sees, and the
+        # probe and the sink get, observations with the belief and the episode step appended.
+        memory: BeliefMemory | None = getattr(policy, "memory", None)
         obs = self._backend.reset(running, seeds)
-        actions = self._actions(policy, random_actions, running, obs)
+        if memory is not None:
+            for env, run in running.items():
+                memory.start(env, run)
+        seen = self._seen(memory, running, obs)
+        actions = self._actions(policy, random_actions, running, seen)
         if probe is not None:
             probe.start(size)
             for env, run in running.items():
-                probe.first(env, run, self._instance_ids[env][run], obs[env], actions[env])
+                probe.first(env, run, self._instance_ids[env][run], seen[env], actions[env])
         self._backend.step_async(running, actions)
         t = 0
         while running:
             results = self._backend.step_wait()
             t += 1
+            if memory is not None:
+                for env, (next_obs, rewards, *_) in results.items():
+                    memory.advance(env, running[env], actions[env], rewards, next_obs)
             # Decide who keeps running and send their next actions before the bookkeeping of
             # this step, so worker processes step while the sink (replay) copies data.
             step_running, step_obs, step_actions = running, obs, actions
@@ -829,10 +842,19 @@ class Collector:
                     running[env] = step_running[env][~done]
                     obs[env] = next_obs[~done]
             if running:
-                actions = self._actions(policy, random_actions, running, obs)
+                actions = self._actions(
+                    policy, random_actions, running, self._seen(memory, running, obs)
+                )
                 self._backend.step_async(running, actions)
             for env, (next_obs, rewards, terminated, _, success) in results.items():
                 run = step_running[env]
+                before = step_obs[env]
+                if memory is not None:  # [obs | belief | step] before and after the step
+                    extra_before, extra_after = memory.last(env)
+                    before = np.concatenate((np.asarray(before, np.float32), extra_before), axis=1)
+                    next_obs = np.concatenate(
+                        (np.asarray(next_obs, np.float32), extra_after), axis=1
+                    )
                 returns[env][run] += rewards
                 if probe is not None:
                     probe.step(env, run, rewards, next_obs, terminated)
@@ -846,13 +868,22 @@ class Collector:
                     sink(
                         env,
                         self._instance_ids[env][run],
-                        step_obs[env],
+                        before,
                         step_actions[env],
                         rewards,
                         next_obs,
                         terminated,
                     )
         return returns, successes, lengths
+
+    @staticmethod
+    def _seen(
+        memory: BeliefMemory | None, running: Selection, obs: dict[str, np.ndarray]
+    ) -> dict[str, np.ndarray]:
+        """What the policy sees of the running instances: raw obs, or [obs | belief | step]."""
+        if memory is None:
+            return obs
+        return {env: memory.augment(env, run, obs[env]) for env, run in running.items()}
 
     def _actions(
         self,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
@@ -19,7 +20,9 @@ INITS = ("torch", "metaworld_algorithms")
 # Keys that no longer exist, with what replaced them (the protocol loader names the new key).
 RENAMED_KEYS = {
     "optimizer": 'agent.shared_update ("weighted", "sequential" or "per_env"; the old "per_env" is "per_env")',
+    "one_hot": 'agent.task_encoder ("one_hot", "none" or "smt_gru"; one_hot = true is "one_hot", false is "none")',
 }
+TASK_ENCODERS = ("one_hot", "none", "smt_gru")
 
 
 @dataclass(frozen=True)
@@ -105,8 +108,34 @@ class AgentConfig:
     """The critic trunk: "mlp" = ReLU layers of the widths key (LayerNorm with critic_layer_norm); "bronet" = BRO's residual net (`seal.learner.networks.ResidualMLP`): a Dense -> LN -> ReLU stem of the key's one width, then one block x + LN(Dense(ReLU(LN(Dense(x))))) per entry of the key (the widths key: `critic_trunk_key`). SEAL's shared-critic translators stay MLPs."""
     target_entropy: float | None = None
     """Target entropy of every task; None means -|A| of each env's own action size."""
-    one_hot: bool = True
-    """Append the one-hot task id (width num_tasks) to the observation inside the agent."""
+    task_encoder: Literal["one_hot", "none", "smt_gru"] = "one_hot"
+    """What tells the networks the task: "one_hot" = the one-hot task id (width num_tasks) appended inside the agent; "none" = nothing; "smt_gru" = SMT's task-embedding network (App. D, `seal.learner.task_encoder`): a GRU over the episode's (s, a, r) history whose belief (mean and log-variance of encoder_latent dims) the policy and critics take instead of the id."""
+    # SMT (Cho et al. 2024) App. D / Table 6 fixes these four; the VariBAD defaults fill the rest
+    # (docs/hyperparameters.md, "SMT's task encoder", names each source).
+    encoder_latent: int = 4
+    """smt_gru: Dim(h), the belief's latent size (SMT Table 6: 4 for MT10, 8 for MT50); the policy takes 2 x this (mean, log-variance)."""
+    encoder_gru: int = 256
+    """smt_gru: the GRU's hidden units (SMT App. D: 256)."""
+    encoder_hidden: tuple[int, ...] = (400, 400)
+    """smt_gru: ReLU layers between the GRU's state and the belief's mean and log-variance (SMT §5: two hidden layers of 400)."""
+    decoder_hidden: tuple[int, ...] = (400, 400)
+    """smt_gru: hidden widths of each of the reward, state and task decoders (SMT App. D: 2 x 400 ReLU)."""
+    encoder_lr: float = 1e-3
+    """smt_gru: Adam learning rate of the encoder and decoders (VariBAD's lr_vae)."""
+    encoder_kl_weight: float = 1.0
+    """smt_gru: weight of the KL term, KL(q_t || q_t-1) with q_-1 = N(0, I) (VariBAD's kl_weight and its default KL to the previous posterior)."""
+    decoder_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """smt_gru: weights of the reward, state and task-id reconstruction losses (VariBAD's rew/state loss coefficients; SMT adds the task term at the same weight)."""
+    encoder_interval: int = 1
+    """smt_gru: one encoder step per this many SAC updates (MT10 at paper scale: 10)."""
+    encoder_episodes: int = 16
+    """smt_gru: whole stored episodes in each encoder step's batch (VariBAD's vae_batch_num_trajs)."""
+    encoder_elbo_steps: int = 16
+    """smt_gru: beliefs per episode decoded in one encoder step (VariBAD's vae_subsample_elbos)."""
+    encoder_decode_steps: int = 32
+    """smt_gru: transitions of the episode each sampled belief decodes (VariBAD's vae_subsample_decodes; drawn from the whole episode, past and future)."""
+    encoder_refresh_interval: int = 0
+    """smt_gru: every this many SAC updates (checked before each epoch's updates), recompute the beliefs stored in the replay with the encoder as it is now, so updates train on today's m rather than collection's; 0 = never (the stored m stays the one collection saw)."""
     multi_head_policy: bool = True
     """One policy output head per task (False: one head shared by all tasks; ablation)."""
     multi_head_critic: bool = True
@@ -178,11 +207,52 @@ class AgentConfig:
                     f"agent.{key}: expected a non-empty list of positive ints, got {value!r}"
                 )
             object.__setattr__(self, key, widths)
+        for key in ("encoder_hidden", "decoder_hidden"):
+            value = getattr(self, key)
+            if (
+                not isinstance(value, list | tuple)
+                or not value
+                or any(not isinstance(w, int) or isinstance(w, bool) or w < 1 for w in value)
+            ):
+                raise ConfigError(
+                    f"agent.{key}: expected a non-empty list of positive ints, got {value!r}"
+                )
+            object.__setattr__(self, key, tuple(value))
+        weights = self.decoder_weights
+        if (
+            not isinstance(weights, list | tuple)
+            or len(weights) != 3
+            or any(not isinstance(w, int | float) or not math.isfinite(w) or w < 0 for w in weights)
+        ):
+            raise ConfigError(
+                f"agent.decoder_weights: expected 3 finite numbers >= 0 (reward, state, task id), got {weights!r}"
+            )
+        object.__setattr__(self, "decoder_weights", tuple(float(w) for w in weights))
+        for key in (
+            "encoder_latent",
+            "encoder_gru",
+            "encoder_interval",
+            "encoder_episodes",
+            "encoder_elbo_steps",
+            "encoder_decode_steps",
+        ):
+            value = getattr(self, key)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ConfigError(f"agent.{key}: expected a positive int, got {value!r}")
+        if (
+            not isinstance(self.encoder_refresh_interval, int)
+            or isinstance(self.encoder_refresh_interval, bool)
+            or self.encoder_refresh_interval < 0
+        ):
+            raise ConfigError(
+                f"agent.encoder_refresh_interval: expected an int >= 0 (0 = never), got {self.encoder_refresh_interval!r}"
+            )
         if self.architecture not in ARCHITECTURES:
             raise ConfigError(
                 f"agent.architecture: unknown value {self.architecture!r}; valid: {', '.join(ARCHITECTURES)}"
             )
         for key, valid in (
+            ("task_encoder", TASK_ENCODERS),
             ("critic_block", ("mlp", "bronet")),
             ("shared_update", SHARED_UPDATES),
             ("critic_sharing", CRITIC_SHARINGS),
@@ -211,7 +281,16 @@ class AgentConfig:
             )
         if not isinstance(self.latent_dim, int) or self.latent_dim < 1:
             raise ConfigError(f"agent.latent_dim: expected a positive int, got {self.latent_dim!r}")
-        for key in ("actor_lr", "critic_lr", "alpha_lr", "init_alpha", "lr_factor", "adam_eps"):
+        for key in (
+            "actor_lr",
+            "critic_lr",
+            "alpha_lr",
+            "init_alpha",
+            "lr_factor",
+            "adam_eps",
+            "encoder_lr",
+            "encoder_kl_weight",
+        ):
             value = getattr(self, key)
             if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
                 raise ConfigError(f"agent.{key}: expected a finite number > 0, got {value!r}")
@@ -231,6 +310,36 @@ class AgentConfig:
             raise ConfigError(
                 f"agent.target_entropy: expected a finite number or None, got {self.target_entropy!r}"
             )
+
+    @staticmethod
+    def upgrade(saved: Mapping[str, object]) -> dict[str, object]:
+        """An [agent] table a run saved, its keys renamed since mapped to today's (a run's own
+        record is data to read back; a protocol a user writes gets RENAMED_KEYS' message instead)."""
+        values = dict(saved)
+        if "one_hot" in values:  # saved before task_encoder (issue 56)
+            values.setdefault("task_encoder", "one_hot" if values.pop("one_hot") else "none")
+        return values
+
+    @classmethod
+    def from_saved(cls, saved: Mapping[str, object], **override: object) -> AgentConfig:
+        """The config a checkpoint saved (`dataclasses.asdict`), keys renamed since mapped to today's."""
+        return cls(**{**cls.upgrade(saved), **override})
+
+    @property
+    def one_hot(self) -> bool:
+        """Whether the one-hot task id is appended (task_encoder = "one_hot")."""
+        return self.task_encoder == "one_hot"
+
+    @property
+    def belief_dim(self) -> int:
+        """Width of the encoder's belief the networks take (2 x encoder_latent under smt_gru, else 0)."""
+        return 2 * self.encoder_latent if self.task_encoder == "smt_gru" else 0
+
+    @property
+    def obs_extra(self) -> int:
+        """Columns appended to each stored and acted-on observation: the belief and the episode step
+        under smt_gru (`seal.learner.task_encoder`), else 0."""
+        return self.belief_dim + 1 if self.task_encoder == "smt_gru" else 0
 
     @property
     def critic_trunk_key(self) -> str:

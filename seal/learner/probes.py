@@ -111,6 +111,12 @@ def latent_activations(
             f"latent_activations: the agent's architecture {agent.config.architecture!r} has no translators; "
             'only "seal" does'
         )
+    if agent.config.belief_dim:
+        raise SealError(
+            'latent_activations: under agent.task_encoder = "smt_gru" the translator also reads the '
+            "belief of an episode's history, which single observations do not have; probe a "
+            '"one_hot" or "none" agent'
+        )
     spec = agent.specs[env]
     obs_t = torch.as_tensor(np.asarray(obs), dtype=torch.float32, device=agent.device)
     ids_t = torch.as_tensor(np.asarray(task_ids), dtype=torch.long, device=agent.device)
@@ -231,7 +237,7 @@ def agent_from_state(state: AgentState, device: str = "cpu") -> Agent:
     Built on `device` and eager (compile off): a probe only runs forward passes.
     """
     specs = [EnvSpec(**spec) for spec in state["specs"]]
-    config = AgentConfig(**{**state["config"], "device": device, "compile": False})
+    config = AgentConfig.from_saved(state["config"], device=device, compile=False)
     agent = Agent(specs, config, seed=0)
     agent.load_state_dict(state)
     return agent

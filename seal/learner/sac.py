@@ -15,7 +15,7 @@ import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict
-from typing import NotRequired, TypedDict
+from typing import TYPE_CHECKING, NotRequired, TypedDict
 
 import numpy as np
 import torch
@@ -38,6 +38,8 @@ from seal.learner.networks import (
 )
 from seal.learner.optim import AdamCache, Slots, unique_parameters
 from seal.learner.staging import Stages
+from seal.learner.task_encoder import TaskEncoder
+from seal.learner.task_encoding import TaskEncoding
 from seal.learner.update import (
     EnvInputs,
     actor_stage,
@@ -47,6 +49,9 @@ from seal.learner.update import (
     sac_update,
 )
 from seal.seeding import stream
+
+if TYPE_CHECKING:
+    from seal.learner.replay import MultiTaskReplay
 
 # 2: per-env critics (critic_sharing), optimiser slots by shared_update, the cached ratio lever.
 STATE_FORMAT = 2
@@ -81,6 +86,10 @@ class AgentState(TypedDict):
     lr_factor: float
     num_updates: int
     ratio_lever: float | None
+    encoder: NotRequired[dict[str, torch.Tensor]]  # smt_gru: the task encoders and decoders
+    encoder_optimizer: NotRequired[dict[str, object]]
+    encoder_rng: NotRequired[dict[str, torch.Tensor]]
+    encoder_refreshed: NotRequired[int]  # num_updates at the last refresh of the replay's beliefs
 
 
 def module_key(name: str) -> str:
@@ -132,6 +141,7 @@ class Agent:
         }
         self._init_draws = 0
         self._build_networks(specs)
+        self._build_encoders(specs)
         self.target_entropy = {
             s.name: float(-s.act_dim if config.target_entropy is None else config.target_entropy)
             for s in specs
@@ -160,7 +170,16 @@ class Agent:
     def _build_networks(self, specs: Sequence[EnvSpec]) -> None:
         """The policy, the twin critics (per env or shared) and the per-task log temperatures."""
         config, keys = self.config, self._keys
-        task_segment = {s.name: ((("task", s.num_tasks),) if config.one_hot else ()) for s in specs}
+        task_segment = {
+            s.name: (
+                (("task", s.num_tasks),)
+                if config.one_hot
+                else (("belief", config.belief_dim),)
+                if config.belief_dim
+                else ()
+            )
+            for s in specs
+        }
         self.actor_segments: dict[str, Segments] = {
             keys[s.name]: (("obs", s.obs_dim), *task_segment[s.name]) for s in specs
         }
@@ -209,6 +228,41 @@ class Agent:
         self.log_alpha = nn.ParameterDict(
             {keys[s.name]: nn.Parameter(torch.empty(s.num_tasks)) for s in specs}
         )
+
+    def _build_encoders(self, specs: Sequence[EnvSpec], draw: bool = True) -> None:
+        """SMT's task encoders (agent.task_encoder = "smt_gru"): drawn once, kept by an SMT reset."""
+        self.task_encoding: TaskEncoding | None = None
+        if self.config.task_encoder == "smt_gru":
+            self.task_encoding = TaskEncoding(
+                specs, self._keys, self.config, self.seed, self.device, draw
+            )
+
+    @property
+    def encoders(self) -> nn.ModuleDict | None:
+        """Every env's task encoder and decoders (agent.task_encoder = "smt_gru"), else None."""
+        return None if self.task_encoding is None else self.task_encoding.modules
+
+    def encoder(self, name: str) -> TaskEncoder:
+        """Env `name`'s task encoder (agent.task_encoder = "smt_gru")."""
+        if self.task_encoding is None:
+            raise SealError(
+                f'agent.task_encoder is {self.config.task_encoder!r}, not "smt_gru": no task encoder'
+            )
+        return self.task_encoding.encoder(self._spec(name).name)
+
+    def update_encoder(
+        self, replay: MultiTaskReplay
+    ) -> tuple[tuple[str, ...], torch.Tensor] | None:
+        """`TaskEncoding.update` at this agent's update count; None without a task encoder."""
+        if self.task_encoding is None:
+            return None
+        return self.task_encoding.update(replay, self.num_updates)
+
+    def refresh_beliefs(self, replay: MultiTaskReplay) -> int:
+        """`TaskEncoding.refresh` at this agent's update count; 0 without a task encoder."""
+        if self.task_encoding is None:
+            return 0
+        return self.task_encoding.refresh(replay, self.num_updates)
 
     def _initialise(self) -> None:
         """Draw all weights, copy the target critics, set temperatures, build fresh optimisers.
@@ -294,6 +348,7 @@ class Agent:
         """SMT reset: re-draw the policy, Q networks and targets, reset temperatures and optimiser states.
 
         The learning-rate factor in force is kept; update and act counters and RNG streams go on.
+        SMT's task encoder, its decoders and their Adam are kept (SMT Algorithm 1, line 24).
         """
         self._initialise()
 
@@ -351,7 +406,10 @@ class Agent:
 
     # ------------------------------------------------------------------ acting
     def _actor_input(self, name: str, obs: torch.Tensor, task_ids: torch.Tensor) -> torch.Tensor:
-        """Raw obs with the one-hot task id appended when config.one_hot."""
+        """Raw obs with the one-hot task id appended when config.one_hot; under smt_gru the
+        observation [obs | belief | step] without its step."""
+        if self.config.obs_extra:
+            return obs[..., :-1]
         if not self.config.one_hot:
             return obs
         return torch.cat(
@@ -451,16 +509,21 @@ class Agent:
         actions_t = torch.from_numpy(actions).to(self.device)
         return self._actor_input(env_name, obs_t, ids_t), actions_t, ids_t
 
-    @staticmethod
     def _check_inputs(
-        env_name: str, spec: EnvSpec, obs: np.ndarray, task_ids: np.ndarray
+        self, env_name: str, spec: EnvSpec, obs: np.ndarray, task_ids: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """obs as float32 (N, obs_dim) and task ids as int64 (N,) in range, else SealError."""
+        """obs as float32 (N, obs_dim + obs_extra) and task ids as int64 (N,) in range, else SealError."""
         obs = np.asarray(obs, dtype=np.float32)
         task_ids = np.asarray(task_ids, dtype=np.int64)
-        if obs.ndim != 2 or obs.shape[1] != spec.obs_dim or task_ids.shape != (obs.shape[0],):
+        width = spec.obs_dim + self.config.obs_extra
+        if obs.ndim != 2 or obs.shape[1] != width or task_ids.shape != (obs.shape[0],):
+            under = (
+                " ([obs | belief | step] under smt_gru: act through seal.evaluation.AgentPolicy, whose BeliefMemory adds them)"
+                if self.config.obs_extra
+                else ""
+            )
             raise SealError(
-                f"{env_name!r}: expected obs (N, {spec.obs_dim}) and task_ids (N,), got {obs.shape} and {task_ids.shape}"
+                f"{env_name!r}: expected obs (N, {width}){under} and task_ids (N,), got {obs.shape} and {task_ids.shape}"
             )
         if task_ids.size and (task_ids.min() < 0 or task_ids.max() >= spec.num_tasks):
             raise SealError(
@@ -579,6 +642,7 @@ class Agent:
             *self.critic.parameters(),
             *self.critic_target.parameters(),
             *self.log_alpha.values(),
+            *(self.encoders.parameters() if self.encoders is not None else ()),
         ]
         return bool(torch.stack([torch.isfinite(p).all() for p in params]).all())
 
@@ -604,6 +668,7 @@ class Agent:
             "lr_factor": self._lr_factor,
             "num_updates": self.num_updates,
             "ratio_lever": self.last_ratio_lever,
+            **(self.task_encoding.state_dict() if self.task_encoding is not None else {}),
         }
 
     def load_state_dict(self, state: AgentState) -> None:
@@ -641,3 +706,5 @@ class Agent:
         self._init_draws = int(state.get("init_draws", 1))
         self.num_updates = int(state["num_updates"])
         self.last_ratio_lever = state["ratio_lever"]
+        if self.task_encoding is not None:
+            self.task_encoding.load_state_dict(state)

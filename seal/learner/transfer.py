@@ -349,7 +349,7 @@ def _input_map(
     An action segment wider than the env's actions (act_pad_to) gets zeros in the padding."""
     if [name for name, _ in source_segments] != [name for name, _ in segments]:
         raise SealError(
-            f"map_env: input segments {source_segments} (saved) and {segments} differ; both runs need the same agent.one_hot"
+            f"map_env: input segments {source_segments} (saved) and {segments} differ; both runs need the same agent.task_encoder"
         )
     out = torch.zeros(
         sum(w for _, w in source_segments), sum(w for _, w in segments), dtype=torch.float64

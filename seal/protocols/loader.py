@@ -346,7 +346,7 @@ def _build_agent(raw: Mapping[str, Any] | None, kind: str, device: str, file: st
     if kind == "finetune":
         # The aligned observation already carries the aligned one-hot id at a fixed index
         # (Appendix D), so by default the agent appends no second one.
-        defaults["one_hot"] = False
+        defaults["task_encoder"] = "none"
     # A preset's keys fill what the table leaves out; the table's own keys win (seal.learner.presets).
     defaults.update(preset_values(table.get("preset", ""), file))
     return typed_config.build(AgentConfig, table, f"{file}: agent", defaults)
@@ -413,6 +413,16 @@ def _check_kind_tables(config: ProtocolConfig, file: str) -> None:
         raise ConfigError(
             f'{file}: transfer is not used by kind = "finetune" (its [finetune] table transfers between phases); remove [transfer]'
         )
+
+
+def upgrade_saved(raw: dict[str, Any]) -> dict[str, Any]:
+    """A protocol a run saved (its config.toml, a checkpoint's copy), with [agent] keys renamed
+    since then mapped to today's (`AgentConfig.upgrade`)."""
+    from seal.learner.config import AgentConfig
+
+    if not isinstance(raw.get("agent"), dict):
+        return raw
+    return {**raw, "agent": AgentConfig.upgrade(raw["agent"])}
 
 
 def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolConfig:

@@ -589,7 +589,7 @@ class PhaseLoop:
             for random_actions, active in self._passes(plan):
                 with torch_threads(ACTING_THREADS):
                     stats = self.collector.collect_episodes(
-                        None if random_actions else self.train_policy,
+                        self.train_policy,  # random_actions: actions ignore it; its task encoder still reads the steps
                         active=active,
                         random_actions=random_actions,
                         sink=_ReplaySink(self.replay, self.model),
@@ -674,6 +674,8 @@ class PhaseLoop:
         }
         self.batch_now = {e: np.asarray(c, dtype=np.int64) for e, c in counts.items()}
         every = cfg.evaluation.every_grad_steps
+        with self.timed("update", count=False):
+            self.agent.refresh_beliefs(self.replay)  # smt_gru with encoder_refresh_interval
         with self.timed("update", count=False):  # a mid-epoch evaluation counts to itself
             for _ in range(self._grad_steps(plan, lengths)):
                 batches = self.replay.sample(sample_counts)
@@ -685,6 +687,11 @@ class PhaseLoop:
                 names, values = self.agent.update_on_device(batches)
                 sums = self.pending_logs.get(names)
                 self.pending_logs[names] = values if sums is None else sums + values
+                encoder_logs = self.agent.update_encoder(self.replay)
+                if encoder_logs is not None:  # smt_gru, every agent.encoder_interval updates
+                    names, values = encoder_logs
+                    sums = self.pending_logs.get(names)
+                    self.pending_logs[names] = values if sums is None else sums + values
                 state.grad_steps += 1
                 state.log_updates += 1
                 state.calls["update"] = state.calls.get("update", 0) + 1
@@ -729,8 +736,19 @@ class PhaseLoop:
             if episodes[e]
         }
 
-        def act(env: str, obs: np.ndarray, task_ids: np.ndarray) -> np.ndarray:
-            return np.stack([experts[env][i](o) for o, i in zip(obs, task_ids, strict=True)])
+        class Experts:
+            """The scripted experts; under smt_gru the agent's task encoder reads their steps
+            (the replay stores its beliefs), and each expert gets its raw observation."""
+
+            memory = model.policy(self.agent, deterministic=False).memory
+
+            def __call__(self, env: str, obs: np.ndarray, task_ids: np.ndarray) -> np.ndarray:
+                width = model.adapters[env].obs_dim
+                return np.stack(
+                    [experts[env][i](o[:width]) for o, i in zip(obs, task_ids, strict=True)]
+                )
+
+        act = Experts()
 
         steps = {e: 0 for e in experts}
         successes = {e: 0.0 for e in experts}

@@ -28,7 +28,7 @@ from seal.seeding import derive_seed
 if TYPE_CHECKING:
     from seal.envs.alignment import Alignment
     from seal.learner.collection import Collector
-    from seal.learner.config import AgentConfig
+    from seal.learner.config import AgentConfig, EnvSpec
     from seal.learner.sac import Agent
 
 ALIGNED_ENV = "aligned"
@@ -89,11 +89,25 @@ class PhaseModel:
         # The replay keeps one buffer per task of the env even where tasks share an aligned id
         # (the three kitchen doors), so the per-task update counts stay separate; sampled task
         # ids are mapped to aligned ids before the update.
+        # Under smt_gru each stored observation carries its belief and episode step
+        # (`seal.learner.task_encoder`): the replay's rows are that much wider.
         self.replay_specs = [
-            dataclasses.replace(s, num_tasks=len(self.env_tasks_of(s.name))) for s in self.specs
+            dataclasses.replace(
+                s,
+                num_tasks=len(self.env_tasks_of(s.name)),
+                obs_dim=s.obs_dim + config.agent.obs_extra,
+            )
+            for s in self.specs
         ]
         self.env_of_agent = {v: k for k, v in self.agent_env.items()}
         self.env_tasks = {e: tuple(a.tasks) for e, a in self.adapters.items()}
+
+    def specs_with_replay_tasks(self) -> list[EnvSpec]:
+        """The replay's specs without the task encoder's columns: raw observations."""
+        return [
+            dataclasses.replace(r, obs_dim=s.obs_dim)
+            for r, s in zip(self.replay_specs, self.specs, strict=True)
+        ]
 
     def env_tasks_of(self, agent_env: str) -> tuple[str, ...]:
         """The tasks of the env the agent calls `agent_env`."""

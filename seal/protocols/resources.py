@@ -20,7 +20,7 @@ with the host's available memory (`seal.learner.replay.available_memory_bytes`).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -51,6 +51,10 @@ class PhaseEstimate:
     """Trainable parameters of actor and critic (the target critic not counted)."""
     batch: int = 0
     """Transitions per gradient step over the phase's (env, task) pairs."""
+    encoder_parameters: int = 0
+    """Trainable parameters of SMT's task encoder and decoders (agent.task_encoder = "smt_gru")."""
+    replay_extra: int = 0
+    """Bytes of the replay that hold each row's belief and episode step (smt_gru), in `replay`."""
 
     @property
     def total(self) -> int:
@@ -86,9 +90,13 @@ class ResourceEstimate:
         """One line: the total, its parts and what is available."""
         p = self.peak
         avail = "unknown" if self.available is None else _gib(self.available)
+        beliefs = f" of which beliefs {_gib(p.replay_extra)}" if p.replay_extra else ""
+        encoder = (
+            f" and {p.encoder_parameters:,} of the task encoder" if p.encoder_parameters else ""
+        )
         return (
-            f"{_gib(p.total)} on {self.device} (phase {p.phase}: replay {_gib(p.replay)}, "
-            f"networks and optimiser state {_gib(p.networks)} for {p.parameters:,} parameters, "
+            f"{_gib(p.total)} on {self.device} (phase {p.phase}: replay {_gib(p.replay)}{beliefs}, "
+            f"networks and optimiser state {_gib(p.networks)} for {p.parameters:,} parameters{encoder}, "
             f"one update's activations {_gib(p.activations)}); available: {avail}"
         )
 
@@ -134,7 +142,7 @@ def check_resources(
 
 def _phase_estimate(config: ProtocolConfig, phase: Phase, model: PhaseModel) -> PhaseEstimate:
     try:
-        actor, critic = _parameter_counts(config.agent, model.specs)
+        actor, critic, encoder = _parameter_counts(config.agent, model.specs)
     except RuntimeError as exc:  # a layer wider than torch can index, even on the meta device
         key = _width_key(config.agent)
         first = (str(exc).strip().splitlines() or [""])[0][:200]
@@ -150,10 +158,14 @@ def _phase_estimate(config: ProtocolConfig, phase: Phase, model: PhaseModel) -> 
     return PhaseEstimate(
         phase=phase.name,
         replay=replay_bytes(model.replay_specs, config.replay.capacity_per_env),
-        networks=FLOAT * (4 * actor + 5 * critic),
+        # The encoder and decoders (smt_gru): weights, gradients and Adam's two moments.
+        networks=FLOAT * (4 * actor + 5 * critic + 4 * encoder),
         activations=batch * (FLOAT * per_sample + 8),
         parameters=actor + critic,
         batch=batch,
+        encoder_parameters=encoder,
+        replay_extra=replay_bytes(model.replay_specs, config.replay.capacity_per_env)
+        - replay_bytes(model.specs_with_replay_tasks(), config.replay.capacity_per_env),
     )
 
 
@@ -163,15 +175,21 @@ class _ShapesOnly(Agent):
     def _initialise(self) -> None:
         pass
 
+    def _build_encoders(self, specs: Sequence[EnvSpec], draw: bool = True) -> None:
+        super()._build_encoders(specs, draw=False)
 
-def _parameter_counts(agent: AgentConfig, specs: list[EnvSpec]) -> tuple[int, int]:
-    """(actor, critic) trainable parameters, from networks built on the meta device."""
+
+def _parameter_counts(agent: AgentConfig, specs: list[EnvSpec]) -> tuple[int, int, int]:
+    """(actor, critic, task encoder with its decoders) trainable parameters, from networks built
+    on the meta device."""
     shapes_only = dataclasses.replace(agent, device="cpu", compile=False)
     with torch.device("meta"):
         built = _ShapesOnly(specs, shapes_only, seed=0)
+    encoders = built.encoders.parameters() if built.encoders is not None else ()
     return (
         sum(p.numel() for p in built.actor.parameters()),
         sum(p.numel() for p in built.critic.parameters()),
+        sum(p.numel() for p in encoders),
     )
 
 

@@ -74,7 +74,13 @@ from seal.protocols.checkpoint_fields import (
 )
 from seal.protocols.checkpointing import Checkpointer
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.loader import config_from_dict, config_to_dict, dumps_toml, read_toml
+from seal.protocols.loader import (
+    config_from_dict,
+    config_to_dict,
+    dumps_toml,
+    read_toml,
+    upgrade_saved,
+)
 from seal.protocols.loggers import ScalarLogger, open_loggers
 from seal.protocols.mapped_start import mapped_start
 from seal.protocols.phase import LOOP_PARTS, LoopCallback, PhaseLoop, PhaseState, ProgressBar
@@ -595,7 +601,7 @@ def load_policy(
     """
     data = check_run_checkpoint(read_checkpoint(checkpoint), checkpoint)
     table = saved_config_table(data, checkpoint)
-    config = config_from_dict(table, f"checkpoint {checkpoint}: field config_toml")
+    config = config_from_dict(upgrade_saved(table), f"checkpoint {checkpoint}: field config_toml")
     phases = {p.name: p for p in plan_phases(config)}
     if data["phase"] not in phases:
         raise SealError(
@@ -625,7 +631,7 @@ def _saved_config(path: Path) -> ProtocolConfig:
     RunDir.open(path)
     config_path = path / "config.toml"
     raw = read_toml(config_path, what="run config", within=path, limit=CONFIG_LIMIT)
-    return config_from_dict(raw, str(config_path))
+    return config_from_dict(upgrade_saved(raw), str(config_path))
 
 
 def result_json(results: Sequence[RunResult]) -> str:

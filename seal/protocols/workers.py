@@ -368,7 +368,7 @@ class _Collection:
         for random_actions, active in request["passes"]:
             steps: list[Transition] = []
             stats = self.collector.collect_episodes(
-                None if random_actions else self.policy,
+                self.policy,  # random_actions: actions ignore it; its task encoder still reads the steps
                 active={e: np.asarray(m, dtype=bool) for e, m in active.items()},
                 random_actions=random_actions,
                 sink=lambda *step, _s=steps: _s.append(step),

@@ -103,7 +103,7 @@ def test_memory_estimate_and_flop_count_learn_the_block() -> None:
     from seal.protocols.resources import _parameter_counts, _widths
 
     config = AgentConfig(hidden=(64, 64), critic_block="bronet", device="cpu")
-    _, critic = _parameter_counts(config, [SPEC])
+    _, critic, _ = _parameter_counts(config, [SPEC])
     assert critic == _critic_size(config, [SPEC])
     assert _widths(config, 1) == (128, 5 * 64)  # the stem and two layers per block
     (shape,) = agent_update_shapes([SPEC], config, per_task=8)

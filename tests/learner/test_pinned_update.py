@@ -120,11 +120,21 @@ def machine() -> dict[str, str]:
 
 
 NEW_AT_DEFAULT = {
-    f"config.{f.name}": f.default
+    key: value
     for f in dataclasses.fields(AgentConfig)
     if f.default is not dataclasses.MISSING
+    for key, value in (
+        # A tuple field is stored flattened, one entry per element.
+        [(f"config.{f.name}.{i}", v) for i, v in enumerate(f.default)]
+        if isinstance(f.default, tuple)
+        else [(f"config.{f.name}", f.default)]
+    )
 }
 """A checkpoint's config entries at the dataclass's defaults."""
+
+
+RENAMED = {"config.one_hot": ("config.task_encoder", {True: "one_hot", False: "none"})}
+"""Config entries renamed after the pins were written: old key -> (new key, old value -> new)."""
 
 
 def _assert_same(got: object, want: object, where: str, atol: float = 0.0) -> None:
@@ -137,6 +147,11 @@ def _assert_same(got: object, want: object, where: str, atol: float = 0.0) -> No
         assert same, where
     elif isinstance(want, Mapping):
         assert isinstance(got, Mapping), where
+        want = dict(want)
+        for old, (new, values) in RENAMED.items():
+            if old in want and new in got:
+                assert got[new] == values[want.pop(old)], f"{where}.{new}"
+                want[new] = got[new]
         # A config field added after the pins were written, at its default, changes no behaviour.
         added = {
             k for k in set(got) - set(want) if k in NEW_AT_DEFAULT and got[k] == NEW_AT_DEFAULT[k]

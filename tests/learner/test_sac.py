@@ -143,7 +143,9 @@ def test_act_shapes_bounds_and_determinism() -> None:
 def test_one_hot_is_appended_inside_the_agent() -> None:
     spec = EnvSpec("e", 3, 1, 2)
     with_hot = Agent([spec], AgentConfig(**SMALL), seed=0)
-    without = Agent([spec], AgentConfig(one_hot=False, multi_head_policy=False, **SMALL), seed=0)
+    without = Agent(
+        [spec], AgentConfig(task_encoder="none", multi_head_policy=False, **SMALL), seed=0
+    )
     assert (
         with_hot.actor.trunk.weights[0].shape[1] == 5
         and without.actor.trunk.weights[0].shape[1] == 3
@@ -259,12 +261,12 @@ def test_transfer_between_padded_pseudo_envs_with_different_action_sizes() -> No
     # Aligned obs already carry the one-hot; the critic's action input is fixed at 9 for both phases.
     kitchen = Agent(
         [EnvSpec("aligned-kitchen", 40, 9, 12, act_pad_to=9)],
-        AgentConfig(one_hot=False, **SMALL),
+        AgentConfig(task_encoder="none", **SMALL),
         seed=0,
     )
     metaworld = Agent(
         [EnvSpec("aligned-metaworld", 40, 4, 12, act_pad_to=9)],
-        AgentConfig(one_hot=False, **SMALL),
+        AgentConfig(task_encoder="none", **SMALL),
         seed=1,
     )
     assert (
@@ -276,7 +278,7 @@ def test_transfer_between_padded_pseudo_envs_with_different_action_sizes() -> No
         assert torch.equal(a, b)
     reinit = Agent(
         [EnvSpec("aligned-metaworld", 40, 4, 12, act_pad_to=9)],
-        AgentConfig(one_hot=False, reinit_critic_on_transfer=True, **SMALL),
+        AgentConfig(task_encoder="none", reinit_critic_on_transfer=True, **SMALL),
         seed=1,
     )
     before = [p.detach().clone() for p in reinit.critic.parameters()]

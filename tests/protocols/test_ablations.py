@@ -21,7 +21,11 @@ def test_every_shipped_protocol_takes_the_switches_from_set(path: Path) -> None:
         # multi_head_critic may be None (the learner's per-architecture default): "on" flips it.
         flipped = not bool(getattr(base, switch))
         value = "true" if flipped else "false"
-        agent = load_protocol(path, [f"agent.{switch}={value}"]).agent
+        if switch == "one_hot":  # a property of agent.task_encoder
+            key, value = "task_encoder", '"one_hot"' if flipped else '"none"'
+        else:
+            key = switch
+        agent = load_protocol(path, [f"agent.{key}={value}"]).agent
         assert getattr(agent, switch) is flipped, (path.name, switch)
         # The other switches are untouched.
         for other in set(SWITCHES) - {switch}:
@@ -41,7 +45,7 @@ tasks = ["east", "north"]
 episode_length = 10
 [agent]
 hidden = [8, 8]
-one_hot = {one_hot}
+task_encoder = {one_hot}
 multi_head_policy = {mhp}
 multi_head_critic = {mhc}
 [training]
@@ -64,7 +68,9 @@ def test_switches_from_the_agent_table_shape_the_trained_networks(
 ) -> None:
     path = tmp_path / "abl.toml"
     low = {True: "true", False: "false"}
-    path.write_text(TINY.format(one_hot=low[one_hot], mhp=low[mhp], mhc=low[mhc]))
+    path.write_text(
+        TINY.format(one_hot='"one_hot"' if one_hot else '"none"', mhp=low[mhp], mhc=low[mhc])
+    )
     run = run_seed(load_protocol(path), 0, tmp_path / "r").run_dir
     agent = read_checkpoint(run / "checkpoints" / "best.pt")["agent"]
     # Point: 4 obs floats, 2 actions, 2 tasks. Actor input = obs (+ 2 one-hot columns); its head

@@ -41,7 +41,7 @@ critic_hidden = [5]
         ("point", []),
         ("two", []),
         ("two", ['agent.critic_sharing="shared"']),
-        ("two", ["agent.one_hot=false", "agent.multi_head_policy=false"]),
+        ("two", ['agent.task_encoder="none"', "agent.multi_head_policy=false"]),
     ],
 )
 def test_parameter_count_is_the_real_agents(

@@ -29,6 +29,8 @@ SHIPPED = [
     # issue 5: schedulers, curricula and transfer
     "mt1_pick_place",
     "mt10_smt",
+    # issue 56: the one-hot ablation of SMT's task encoder
+    "mt10_smt_one_hot",
     "mt3_curriculum_v1",
     "mt10_curriculum_v1",
     "mt10_progressive_sequential",
@@ -43,7 +45,14 @@ EXTRA: dict[str, list[str]] = {
     "mt3_transfer": ["training.grad_steps_per_epoch=-1"],
     "mt10_curriculum_v1": ["scheduler.grad_steps=-1"],
     # Eq. 5 scores build their own env instances: at most once in the smoke run (T_eval past it).
-    "mt10_smt": ["scheduler.score_episodes=1", "scheduler.score_interval=100000000"],
+    "mt10_smt": [
+        "scheduler.score_episodes=1",
+        "scheduler.score_interval=100000000",
+        "agent.encoder_gru=8",
+        "agent.encoder_hidden=[8]",
+        "agent.decoder_hidden=[8]",
+    ],
+    "mt10_smt_one_hot": ["scheduler.score_episodes=1", "scheduler.score_interval=100000000"],
     "joint_smt": ["scheduler.score_episodes=1", "scheduler.score_interval=100000000"],
 }
 SHRINK = [
