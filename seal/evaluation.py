@@ -60,7 +60,7 @@ class AgentPolicy:
 
         self.memory = (
             None
-            if agent.encoders is None
+            if getattr(agent, "encoders", None) is None
             else BeliefMemory(lambda env: agent.encoder(self.agent_env.get(env, env)), agent.device)
         )
         """SMT's task encoder state per running instance (agent.task_encoder = "smt_gru"), else

@@ -197,6 +197,8 @@ class TaskEncoding:
             return None
         names, losses, values = [], [], []
         for name, spec in self.specs.items():
+            if not replay.size[name].any():  # an env with no data yet (a ratio of 0) waits
+                continue
             generator = self.generators[name]
             episodes = self.episodes[name].sample(
                 replay, name, config.encoder_episodes, generator, spec.obs_dim
@@ -210,6 +212,8 @@ class TaskEncoding:
                 else f"losses/{name}/encoder_{k}"
                 for k in LOSSES
             ]
+        if not losses:
+            return None
         self.optimizer.zero_grad(set_to_none=True)
         torch.stack(losses).sum().backward()
         if config.max_grad_norm:
