@@ -28,6 +28,10 @@ from seal.protocols import load_protocol, run_seed
 from seal.protocols.rundir import DirLock
 from tests.faults.point_protocol import point_protocol
 
+# The children here are whole seal runs; on a loaded machine one takes minutes. Every wait is for an
+# event (a file, a row, the child's exit), never a duration: this limit only catches a hang.
+pytestmark = pytest.mark.timeout(900)
+
 EPOCHS = 12
 PROTOCOL = point_protocol("faults", EPOCHS)
 CHILD = Path(__file__).with_name("pausing_child.py")
@@ -71,11 +75,9 @@ def _start_child(protocol: Path, out: Path, pause_at: int) -> subprocess.Popen[b
 
 
 def _wait_for(child: subprocess.Popen[bytes], ready: Callable[[], bool]) -> None:
-    deadline = time.monotonic() + 120  # only a hung child reaches it
     while not ready():
         if child.poll() is not None:
             return
-        assert time.monotonic() < deadline, "the child never got there"
         time.sleep(0.01)
 
 
@@ -117,7 +119,7 @@ def test_sigkill_at_a_seeded_moment_then_resume_matches_the_uninterrupted_run(
             time.sleep(delay)
     finally:
         child.send_signal(signal.SIGKILL)
-        child.wait(timeout=30)
+        child.wait()
     assert child.returncode == -signal.SIGKILL, "the child finished before the kill"
     (run_dir,) = out.glob("faults/*/seed-0")
     if pause_at:
@@ -302,7 +304,7 @@ def test_a_second_writer_is_refused_and_no_row_is_duplicated(
         assert (run_dir / "metrics.csv").read_bytes() == before
     finally:
         child.send_signal(signal.SIGKILL)
-        child.wait(timeout=30)
+        child.wait()
     _resume(protocol, run_dir, capsys)  # the killed holder's lock is gone with it
     _assert_same_rows(run_dir, reference[0])
 

@@ -29,6 +29,10 @@ from seal.protocols.phase import PhaseLoop
 from seal.protocols.rundir import RunDir
 from tests.faults.point_protocol import point_protocol
 
+# The children here are whole seal runs; on a loaded machine one takes minutes. Every wait is for an
+# event (a file, a row, the child's exit), never a duration: this limit only catches a hang.
+pytestmark = pytest.mark.timeout(900)
+
 EPOCHS = 12
 INTERVAL = 4
 PROTOCOL = point_protocol("signals", EPOCHS, interval=INTERVAL)
@@ -117,10 +121,8 @@ def _start(
 
 
 def _wait_for(child: subprocess.Popen[str], ready: Callable[[], bool]) -> None:
-    deadline = time.monotonic() + 120  # only a hung child reaches it
     while not ready():
         assert child.poll() is None, f"the child ended first: {child.communicate()[1]}"
-        assert time.monotonic() < deadline, "the child never got there"
         time.sleep(0.005)
 
 
@@ -185,7 +187,7 @@ def test_a_signal_at_a_seeded_moment_saves_the_last_finished_epoch_and_resume_ma
         # Rows out by now bound those out when the signal came from above: on a loaded machine
         # this test may be descheduled between reading `before` and the signal (issue 55).
         rows_after = _epochs_out(out)
-        err = child.communicate(timeout=120)[1]
+        err = child.communicate()[1]
     finally:
         if child.poll() is None:
             child.kill()
@@ -231,7 +233,7 @@ def test_an_epoch_that_outlasts_the_budget_is_rolled_back_when_it_runs_out(
     try:
         _wait_for(child, (out / "held").exists)
         child.send_signal(signal.SIGTERM)
-        err = child.communicate(timeout=120)[1]
+        err = child.communicate()[1]
     finally:
         if child.poll() is None:
             child.kill()
@@ -262,16 +264,14 @@ def test_a_second_signal_during_the_save_aborts_it_and_the_previous_checkpoint_s
         assert previous is not None
         child.send_signal(signum)
         _wait_for(child, (out / "held").exists)  # the save is held before its rename
-        second = time.monotonic()
         child.send_signal(signum)
-        child.wait(timeout=30)
-        aborted_after = time.monotonic() - second
+        child.wait()
     finally:
         if child.poll() is None:
             child.kill()
             child.wait()
+    # Killed by the second signal: a save that outlived it would end its 600 s hold and exit 128 + signum.
     assert child.returncode == -signum, "the second signal did not kill the save"
-    assert aborted_after < 5  # at once, not after the 600 s hold
     held = Path((out / "held").read_text())
     assert not held.exists()  # never renamed into place
     assert len(list((run_dir / "checkpoints").glob(f".{held.name}.*.tmp"))) == 1
@@ -300,7 +300,7 @@ def test_a_rollback_with_both_workers_busy_and_the_ring_full_resumes_exactly(
     try:
         _wait_for(child, (out / "held").exists)
         child.send_signal(signal.SIGTERM)
-        err = child.communicate(timeout=120)[1]
+        err = child.communicate()[1]
     finally:
         if child.poll() is None:
             child.kill()
