@@ -131,6 +131,11 @@ def _in_checkpoint_write(marker: Path, nth: int, seconds: float, after_signal: b
 
 
 if __name__ == "__main__":
+    # A run started from a terminal: Ctrl-C reaches it. A test runner launched in the background
+    # of a shell without job control (`(cmd &)`, nohup) ignores SIGINT, children inherit that, and
+    # `seal run` rightly leaves an ignored SIGINT ignored: every SIGINT test would then wait for
+    # a signal the child never sees.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     marker, where, nth, seconds = (
         Path(sys.argv[1]),
         sys.argv[2],
