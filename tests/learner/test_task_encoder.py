@@ -18,7 +18,7 @@ from seal.learner.collection import Collector
 from seal.learner.replay import MultiTaskReplay
 from seal.learner.sac import Agent
 from seal.protocols import load_protocol, resume_run, run_seed
-from seal.protocols.phase import LoopCallback, PhaseLoop
+from tests.crash import CrashAfter
 
 SMALL: dict[str, Any] = dict(
     hidden=(16, 16),
@@ -241,15 +241,6 @@ def test_a_checkpoint_holds_the_encoder_and_a_round_trip_updates_bitwise(tmp_pat
         assert torch.equal(a, b)
 
 
-class _Crash(LoopCallback):
-    def __init__(self, at: int) -> None:
-        self.at = at
-
-    def on_epoch_end(self, loop: PhaseLoop) -> None:
-        if loop.state.epoch == self.at:
-            raise KeyboardInterrupt
-
-
 TINY_RUN = [
     "protocol.epochs=5",
     "protocol.threads=1",
@@ -271,7 +262,7 @@ def test_a_run_killed_and_resumed_writes_the_rows_of_one_uninterrupted(
     reference = run_seed(load_protocol(PROTOCOL, overrides), 0, tmp_path / "ref").run_dir
     with pytest.raises(KeyboardInterrupt):
         run_seed(
-            load_protocol(PROTOCOL, overrides), 0, tmp_path / "killed", callbacks=[_Crash(at=3)]
+            load_protocol(PROTOCOL, overrides), 0, tmp_path / "killed", callbacks=[CrashAfter(at=3)]
         )
     (run_dir,) = (tmp_path / "killed").glob("seed-0")
     resume_run(run_dir)

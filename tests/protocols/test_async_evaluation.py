@@ -10,8 +10,8 @@ import torch
 
 from seal.learner.checkpoint import read_checkpoint
 from seal.protocols import load_protocol, resume_run, run_seed
-from seal.protocols.phase import LoopCallback, PhaseLoop
 from seal.protocols.workers import EvaluationWorker
+from tests.crash import CrashAfter
 
 # Evaluations every 2 epochs and checkpoints every 3: an evaluation is often in flight at a
 # checkpoint; the stepped scheduler changes the batch mid-run, so rows carry changing counts.
@@ -94,17 +94,6 @@ def test_async_rows_equal_sync_rows_on_point(tmp_path: Path) -> None:
     assert asyn.final_success == sync.final_success
 
 
-class _Crash(LoopCallback):
-    """Stands in for a kill: the run stops after epoch `at`, files as they are."""
-
-    def __init__(self, at: int) -> None:
-        self.at = at
-
-    def on_epoch_end(self, loop: PhaseLoop) -> None:
-        if loop.state.epoch == self.at:
-            raise KeyboardInterrupt
-
-
 @pytest.mark.slow
 def test_a_pending_evaluation_is_rerun_on_resume(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
@@ -115,7 +104,7 @@ def test_a_pending_evaluation_is_rerun_on_resume(
     config = load_protocol(path, ['evaluation.mode="async"'])
     reference = run_seed(load_protocol(path), 0, tmp_path / "sync").run_dir
     with pytest.raises(KeyboardInterrupt):
-        run_seed(config, 0, tmp_path / "killed", callbacks=[_Crash(at=8)])
+        run_seed(config, 0, tmp_path / "killed", callbacks=[CrashAfter(at=8)])
     (run_dir,) = (tmp_path / "killed").glob("seed-0")
     # The epoch-6 checkpoint holds the evaluation of epoch 6, not yet written when it was taken;
     # its rows came at epoch 8 (the next evaluation waits for it), before the crash. The resume

@@ -13,7 +13,7 @@ import torch
 
 from seal.learner.checkpoint import read_checkpoint
 from seal.protocols import load_protocol, resume_run, run_seed
-from seal.protocols.phase import LoopCallback, PhaseLoop
+from tests.crash import CrashAfter
 
 PROTOCOL = """
 [protocol]
@@ -103,23 +103,12 @@ def test_overlap_is_deterministic_across_processes(protocol: Path, tmp_path: Pat
     _same_agent(there / "checkpoints/ckpt-0000008.pt", here / "checkpoints/ckpt-0000008.pt")
 
 
-class _Crash(LoopCallback):
-    """Stands in for a kill: the run stops after epoch `at`, files as they are."""
-
-    def __init__(self, at: int) -> None:
-        self.at = at
-
-    def on_epoch_end(self, loop: PhaseLoop) -> None:
-        if loop.state.epoch == self.at:
-            raise KeyboardInterrupt
-
-
 @pytest.mark.slow
 def test_overlap_resumes_bitwise_after_a_checkpoint(protocol: Path, tmp_path: Path) -> None:
     config = load_protocol(protocol)
     reference = run_seed(config, 0, tmp_path / "ref").run_dir
     with pytest.raises(KeyboardInterrupt):
-        run_seed(config, 0, tmp_path / "killed", callbacks=[_Crash(at=5)])
+        run_seed(config, 0, tmp_path / "killed", callbacks=[CrashAfter(at=5)])
     (run_dir,) = (tmp_path / "killed").glob("seed-0")
     assert (run_dir / "checkpoints/ckpt-0000003.pt").is_file()
     resume_run(run_dir)  # from epoch 3
