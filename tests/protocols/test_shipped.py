@@ -47,7 +47,8 @@ EXTRA: dict[str, list[str]] = {
     # Eq. 5 scores build their own env instances: at most once in the smoke run (T_eval past it).
     "mt10_smt": [
         "scheduler.score_episodes=1",
-        "scheduler.score_interval=100000000",
+        # Once, after the first epoch: Eq. 5's rollouts step the task encoder (issue 56).
+        "scheduler.score_interval=10",
         "agent.encoder_gru=8",
         "agent.encoder_hidden=[8]",
         "agent.decoder_hidden=[8]",
