@@ -189,7 +189,6 @@ def test_third_party_module_through_the_cli(tmp_path) -> None:  # noqa: ANN001
         capture_output=True,
         text=True,
         env=env,
-        timeout=300,
     )
     assert done.returncode == 0, done.stderr
     assert '"adapter": "corridor"' in done.stdout and '"far-east"' in done.stdout

@@ -55,7 +55,7 @@ def _losses(seeds: list[int]) -> list[np.ndarray]:
     ]
     results = []
     for proc in procs:
-        out, err = proc.communicate(timeout=300)
+        out, err = proc.communicate()
         assert proc.returncode == 0, err
         results.append(np.array(json.loads(out.strip().splitlines()[-1])))
     return results

@@ -215,7 +215,7 @@ def test_same_seed_same_losses_in_two_processes_in_every_mode(mode: str, critics
     ]
     runs = []
     for proc in procs:
-        out, err = proc.communicate(timeout=300)
+        out, err = proc.communicate()
         assert proc.returncode == 0, err
         runs.append(np.array(json.loads(out.strip().splitlines()[-1])))
     assert runs[0].shape == (30, 5)

@@ -95,7 +95,6 @@ def test_overlap_is_deterministic_across_processes(protocol: Path, tmp_path: Pat
         env={**os.environ, "OMP_NUM_THREADS": "1"},
         capture_output=True,
         text=True,
-        timeout=600,
     )
     assert child.returncode == 0, child.stderr
     (there,) = (tmp_path / "child").glob("overlap/*/seed-0")
