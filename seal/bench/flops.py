@@ -262,6 +262,13 @@ def agent_update_shapes(
     (shared). The shared trunk is counted once per env's rows: an ideal implementation that ran
     both envs' rows through it in one product does the same multiply-adds. act_pad_to is ignored.
     """
+    from seal.learner.config import MTRL_ARCHITECTURES
+
+    if config.architecture in MTRL_ARCHITECTURES:
+        raise SealError(
+            f"agent.architecture = {config.architecture!r}: the GEMM formula covers MTMHSAC and "
+            "SEAL; count its update with seal.bench.flops.counted_update_flops"
+        )
     trunk = critic_layers(getattr(config, config.critic_trunk_key), config.critic_block)
     if config.architecture == "seal":
         actor_hidden = (*config.translator_hidden, config.latent_dim, *config.trunk_hidden)
@@ -332,6 +339,24 @@ def _agent_batches(
         )
         for i, s in enumerate(specs)
     }
+
+
+def counted_update_flops(
+    specs: Sequence[EnvSpec], config: AgentConfig, per_task: int, seed: int = 0
+) -> int:
+    """FlopCounterMode's count of one real update (the second) of any agent, every architecture
+    included: the FLOP count of the task-conditioned learners (`seal.learner.mtrl`), which the
+    GEMM formula of `agent_update_shapes` does not describe."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from seal.learner import Agent
+
+    agent = Agent(specs, dataclasses.replace(config, compile=False), seed)
+    batches = _agent_batches(specs, per_task, seed, agent.device)
+    agent.update(batches)
+    with FlopCounterMode(display=False) as counter:
+        agent.update(batches)
+    return int(counter.get_total_flops())
 
 
 def agent_flop_formula_check(

@@ -1,4 +1,4 @@
-"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1|quickstart|reach_sb3] [--full | --fpr]]`: learner and collection speed as ratios, learning evidence."""
+"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1|quickstart|reach_sb3|mtrl] [--full | --fpr]]`: learner and collection speed as ratios, learning evidence."""
 
 from __future__ import annotations
 
@@ -42,7 +42,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "writes the README's table, kitchen curve and k-of-10 line into docs/; "
             "--learn reach_sb3 runs reach-v3 (protocols/learn/reach.toml) under seal run and under "
             "stable-baselines3's SAC.learn, seeds 0-2 each, both evaluated by SEAL's evaluation every "
-            "2,000 env steps and stopped at the first >= 90%, and prints k of 3 per side."
+            "2,000 env steps and stopped at the first >= 90%, and prints k of 3 per side; "
+            "--learn mtrl runs SMT Table 1's learners (protocols/mtrl_learn) on three easy MT10 "
+            "tasks, seeds 0-2, and prints per learner k of 3 seeds with every task >= 90%, each "
+            "task's first crossing and its updates/s against MTMHSAC's, timed side by side."
         ),
     )
     parser.add_argument(
@@ -56,8 +59,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs="?",
         const="evidence",
         default=None,
-        metavar="transfer|kitchen|table1|quickstart|reach_sb3",
-        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs; --learn table1: only paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md); --learn quickstart: README command 1 over seeds 0-9; --learn reach_sb3: reach-v3 learned under seal run and under SB3's SAC.learn",
+        metavar="transfer|kitchen|table1|quickstart|reach_sb3|mtrl",
+        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs; --learn table1: only paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md); --learn quickstart: README command 1 over seeds 0-9; --learn reach_sb3: reach-v3 learned under seal run and under SB3's SAC.learn; --learn mtrl: SMT Table 1's learners on three easy MT10 tasks (protocols/mtrl_learn), with their updates/s against MTMHSAC's",
     )
     parser.add_argument(
         "--full",
@@ -73,19 +76,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--seeds",
         type=int,
         default=None,
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: seeds per arm (default 5 for transfer, 2 for kitchen, 5 for table1, 10 for quickstart, 3 for reach_sb3)",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: seeds per arm (default 5 for transfer, 2 for kitchen, 5 for table1, 10 for quickstart, 3 for reach_sb3 and mtrl)",
     )
     parser.add_argument(
         "--arms",
         nargs="+",
         metavar="ARM",
         default=None,
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: only these arms (protocols/testbed/<ARM>.toml and the alone arms and pre-trainings they need, positive_pretrained being round 4's name of pretrained_trunk; protocols/kitchen_learn/<ARM>.toml; protocols/table1_small/<ARM>.toml and its references; seal or sb3 for reach_sb3)",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: only these arms (protocols/testbed/<ARM>.toml and the alone arms and pre-trainings they need, positive_pretrained being round 4's name of pretrained_trunk; protocols/kitchen_learn/<ARM>.toml; protocols/table1_small/<ARM>.toml and its references; seal or sb3 for reach_sb3; protocols/mtrl_learn/<ARM>.toml and sac_mt_mh)",
     )
     parser.add_argument(
         "--reuse",
         action="store_true",
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: take finished runs under --out whose resolved config is today's instead of running them again, and (except reach_sb3) resume unfinished ones from their last checkpoint",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: take finished runs under --out whose resolved config is today's instead of running them again, and (except reach_sb3) resume unfinished ones from their last checkpoint",
     )
     parser.add_argument(
         "--no-run",
@@ -96,13 +99,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--jobs",
         type=int,
         default=None,
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: `seal run` processes at a time (default 2; 1 for quickstart, whose shipped threads assume the machine to itself)",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: `seal run` processes at a time (default 2; 1 for quickstart, whose shipped threads assume the machine to itself)",
     )
     parser.add_argument(
         "--out",
         default=None,
         metavar="DIR",
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3: reports root of the runs (default reports/bench_transfer, reports/bench_kitchen, reports/bench_table1, reports/bench_quickstart or reports/bench_reach_sb3)",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: reports root of the runs (default reports/bench_transfer, reports/bench_kitchen, reports/bench_table1, reports/bench_quickstart, reports/bench_reach_sb3 or reports/bench_mtrl)",
     )
     parser.add_argument(
         "--only", nargs="+", metavar="KEY", help="run only these keys, e.g. --only sac_vs_sb3"
@@ -159,7 +162,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="TABLE.KEY=VALUE",
-        help="with --protocol or --learn table1, quickstart, reach_sb3 or kitchen: override a protocol value (e.g. protocol.device=cuda, evaluation.stop_when_reached=false)",
+        help="with --protocol or --learn table1, quickstart, reach_sb3, kitchen or mtrl: override a protocol value (e.g. protocol.device=cuda, evaluation.stop_when_reached=false)",
     )
     parser.set_defaults(func=run)
 
@@ -170,9 +173,10 @@ LEARN_SETS: dict[str, tuple[str, int, str]] = {
     "table1": ("seal.experiments.table1", 5, "reports/bench_table1"),
     "quickstart": ("seal.experiments.quickstart", 10, "reports/bench_quickstart"),
     "reach_sb3": ("seal.experiments.reach_sb3", 3, "reports/bench_reach_sb3"),
+    "mtrl": ("seal.experiments.mtrl", 3, "reports/bench_mtrl"),
 }
 """`--learn <set>`: the module (with run_<set>_bench and format_result), default seeds and reports root."""
-OVERRIDE_SETS = ("table1", "quickstart", "reach_sb3", "kitchen")
+OVERRIDE_SETS = ("table1", "quickstart", "reach_sb3", "kitchen", "mtrl")
 """The `--learn` sets that take `--set` overrides of their protocols."""
 
 
@@ -201,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
         raise SealError("--no-run only applies to --learn kitchen")
     if args.arms and args.learn not in LEARN_SETS:
         raise SealError(
-            "--arms only applies to --learn transfer, kitchen, table1, quickstart and reach_sb3"
+            "--arms only applies to --learn transfer, kitchen, table1, quickstart, reach_sb3 and mtrl"
         )
     if args.overrides and args.protocol is None and args.learn not in OVERRIDE_SETS:
         raise SealError(

@@ -39,6 +39,7 @@ def run_explain(args: argparse.Namespace) -> int:
 
         device = resolve_device(config.protocol.device)
         estimate = estimate_resources(config, build_adapters(config), device)
+        print(f"# networks: {estimate.describe_networks(config.agent.architecture)}")
         print(f"# estimated memory: {estimate.describe()}")
         print(f"# update threads: {choose_update_threads(config, estimate).describe()}")
     return 0

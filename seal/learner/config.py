@@ -13,7 +13,11 @@ from pydantic import with_config
 from seal.errors import ConfigError
 from seal.typed_config import SCHEMA
 
-ARCHITECTURES = ("mtmhsac", "seal")
+ARCHITECTURES = ("mtmhsac", "seal", "soft_modular", "paco", "moore", "care")
+# One env, one network per actor and per twin critic, conditioned on the task id (issue 57;
+# seal.learner.mtrl): the learners SMT Table 1 compares, beside MTMHSAC's heads.
+MTRL_ARCHITECTURES = ("soft_modular", "paco", "moore", "care")
+GRADIENTS = ("mean", "pcgrad")
 SHARED_UPDATES = ("weighted", "sequential", "per_env")
 CRITIC_SHARINGS = ("per_env", "shared")
 INITS = ("torch", "metaworld_algorithms")
@@ -67,8 +71,8 @@ class EnvSpec:
 class AgentConfig:
     """Multi-task SAC learner settings: MTMHSAC (Yu et al. 2019) or the SEAL policy (SEAL §3.3)."""
 
-    architecture: Literal["mtmhsac", "seal"] = "mtmhsac"
-    """Network family: "mtmhsac" (one MLP with per-task heads, one env) or "seal" (per-env translators, shared latent trunk, per-env heads)."""
+    architecture: Literal["mtmhsac", "seal", "soft_modular", "paco", "moore", "care"] = "mtmhsac"
+    """Network family: "mtmhsac" (one MLP with per-task heads, one env), "seal" (per-env translators, shared latent trunk, per-env heads), or one env's task-conditioned network (`seal.learner.mtrl`): "soft_modular" (Yang et al. 2020), "paco" (Sun et al. 2022), "moore" (Hendawy et al. 2024) or "care" (Sodhani et al. 2021)."""
     hidden: tuple[int, ...] = (400, 400, 400)
     """MTMHSAC hidden layer widths of the actor and of each critic (Meta-World MTMHSAC: 3 x 400, ReLU)."""
     translator_hidden: tuple[int, ...] = (400,)
@@ -136,6 +140,31 @@ class AgentConfig:
     """smt_gru: transitions of the episode each sampled belief decodes (VariBAD's vae_subsample_decodes; drawn from the whole episode, past and future)."""
     encoder_refresh_interval: int = 0
     """smt_gru: every this many SAC updates (checked before each epoch's updates), recompute the beliefs stored in the replay with the encoder as it is now, so updates train on today's m rather than collection's; 0 = never (the stored m stays the one collection saw)."""
+    # Defaults: each paper's MT10 setting where it gives one, else metaworld-algorithms'
+    # config/nn.py (SoftModulesConfig, PaCoConfig, CAREConfig, MOOREConfig); PaCo, MOORE and CARE's
+    # torso widths are agent.hidden.
+    paco_sets: int = 5
+    """paco: K, the parameter sets every layer composes by the task's learned weights (PaCo MT10: 5)."""
+    soft_modules: int = 2
+    """soft_modular: modules per layer (Soft Modularization MT10: 2; MT50: 4)."""
+    soft_layers: int = 2
+    """soft_modular: layers of modules (MT10: 2; MT50: 4)."""
+    soft_width: int = 256
+    """soft_modular: each module's width d, and the routing network's."""
+    soft_embedding: int = 400
+    """soft_modular: D, the width of the observation and task embeddings."""
+    care_experts: int = 6
+    """care: encoders in the mixture (CARE MT10: 6; MT50: 10)."""
+    care_embedding: int = 50
+    """care: width of the context (task) embedding and of each encoder's output."""
+    care_encoder_hidden: tuple[int, ...] = (50, 50)
+    """care: hidden widths of the context encoder, the attention network and each mixture encoder."""
+    care_temperature: float = 1.0
+    """care: softmax temperature of the attention over encoders."""
+    moore_experts: int = 4
+    """moore: orthogonal experts (MOORE MT10: 4; MT50: 6)."""
+    gradient: Literal["mean", "pcgrad"] = "mean"
+    """How the tasks' losses make one step: "mean" = the gradient of the batch's mean loss; "pcgrad" = PCGrad (Yu et al. 2020), in the critic's and the actor's steps: each task's gradient of its share of that mean loss on the shared parameters (all but the per-task ones, "head.<env>": per-task output layers and task embeddings, which take the "mean" gradient), with the components that conflict with another task's projected away, each task in its own seeded random order, then summed, so with no conflict it is "mean"; max_grad_norm then clips the result. One env, eager only (`seal.learner.mtrl.pcgrad`)."""
     multi_head_policy: bool = True
     """One policy output head per task (False: one head shared by all tasks; ablation)."""
     multi_head_critic: bool = True
@@ -247,12 +276,34 @@ class AgentConfig:
             raise ConfigError(
                 f"agent.encoder_refresh_interval: expected an int >= 0 (0 = never), got {self.encoder_refresh_interval!r}"
             )
+        for key in (
+            "paco_sets",
+            "soft_modules",
+            "soft_layers",
+            "soft_width",
+            "soft_embedding",
+            "care_experts",
+            "care_embedding",
+            "moore_experts",
+        ):
+            value = getattr(self, key)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ConfigError(f"agent.{key}: expected a positive int, got {value!r}")
+        hidden = self.care_encoder_hidden
+        if not isinstance(hidden, list | tuple) or any(
+            not isinstance(w, int) or isinstance(w, bool) or w < 1 for w in hidden
+        ):
+            raise ConfigError(
+                f"agent.care_encoder_hidden: expected a list of positive ints, got {hidden!r}"
+            )
+        object.__setattr__(self, "care_encoder_hidden", tuple(hidden))
         if self.architecture not in ARCHITECTURES:
             raise ConfigError(
                 f"agent.architecture: unknown value {self.architecture!r}; valid: {', '.join(ARCHITECTURES)}"
             )
         for key, valid in (
             ("task_encoder", TASK_ENCODERS),
+            ("gradient", GRADIENTS),
             ("critic_block", ("mlp", "bronet")),
             ("shared_update", SHARED_UPDATES),
             ("critic_sharing", CRITIC_SHARINGS),
@@ -290,6 +341,7 @@ class AgentConfig:
             "adam_eps",
             "encoder_lr",
             "encoder_kl_weight",
+            "care_temperature",
         ):
             value = getattr(self, key)
             if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
@@ -309,6 +361,29 @@ class AgentConfig:
         if self.target_entropy is not None and not math.isfinite(self.target_entropy):
             raise ConfigError(
                 f"agent.target_entropy: expected a finite number or None, got {self.target_entropy!r}"
+            )
+
+        if self.gradient == "pcgrad" and self.compile:
+            raise ConfigError(
+                'agent.gradient = "pcgrad" runs eager (one backward pass per task, then the surgery): set agent.compile = false'
+            )
+        if self.architecture in MTRL_ARCHITECTURES:
+            self._check_mtrl()
+
+    def _check_mtrl(self) -> None:
+        """What a task-conditioned network (`seal.learner.mtrl`) cannot combine with, in one line each."""
+        arch = self.architecture
+        if self.task_encoder != "one_hot":
+            raise ConfigError(
+                f'agent.architecture = "{arch}" conditions its network on the task id: agent.task_encoder must be "one_hot", got {self.task_encoder!r}'
+            )
+        if not (self.multi_head_policy and self.multi_head_critic):
+            raise ConfigError(
+                f'agent.architecture = "{arch}" has the output layer of its paper: leave agent.multi_head_policy and agent.multi_head_critic at true'
+            )
+        if self.critic_block != "mlp":
+            raise ConfigError(
+                f'agent.critic_block = "{self.critic_block}" is for MTMHSAC and SEAL critics, not agent.architecture = "{arch}"'
             )
 
     @staticmethod

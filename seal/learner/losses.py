@@ -54,8 +54,11 @@ def critic_loss(
     alpha: torch.Tensor,
     noise: torch.Tensor,
     gamma: float,
+    reduce: bool = True,
 ) -> CriticLoss:
-    """The twin soft Q losses of `batch` (obs / next_obs: the actor's inputs of its observations)."""
+    """The twin soft Q losses of `batch` (obs / next_obs: the actor's inputs of its observations);
+    with `reduce` False each sample's squared errors (B,) instead of their means (PCGrad's task
+    losses, `seal.learner.mtrl.pcgrad`)."""
     with torch.no_grad():
         next_state_actions, next_state_log_pi = tanh_gaussian(policy(next_obs), noise)
         qf_next_target = qf_target(next_obs, next_state_actions)
@@ -63,8 +66,9 @@ def critic_loss(
         next_q_value = batch.rewards + (1.0 - batch.terminations) * gamma * min_qf_next_target
     qf_a_values = qf(obs, batch.actions)
     qf1_a_values, qf2_a_values = qf_a_values
-    qf1_loss = F.mse_loss(qf1_a_values, next_q_value)
-    qf2_loss = F.mse_loss(qf2_a_values, next_q_value)
+    reduction = "mean" if reduce else "none"
+    qf1_loss = F.mse_loss(qf1_a_values, next_q_value, reduction=reduction)
+    qf2_loss = F.mse_loss(qf2_a_values, next_q_value, reduction=reduction)
     return CriticLoss(qf1_loss, qf2_loss, qf_a_values)
 
 
@@ -75,11 +79,14 @@ def actor_loss(
     task_ids: torch.Tensor,
     alpha: torch.Tensor,
     noise: torch.Tensor,
+    reduce: bool = True,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The policy loss against the critics just updated, and the log-probabilities it sampled."""
+    """The policy loss against the critics just updated (with `reduce` False each sample's (B,)
+    instead of their mean), and the log-probabilities it sampled."""
     pi, log_pi = tanh_gaussian(policy(obs), noise)
     min_qf_pi = qf(obs, pi).amin(0)
-    return (alpha[task_ids] * log_pi - min_qf_pi).mean(), log_pi
+    loss = alpha[task_ids] * log_pi - min_qf_pi
+    return (loss.mean() if reduce else loss), log_pi
 
 
 def alpha_loss(

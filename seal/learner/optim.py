@@ -232,9 +232,19 @@ class Slots:
         eps: float,
         max_grad_norm: float,
         groups: Sequence[Sequence[int]] | None = None,
+        per_task: Sequence[Sequence[bool]] | None = None,
     ) -> None:
         self.members = [list(m) for m in members]
         self.params = list(params)
+        # PCGrad (AgentConfig.gradient): per slot, which parameters only one task's samples reach
+        # (`seal.learner.mtrl.pcgrad.task_parameters`); default none. By position, so a deep copy
+        # of the agent keeps them.
+        self.per_task = (
+            [list(f) for f in per_task] if per_task else [[False] * len(p) for p in self.params]
+        )
+        for slot, flags in zip(self.params, self.per_task, strict=True):
+            if len(flags) != len(slot):
+                raise ValueError(f"{len(flags)} per-task flags for a slot of {len(slot)}")
         # Clipping groups: per slot, the sizes of the consecutive runs of parameters whose norm
         # max_grad_norm bounds apart (AgentConfig.clip_per); default one run, the whole slot.
         self.groups = [list(g) for g in groups] if groups else [[len(p)] for p in self.params]
@@ -255,15 +265,29 @@ class Slots:
         """The slots the envs `names` use, in slot order."""
         return sorted({self._slot[n] for n in names})
 
+    def parameters_of(self, names: Iterable[str]) -> list[nn.Parameter]:
+        """Every parameter of the slots `names` use, in slot order."""
+        return [p for s in self.of(names) for p in self.params[s]]
+
+    def per_task_of(self, names: Iterable[str]) -> list[bool]:
+        """`parameters_of(names)`' per-task flags (PCGrad), in the same order."""
+        return [f for s in self.of(names) for f in self.per_task[s]]
+
     def grads(self, loss: torch.Tensor, names: Sequence[str]) -> tuple[torch.Tensor | None, ...]:
         """Gradients of `loss` for every parameter of the slots `names` use, in slot order (unused
         ones None); with max_grad_norm > 0 each slot's gradients (each group's, with `groups`)
         are clipped to it."""
-        slots = self.of(names)
-        params = [p for s in slots for p in self.params[s]]
-        grads = torch.autograd.grad(loss, params, allow_unused=True)
+        grads = torch.autograd.grad(loss, self.parameters_of(names), allow_unused=True)
+        return self.clip(grads, names)
+
+    def clip(
+        self, grads: Sequence[torch.Tensor | None], names: Sequence[str]
+    ) -> tuple[torch.Tensor | None, ...]:
+        """`grads` (those of `parameters_of(names)`), each slot's (each group's, with `groups`)
+        clipped to max_grad_norm when it is > 0."""
         if self.max_grad_norm <= 0:
-            return grads
+            return tuple(grads)
+        slots = self.of(names)
         clipped: list[torch.Tensor | None] = []
         for s in slots:
             for n in self.groups[s]:

@@ -25,8 +25,10 @@ from torch import nn
 from seal.device import resolve_device
 from seal.errors import SealError, TrainingDivergedError, UnknownNameError
 from seal.learner import lever
-from seal.learner.config import AgentConfig, Batch, EnvSpec
+from seal.learner.config import MTRL_ARCHITECTURES, AgentConfig, Batch, EnvSpec
 from seal.learner.losses import Policy, TwinQ
+from seal.learner.mtrl import pcgrad
+from seal.learner.mtrl.network import TaskConditionedNetwork
 from seal.learner.networks import (
     HEAD_BOUND,
     LOG_STD_MAX,
@@ -81,7 +83,7 @@ class AgentState(TypedDict):
     actor_optimizers: list[dict[str, object]]  # torch.optim.Adam.state_dict() of each slot
     critic_optimizers: list[dict[str, object]]
     alpha_optimizer: dict[str, object]
-    rng: dict[str, torch.Tensor]  # "update/<env>", "act/<env>" generator states
+    rng: dict[str, torch.Tensor]  # "update/<env>", "act/<env>", "pcgrad/<env>" generator states
     init_draws: NotRequired[int]  # how many times the weights were drawn (absent: older states)
     lr_factor: float
     num_updates: int
@@ -104,9 +106,9 @@ def _check_specs(specs: Sequence[EnvSpec], config: AgentConfig) -> dict[str, str
     names = [s.name for s in specs]
     if len(set(names)) != len(names):
         raise SealError(f"Agent: environment names repeat: {names}")
-    if config.architecture == "mtmhsac" and len(specs) != 1:
+    if config.architecture != "seal" and len(specs) != 1:
         raise SealError(
-            f'agent.architecture = "mtmhsac" trains one environment, got {len(specs)} ({", ".join(names)}); use "seal" for several'
+            f'agent.architecture = "{config.architecture}" trains one environment, got {len(specs)} ({", ".join(names)}); use "seal" for several'
         )
     keys = {s.name: module_key(s.name) for s in specs}
     if len(set(keys.values())) != len(keys):
@@ -124,6 +126,7 @@ class Agent:
     def __init__(self, specs: Sequence[EnvSpec], config: AgentConfig, seed: int) -> None:
         specs = list(specs)
         keys = _check_specs(specs, config)
+        pcgrad.check_config(config, specs)
         self.config = config
         self.seed = int(seed)
         self.device = resolve_device(config.device)
@@ -139,6 +142,13 @@ class Agent:
         self._act_generators = {
             n: stream(self.seed, "act", n, device=self.device) for n in self.specs
         }
+        # gradient = "pcgrad": each env's tasks' orders (seal.learner.mtrl.pcgrad), its own stream
+        # so the update's policy noise is the one "mean" draws.
+        self.pcgrad_generators = (
+            {n: stream(self.seed, "pcgrad", n, device=self.device) for n in self.specs}
+            if config.gradient == "pcgrad"
+            else {}
+        )
         self._init_draws = 0
         self._build_networks(specs)
         self._build_encoders(specs)
@@ -187,6 +197,9 @@ class Agent:
             keys[s.name]: (("obs", s.obs_dim), *task_segment[s.name], ("action", s.critic_act_dim))
             for s in specs
         }
+        if config.architecture in MTRL_ARCHITECTURES:
+            self._build_task_conditioned(specs)
+            return
         translator = (
             None
             if config.architecture == "mtmhsac"
@@ -225,6 +238,27 @@ class Agent:
                 layer_norm=config.critic_layer_norm,
                 block=config.critic_block,
             )
+        self.log_alpha = nn.ParameterDict(
+            {keys[s.name]: nn.Parameter(torch.empty(s.num_tasks)) for s in specs}
+        )
+
+    def _build_task_conditioned(self, specs: Sequence[EnvSpec]) -> None:
+        """The policy and twin critics of a task-conditioned architecture (`seal.learner.mtrl`)."""
+        config, keys = self.config, self._keys
+        self.actor = TaskConditionedNetwork(
+            self.actor_segments,
+            {keys[s.name]: 2 * s.act_dim for s in specs},
+            {keys[s.name]: s.num_tasks for s in specs},
+            config,
+        )
+        self.critic = TaskConditionedNetwork(
+            self.critic_segments,
+            {keys[s.name]: 1 for s in specs},
+            {keys[s.name]: s.num_tasks for s in specs},
+            config,
+            ensemble=2,
+            layer_norm=config.critic_layer_norm,
+        )
         self.log_alpha = nn.ParameterDict(
             {keys[s.name]: nn.Parameter(torch.empty(s.num_tasks)) for s in specs}
         )
@@ -316,6 +350,10 @@ class Agent:
                     if len(set(names)) != len(names):  # a split component would be clipped twice
                         raise ValueError(f"clip_per: a component is split in a slot: {names}")
                     groups.append([n for _, n in runs])
+            per_task = None
+            if config.gradient == "pcgrad":
+                task_params = {id(p) for p in pcgrad.task_parameters(net)}
+                per_task = [[id(p) in task_params for p in slot] for slot in params]
             return Slots(
                 members,
                 params,
@@ -323,6 +361,7 @@ class Agent:
                 eps=config.adam_eps,
                 max_grad_norm=config.max_grad_norm,
                 groups=groups,
+                per_task=per_task,
             )
 
         self.actor_slots = slots(self.actor, self._actor_members, config.actor_lr)
@@ -560,9 +599,10 @@ class Agent:
         """One gradient update (critic, actor, per-task alpha, Polyak target) over every env in `batches`.
 
         Returns `losses/<env>/{critic,qf1,qf2,actor,alpha}`, `charts/<env>/{mean_q,entropy}`,
-        `charts/<env>/alpha/<task index>` (the temperature used by this update) and, with two or
-        more envs and config.ratio_lever_interval > 0, `charts/ratio_lever` (the last measured
-        value). Raises TrainingDivergedError naming the update and the last good checkpoint if a
+        `charts/<env>/alpha/<task index>` (the temperature used by this update), with
+        config.gradient = "pcgrad" `charts/<env>/pcgrad_conflicts/{critic,actor}` (the projections
+        PCGrad made, `seal.learner.mtrl.pcgrad`) and, with two or more envs and
+        config.ratio_lever_interval > 0, `charts/ratio_lever` (the last measured value). Raises TrainingDivergedError naming the update and the last good checkpoint if a
         loss is NaN/inf. One device sync; a training loop uses `update_on_device` and reads its
         sums once per interval instead.
         """
@@ -608,6 +648,14 @@ class Agent:
             for env in order
             for name in (
                 *(template.format(env) for template in _SCALARS),
+                *(
+                    (
+                        f"charts/{env}/pcgrad_conflicts/critic",
+                        f"charts/{env}/pcgrad_conflicts/actor",
+                    )
+                    if self.config.gradient == "pcgrad"
+                    else ()
+                ),
                 *(f"charts/{env}/alpha/{task}" for task in range(self.specs[env].num_tasks)),
             )
         )
@@ -663,6 +711,7 @@ class Agent:
             "rng": {
                 **{f"update/{n}": g.get_state() for n, g in self.update_generators.items()},
                 **{f"act/{n}": g.get_state() for n, g in self._act_generators.items()},
+                **{f"pcgrad/{n}": g.get_state() for n, g in self.pcgrad_generators.items()},
             },
             "init_draws": self._init_draws,
             "lr_factor": self._lr_factor,
@@ -699,7 +748,11 @@ class Agent:
         self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])
         # A state saved before the per-env streams ("init", "update", "act") keeps this agent's
         # freshly seeded streams: that resume draws other noise than the run would have.
-        for role, generators in (("update", self.update_generators), ("act", self._act_generators)):
+        for role, generators in (
+            ("update", self.update_generators),
+            ("act", self._act_generators),
+            ("pcgrad", self.pcgrad_generators),
+        ):
             for n, generator in generators.items():
                 if f"{role}/{n}" in state["rng"]:
                     generator.set_state(state["rng"][f"{role}/{n}"])

@@ -17,6 +17,12 @@ Per-env critics (`critic_sharing = "per_env"`) share nothing, so each has its ow
 its own mean loss in every mode. Every actor and critic step clips the global gradient norm of that
 optimiser's parameters to `max_grad_norm` (0: off); the temperatures' Adam is never clipped.
 
+With `AgentConfig.gradient = "pcgrad"` (one env) the critic's and the actor's gradients on the
+shared parameters are PCGrad's (`seal.learner.mtrl.pcgrad`: one backward pass per task of the
+env, each on that task's share of the batch's mean loss, then the surgery), the per-task heads
+take the plain gradient, and the clipping above applies to the result; the temperature's is as
+ever.
+
 Each stage (`critic_stage`, then `actor_stage`) computes its losses and their gradients as one
 function of pre-drawn policy noise (`draw_noise`); with `AgentConfig.compile` that function is
 torch.compiled (`seal.learner.staging`), and the optimiser steps (`seal.learner.optim`) stay eager.
@@ -41,6 +47,7 @@ from torch import nn
 
 from seal.learner.config import AgentConfig, Batch, EnvSpec
 from seal.learner.losses import CriticLoss, Policy, TwinQ, actor_loss, alpha_loss, critic_loss
+from seal.learner.mtrl.pcgrad import pcgrad
 from seal.learner.optim import AdamCache, Slots, fused_adam_step
 from seal.learner.staging import Stages, mark_step
 
@@ -72,10 +79,12 @@ class ActorTerms(NamedTuple):
 
 
 class CriticStage(NamedTuple):
-    """Critic losses of the stage's envs (detached) and the critic Adams' gradients."""
+    """Critic losses of the stage's envs (detached) and the critic Adams' gradients; under
+    gradient = "pcgrad" the number of projections PCGrad made."""
 
     terms: dict[str, CriticLoss]
     grads: tuple[torch.Tensor | None, ...]
+    conflicts: torch.Tensor | None = None
 
 
 class ActorStage(NamedTuple):
@@ -85,6 +94,7 @@ class ActorStage(NamedTuple):
     terms: dict[str, ActorTerms]
     grads: tuple[torch.Tensor | None, ...]
     alpha_grads: tuple[torch.Tensor | None, ...]
+    conflicts: torch.Tensor | None = None  # gradient = "pcgrad": projections PCGrad made
 
 
 class Learner(Protocol):
@@ -100,6 +110,7 @@ class Learner(Protocol):
     adam_cache: AdamCache
     stages: Stages
     update_generators: dict[str, torch.Generator]
+    pcgrad_generators: dict[str, torch.Generator]  # gradient = "pcgrad": each env's orders
 
     def policy(self, name: str, task_ids: torch.Tensor) -> Policy: ...
     def qf(self, name: str, task_ids: torch.Tensor) -> TwinQ: ...
@@ -169,7 +180,11 @@ def sac_update(
         for name, grad in zip(stage, actor.alpha_grads, strict=True):
             alpha_grads[learner.alpha_position(name)] = grad
         for name in stage:
-            scalars += [_logged(critic.terms[name], actor.terms[name]), inputs[name].alpha]
+            scalars.append(_logged(critic.terms[name], actor.terms[name]))
+            if critic.conflicts is not None and actor.conflicts is not None:
+                conflicts = torch.stack((critic.conflicts, actor.conflicts))
+                scalars.append(conflicts.to(inputs[name].alpha.dtype))
+            scalars.append(inputs[name].alpha)
 
     # ---- temperature: one step for every env's log_alpha, after all stages
     if any(g is not None for g in alpha_grads):
@@ -227,6 +242,8 @@ def critic_stage(
     weights: Mapping[str, float],
 ) -> CriticStage:
     """Critic losses of the envs of `stage` and the gradients of the critic Adams they use."""
+    surgery = learner.config.gradient == "pcgrad"
+    per_sample = {"reduce": False} if surgery else {}  # PCGrad takes each sample's loss
     terms = {}
     for name in stage:
         batch, alpha, obs, next_obs = inputs[name]
@@ -241,13 +258,23 @@ def critic_stage(
             alpha,
             noise[name].critic,
             learner.config.gamma,
+            **per_sample,
         )
     # Mean over the twin critics, as metaworld-algorithms, the prototype and SB3: with
     # max_grad_norm the loss's scale sets how often clipping bites, so it must match.
     losses = {n: 0.5 * (t.qf1_loss + t.qf2_loss) for n, t in terms.items()}
-    loss = _total(losses, weights, _weighted(learner, learner.critic_slots))
-    grads = learner.critic_slots.grads(loss, stage)
-    return CriticStage({n: CriticLoss(*(x.detach() for x in t)) for n, t in terms.items()}, grads)
+    conflicts = None
+    if surgery:
+        grads, conflicts = _pcgrad_grads(learner, learner.critic_slots, stage, inputs, losses)
+        terms = {
+            n: CriticLoss(t.qf1_loss.mean(), t.qf2_loss.mean(), t.qf_a_values)
+            for n, t in terms.items()
+        }
+    else:
+        loss = _total(losses, weights, _weighted(learner, learner.critic_slots))
+        grads = learner.critic_slots.grads(loss, stage)
+    detached = {n: CriticLoss(*(x.detach() for x in t)) for n, t in terms.items()}
+    return CriticStage(detached, grads, conflicts)
 
 
 def actor_stage(
@@ -259,12 +286,20 @@ def actor_stage(
 ) -> ActorStage:
     """Actor and temperature losses of `stage`'s envs, the actor Adams' gradients and the gradient
     of each env's log_alpha."""
+    surgery = learner.config.gradient == "pcgrad"
+    per_sample = {"reduce": False} if surgery else {}  # PCGrad takes each sample's loss
     terms = {}
     for name in stage:
         batch, alpha, obs, _ = inputs[name]
         ids = batch.task_ids
         loss, log_pi = actor_loss(
-            learner.policy(name, ids), learner.qf(name, ids), obs, ids, alpha, noise[name].actor
+            learner.policy(name, ids),
+            learner.qf(name, ids),
+            obs,
+            ids,
+            alpha,
+            noise[name].actor,
+            **per_sample,
         )
         log_alpha = learner.log_alpha_of(name)
         terms[name] = (
@@ -272,11 +307,65 @@ def actor_stage(
             log_pi,
             alpha_loss(log_alpha, ids, log_pi, learner.target_entropy[name]),
         )
-    loss = _total(
-        {n: t[0] for n, t in terms.items()}, weights, _weighted(learner, learner.actor_slots)
-    )
-    grads = learner.actor_slots.grads(loss, stage)
+    conflicts = None
+    if surgery:
+        losses = {n: t[0] for n, t in terms.items()}
+        grads, conflicts = _pcgrad_grads(learner, learner.actor_slots, stage, inputs, losses)
+        terms = {n: (t[0].mean(), *t[1:]) for n, t in terms.items()}
+    else:
+        loss = _total(
+            {n: t[0] for n, t in terms.items()}, weights, _weighted(learner, learner.actor_slots)
+        )
+        grads = learner.actor_slots.grads(loss, stage)
     temperature = torch.stack([terms[n][2] for n in stage]).sum()
     alpha_grads = torch.autograd.grad(temperature, [learner.log_alpha_of(n) for n in stage])
     detached = {n: ActorTerms(*(x.detach() for x in t)) for n, t in terms.items()}
-    return ActorStage(detached, grads, alpha_grads)
+    return ActorStage(detached, grads, alpha_grads, conflicts)
+
+
+def _pcgrad_grads(
+    learner: Learner,
+    slots: Slots,
+    stage: Sequence[str],
+    inputs: Mapping[str, EnvInputs],
+    losses: Mapping[str, torch.Tensor],
+) -> tuple[tuple[torch.Tensor | None, ...], torch.Tensor]:
+    """gradient = "pcgrad": the gradients of the slots `stage` uses from its one env's per-sample
+    losses (B,), clipped as `Slots.grads`', and the number of projections PCGrad made.
+
+    Task t's row is the gradient of its share of the batch's mean loss, sum over its samples / N,
+    on the shared parameters (one backward pass per task; a task without samples has a zero row);
+    the rows' surgered sum steps them. The per-task parameters take the gradient of the sum of
+    the shares, which is the mean loss: with no conflict everything is the "mean" gradient."""
+    (name,) = stage  # one env (seal.learner.mtrl.pcgrad.check_config)
+    per_sample, task_ids = losses[name], inputs[name].batch.task_ids
+    num_tasks = learner.specs[name].num_tasks
+    shares = per_sample.new_zeros(num_tasks).index_add(0, task_ids, per_sample)
+    shares = shares / per_sample.shape[0]
+    params, per_task = slots.parameters_of(stage), slots.per_task_of(stage)
+    shared = [i for i, flag in enumerate(per_task) if not flag]
+    heads = [i for i, flag in enumerate(per_task) if flag]
+    rows = [
+        torch.autograd.grad(
+            shares[t], [params[i] for i in shared], retain_graph=True, allow_unused=True
+        )
+        for t in range(num_tasks)
+    ]
+    # A parameter outside the loss's graph is outside every task's (one graph): it rests, as in
+    # "mean" (its gradient None).
+    used = [k for k, g in enumerate(rows[0]) if g is not None]
+    grads: list[torch.Tensor | None] = [None] * len(params)
+    conflicts = torch.zeros((), dtype=torch.int64, device=per_sample.device)
+    if used:
+        flat = torch.stack([torch.cat([row[k].reshape(-1) for k in used]) for row in rows])
+        step, conflicts = pcgrad(flat, learner.pcgrad_generators[name])
+        sizes = [params[shared[k]].numel() for k in used]
+        for k, part in zip(used, step.split(sizes), strict=True):
+            grads[shared[k]] = part.view_as(params[shared[k]])
+    if heads:
+        head_grads = torch.autograd.grad(
+            shares.sum(), [params[i] for i in heads], allow_unused=True
+        )
+        for i, grad in zip(heads, head_grads, strict=True):
+            grads[i] = grad
+    return slots.clip(grads, stage), conflicts

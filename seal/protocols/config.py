@@ -43,6 +43,8 @@ class ProtocolTable:
     """baseline (MTMHSAC on one env), finetune (pre-train on A, fine-tune on B) or joint (SEAL on all envs)."""
     description: str = ""
     """One line saying what the protocol is for."""
+    column: str = ""
+    """The report column a baseline or joint protocol's runs form, e.g. "PaCo" (default: from its kind and scheduler, e.g. "Single Env" for a baseline); finetune protocols keep their two phase columns."""
     seeds: Annotated[int, Field(ge=1)] = 2
     """Number of seeds, run one after another into one group (Appendix B: 2)."""
     first_seed: Annotated[int, Field(ge=0)] = 0

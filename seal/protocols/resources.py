@@ -28,7 +28,8 @@ import torch
 from seal.device import ThreadChoice, choose_threads
 from seal.envs.base import EnvAdapter
 from seal.errors import ConfigError
-from seal.learner.config import AgentConfig, EnvSpec
+from seal.learner.config import MTRL_ARCHITECTURES, AgentConfig, EnvSpec
+from seal.learner.mtrl.network import activation_width
 from seal.learner.networks import critic_layers
 from seal.learner.replay import available_memory_bytes, replay_bytes
 from seal.learner.sac import Agent
@@ -55,6 +56,8 @@ class PhaseEstimate:
     """Trainable parameters of SMT's task encoder and decoders (agent.task_encoder = "smt_gru")."""
     replay_extra: int = 0
     """Bytes of the replay that hold each row's belief and episode step (smt_gru), in `replay`."""
+    actor_parameters: int = 0
+    """Of `parameters`, the policy's (the rest are the twin critics')."""
 
     @property
     def total(self) -> int:
@@ -71,6 +74,16 @@ class ResourceEstimate:
     """Bytes available now on the device (None: unknown, no check)."""
     phases: tuple[PhaseEstimate, ...] = ()
     """Every phase's estimate, in order."""
+
+    def describe_networks(self, architecture: str) -> str:
+        """One line: the networks' architecture and parameter counts in the largest phase."""
+        p = self.peak
+        critic = p.parameters - p.actor_parameters
+        encoder = f", task encoder {p.encoder_parameters:,}" if p.encoder_parameters else ""
+        return (
+            f"{architecture}: actor {p.actor_parameters:,} parameters, critic {critic:,} "
+            f"(both twins){encoder}"
+        )
 
     def update_shape(self) -> tuple[int, int]:
         """(parameters, batch) of the phase with the most update work (parameters x batch)."""
@@ -164,6 +177,7 @@ def _phase_estimate(config: ProtocolConfig, phase: Phase, model: PhaseModel) -> 
         parameters=actor + critic,
         batch=batch,
         encoder_parameters=encoder,
+        actor_parameters=actor,
         replay_extra=replay_bytes(model.replay_specs, config.replay.capacity_per_env)
         - replay_bytes(model.specs_with_replay_tasks(), config.replay.capacity_per_env),
     )
@@ -196,6 +210,9 @@ def _parameter_counts(agent: AgentConfig, specs: list[EnvSpec]) -> tuple[int, in
 def _widths(agent: AgentConfig, num_envs: int) -> tuple[int, int]:
     """Summed hidden widths one sample passes through in the actor and in one critic (a BroNet
     trunk's stem and two layers per block: `critic_layers`)."""
+    if agent.architecture in MTRL_ARCHITECTURES:
+        width = activation_width(agent)
+        return width, width
     trunk = sum(critic_layers(getattr(agent, agent.critic_trunk_key), agent.critic_block))
     if agent.architecture == "mtmhsac":
         return sum(agent.hidden), trunk
@@ -207,7 +224,9 @@ def _widths(agent: AgentConfig, num_envs: int) -> tuple[int, int]:
 
 def _width_key(agent: AgentConfig) -> str:
     """The widths key that dominates the networks' size."""
-    if agent.architecture == "mtmhsac":
+    if agent.architecture == "soft_modular":
+        return "agent.soft_width"
+    if agent.architecture == "mtmhsac" or agent.architecture in MTRL_ARCHITECTURES:
         return "agent.hidden"
     keys = {
         "agent.translator_hidden": max(agent.translator_hidden, default=0),

@@ -40,6 +40,7 @@ from seal.metrics import (
     first_reach,
 )
 from seal.protocols.rundir import METRICS_COLUMNS, TRAIN_COLUMNS  # defined once, by the writer
+from seal.reports.by_task import write_by_task
 from seal.reports.changes import _with_uncertainty, change_rows, few_seeds, pairing
 from seal.reports.groups import (
     BASELINE_COLUMN,
@@ -291,7 +292,8 @@ def _write_tables(
     censored: CensoredRule = "run-total",
 ) -> dict[str, Path]:
     """update_counts.{csv,md,tex} (counts, then steps x batch), update_counts_per_seed.csv,
-    update_changes.{csv,md,tex} (when a column has a reference) and success.{csv,md,tex}.
+    update_changes.{csv,md,tex} (when a column has a reference), success.{csv,md,tex} and
+    success_by_task.{csv,md,tex} (SMT Table 1's layout: `seal.reports.by_task`).
 
     update_counts.csv holds a row per (column, env, task), then one per (column, env) whose task is
     "Total", with the Markdown's total (`updates_total`), `tasks_reached`, `tasks` and `censored_tasks`.
@@ -358,6 +360,7 @@ def _write_tables(
     tables.update(
         _write_table(success_display, tables_dir / "success", "Final success rate", success_notes)
     )
+    tables.update(write_by_task(tables_dir, metrics, cols, rows, labels))
     return tables
 
 
@@ -375,6 +378,7 @@ def report(
     groups). Writes `tables/update_counts.{md,csv,tex}` (the counts, then steps x batch),
     `tables/update_counts_per_seed.csv`, `tables/update_changes.{md,csv,tex}` (one row per task,
     column and reference, when a column has one), `tables/success.{md,csv,tex}`,
+    `tables/success_by_task.{md,csv,tex}` (learners x task ids, SMT Table 1's layout),
     `plots/success_<env>.png`, `plots/changes_<env>.png` and `plots/critic_loss.png` under
     `out` (default: the run or group directory when there is one, else a new directory
     `<reports root>/comparison/<protocols>/<time>-<random>/`). `threshold` defaults to the runs' configured

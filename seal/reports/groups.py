@@ -64,6 +64,8 @@ def column_label(
 ) -> str:
     """The report column of one run's phase and environment, as the paper names them.
 
+    A protocol's own [protocol].column wins; otherwise:
+
     baseline -> "Single Env"; joint with a constant ratio -> "50/50" (or its ratio); joint with the
     `high_fk` / `high_mw` presets -> "High FK" / "High MW"; finetune -> "Pre-train on X" for its
     pretrain phase and "Fine-tune on Y" for its finetune phase (Tables 6-7); a baseline whose
@@ -72,6 +74,11 @@ def column_label(
     SMT or curriculum scheduler, -> its protocol name. `others` labels envs this run lacks (a
     matched arm's absent env) by the [envs.<env>] adapters of the other runs in the report.
     """
+    named = run.config.get("protocol", {}).get("column")
+    if (
+        named and run.kind != "finetune"
+    ):  # [protocol].column: the protocol names its own column (SMT Table 1's learners)
+        return str(named)
     scheduler = run.scheduler()
     sched_kind = str(scheduler.get("kind", "") or "").lower()
     if run.kind == "baseline" and sched_kind in _PLAIN_SCHEDULERS:
@@ -132,7 +139,8 @@ def _joint_label(
 
 
 def _column_rank(label: str) -> tuple[int, int, int, str]:
-    """Table 1's columns first, then fine-tune columns by environment (MW, FK, others), then the rest."""
+    """Table 1's columns first, then fine-tune columns by environment (MW, FK, others), then SMT
+    Table 1's learners in its order, then the rest."""
     if label in _COLUMN_ORDER:
         return (_COLUMN_ORDER.index(label), 0, 0, "")
     if label.startswith(f"{BASELINE_COLUMN} ("):
@@ -142,7 +150,22 @@ def _column_rank(label: str) -> tuple[int, int, int, str]:
             env = label.removeprefix(prefix)
             # Pre-train on X next to Fine-tune on X: the two columns that fill X's rows (Tables 6-7).
             return (len(_COLUMN_ORDER), _ENV_RANK.get(env, len(_ENV_RANK)), step, env)
-    return (len(_COLUMN_ORDER) + 1, 0, 0, label)
+    if label in SMT_TABLE1_ORDER:  # SMT Table 1's rows in its order, MOORE and CARE after
+        return (len(_COLUMN_ORDER) + 1, SMT_TABLE1_ORDER.index(label), 0, "")
+    return (len(_COLUMN_ORDER) + 2, 0, 0, label)
+
+
+SMT_TABLE1_ORDER = (
+    "SAC-MT",
+    "SAC-MT-MH",
+    "Soft Modular",
+    "PCGrad",
+    "PaCo",
+    "SMT",
+    "MOORE",
+    "CARE",
+)
+"""The learners' columns (protocols/smt_table1, protocols/mtrl_learn) in SMT Table 1's order."""
 
 
 # --------------------------------------------------------------------------- gathering

@@ -114,3 +114,21 @@ def test_on_cuda_the_devices_free_memory_counts(monkeypatch: pytest.MonkeyPatch)
     config = load_protocol(POINT)
     estimate = estimate_resources(config, build_adapters(config), "cuda")
     assert estimate.available == 3 * 2**30 and "on cuda" in estimate.describe()
+
+
+@pytest.mark.parametrize("architecture", ["mtmhsac", "paco", "moore", "care", "soft_modular"])
+def test_explain_prints_each_learners_actor_and_critic_parameters(
+    architecture: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 57: the counts of the networks the run would build (against an Agent built here)."""
+    override = [f"agent.architecture={architecture}"]
+    assert main(["protocol", "explain", str(POINT), "--set", *override]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("# networks: "))
+    config = load_protocol(POINT, override)
+    specs = PhaseModel(config, plan_phases(config)[0], build_adapters(config), None).specs
+    agent = Agent(specs, dataclasses.replace(config.agent, device="cpu"), seed=0)
+    actor = sum(p.numel() for p in agent.actor.parameters())
+    critic = sum(p.numel() for p in agent.critic.parameters())
+    assert line == (
+        f"# networks: {architecture}: actor {actor:,} parameters, critic {critic:,} (both twins)"
+    )

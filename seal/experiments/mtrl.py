@@ -1,0 +1,194 @@
+"""`seal bench --learn mtrl`: each learner of SMT Table 1 learning at laptop scale, with its speed.
+
+Every arm of protocols/mtrl_learn is one learner (SAC-MT-MH, SAC-MT, PCGrad, PaCo, MOORE, CARE,
+Soft Modular) on the same three easy MT10 tasks with the same budget, run by `seal run` in its own
+process (the transfer bench's launcher, two at a time, `--reuse` across sessions). Per learner it
+prints: k of n seeds in which every task reached 90% at some evaluation, the first crossing of each
+task per seed (env steps of that task), its FLOPs an update (counted) and its updates/s against
+SAC-MT-MH's, timed side by side in this bench run (the same batch shapes, the arms interleaved,
+the best of `repeats`), so the ratio does not depend on the machine. `seal report` over the arms' runs writes the table in
+SMT Table 1's layout (tables/success_by_task.md). It need not order the learners as the paper
+does at this scale: it shows that each one learns.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from seal.errors import SealError, UnknownNameError
+from seal.experiments.transfer import Arm, code_versions, run_or_reuse, versions_note
+from seal.metrics import DEFAULT_THRESHOLD, first_reach
+
+MTRL_LEARN = Path(__file__).resolve().parents[2] / "protocols" / "mtrl_learn"
+"""The arms' protocol files."""
+REFERENCE = "sac_mt_mh"
+"""The arm whose updates/s the others are set against (MTMHSAC)."""
+
+
+def _arm(name: str, label: str) -> Arm:
+    return Arm(name, label, None, directory=MTRL_LEARN)
+
+
+ARMS: tuple[Arm, ...] = (
+    _arm("sac_mt_mh", "SAC-MT-MH"),
+    _arm("sac_mt", "SAC-MT"),
+    _arm("pcgrad", "PCGrad"),
+    _arm("paco", "PaCo"),
+    _arm("moore", "MOORE"),
+    _arm("care", "CARE"),
+    _arm("soft_modular", "Soft Modular"),
+)
+
+
+def arms(only: Sequence[str] | None = None) -> list[Arm]:
+    """All arms, or the named ones and the reference."""
+    if not only:
+        return list(ARMS)
+    by_name = {a.name: a for a in ARMS}
+    for name in only:
+        if name not in by_name:
+            raise UnknownNameError("mtrl arm", name, list(by_name))
+    return [a for a in ARMS if a.name in {*only, REFERENCE}]
+
+
+def crossings(run_dirs: Mapping[int, Path]) -> dict[int, dict[str, int | None]]:
+    """Per seed, per task: the task's env steps at its first evaluation >= 90% (None: never)."""
+    from seal import load_run
+
+    out: dict[int, dict[str, int | None]] = {}
+    for seed, path in sorted(run_dirs.items()):
+        reach = first_reach(load_run(path).metrics, DEFAULT_THRESHOLD)
+        out[seed] = {r.task: int(r.env_steps) if r.reached else None for r in reach.itertuples()}
+    return out
+
+
+def update_rates(
+    names: Sequence[str], overrides: Sequence[str] = (), updates: int = 20, repeats: int = 3
+) -> tuple[dict[str, float], dict[str, int]]:
+    """(updates per second, FLOPs per update) of each arm's agent on random batches of its
+    protocol's shapes, on one CPU thread: timed interleaved, the best of `repeats` per arm;
+    FLOPs counted by FlopCounterMode (`seal.bench.flops.counted_update_flops`)."""
+    from seal.bench.flops import _agent_batches, counted_update_flops
+    from seal.bench.timing import _timeit
+    from seal.device import torch_threads
+    from seal.learner import Agent, EnvSpec
+    from seal.protocols import load_protocol
+    from seal.protocols.phase_model import build_adapters
+
+    agents, batches, flops = {}, {}, {}
+    for name in names:
+        config = load_protocol(MTRL_LEARN / f"{name}.toml", list(overrides))
+        specs = [
+            EnvSpec(n, a.obs_dim, a.act_dim, len(a.tasks))
+            for n, a in build_adapters(config).items()
+        ]
+        agents[name] = Agent(specs, config.agent, seed=0)
+        flops[name] = counted_update_flops(specs, config.agent, config.training.batch_per_task)
+        batches[name] = _agent_batches(specs, config.training.batch_per_task, seed=0)
+        agents[name].update(batches[name])  # the first update also builds lazy state
+    best = dict.fromkeys(names, math.inf)
+    with torch_threads(1):
+        for _ in range(repeats):
+            for name in names:
+
+                def run(name: str = name) -> None:
+                    for _ in range(updates):
+                        agents[name].update(batches[name])
+
+                best[name] = min(best[name], _timeit(run, 1) / updates)
+    return {name: 1.0 / best[name] for name in names}, flops
+
+
+def run_mtrl_bench(
+    seeds: int = 3,
+    out: str | os.PathLike[str] = "reports/bench_mtrl",
+    parallel: int = 2,
+    overrides: Sequence[str] = (),
+    log: Callable[[str], None] = lambda _: None,
+    only: Sequence[str] | None = None,
+    reuse: bool = False,
+) -> dict[str, Any]:
+    """Run (or reuse) every arm's seeds 0..seeds-1, time the updates, report the runs."""
+    from seal import load_run
+    from seal.bench.timing import machine_load
+    from seal.reports import report
+
+    if seeds < 1:
+        raise SealError(f"--seeds must be >= 1, got {seeds}")
+    chosen = arms(only)
+    load_before = machine_load()
+    started = time.monotonic()
+    jobs = [(arm, seed) for seed in range(seeds) for arm in chosen]
+    run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
+    wall = time.monotonic() - started
+    log("timing the updates side by side")
+    rates, flops = update_rates([a.name for a in chosen], overrides)
+    learners = {}
+    for arm in chosen:
+        by_seed = {s: run_dirs[(arm.name, s)] for s in range(seeds)}
+        crossed = crossings(by_seed)
+        every = [
+            s
+            for s, tasks in crossed.items()
+            if tasks and all(v is not None for v in tasks.values())
+        ]
+        learners[arm.name] = {
+            "label": arm.label,
+            "every_task_90": len(every),
+            "seeds": seeds,
+            "first_crossing_env_steps": {str(s): t for s, t in crossed.items()},
+            "updates_per_s": rates[arm.name],
+            "speed_vs_reference": rates[arm.name] / rates[REFERENCE],
+            "flops_per_update": flops[arm.name],
+            "run_dirs": {str(s): str(p) for s, p in by_seed.items()},
+        }
+    result = report([p for p in run_dirs.values()], out=Path(out) / "mtrl" / "all")
+    loaded = {key: load_run(p) for key, p in run_dirs.items()}
+    return {
+        "learners": learners,
+        "reference": REFERENCE,
+        "by_task_table": result.tables["success_by_task.md"].read_text(),
+        "report_dir": str(result.out_dir),
+        "reused": sorted(f"{a}/seed-{s}" for a, s in reused),
+        "code_versions": code_versions(
+            {key: r.provenance.get("git_sha") for key, r in loaded.items()}
+        ),
+        "overrides": list(overrides),
+        "wall_s": wall,
+        "parallel": parallel,
+        "load_before": load_before,
+        "load_after": machine_load(),
+    }
+
+
+def format_result(result: Mapping[str, Any]) -> str:
+    """The human-readable output of `run_mtrl_bench`."""
+    ref = result["learners"][result["reference"]]["label"]
+    lines = [
+        f"{'learner':<14} {'every task >= 90%':<18} {'first crossing per seed (env steps a task)':<60} "
+        f"updates/s (x {ref}), GFLOP an update"
+    ]
+    for learner in result["learners"].values():
+        per_seed = "; ".join(
+            f"s{s} "
+            + ", ".join(
+                f"{t.split('-v')[0]} {'-' if v is None else f'{v:,}'}" for t, v in tasks.items()
+            )
+            for s, tasks in learner["first_crossing_env_steps"].items()
+        )
+        lines.append(
+            f"{learner['label']:<14} {learner['every_task_90']} of {learner['seeds']:<13} "
+            f"{per_seed:<60} {learner['updates_per_s']:.1f} (x {learner['speed_vs_reference']:.2f}), "
+            f"{learner['flops_per_update'] / 1e9:.2f}"
+        )
+    lines += ["", "- = never reached 90% within the run.", "", result["by_task_table"].rstrip(), ""]
+    note = versions_note(result["code_versions"])
+    if note:
+        lines.append(f"WARNING, {note}")
+    lines.append(f"Report (tables, plots): {result['report_dir']}")
+    return "\n".join(lines)

@@ -1,0 +1,69 @@
+"""`seal bench --learn mtrl` (issue 57): SMT Table 1's learners at laptop scale, with their speed."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from seal.errors import SealError
+from seal.experiments.mtrl import ARMS, arms, crossings, format_result, run_mtrl_bench
+from seal.protocols import load_protocol
+from tests.test_reports import HEADER
+
+TINY = [
+    "protocol.epochs=2",
+    "envs.mw.episode_length=10",
+    "training.warmup_steps=0",
+    "training.batch_per_task=4",
+    "evaluation.interval=1",
+    "evaluation.episodes=1",
+    "agent.hidden=[8]",
+]
+
+
+def test_every_arm_differs_from_the_reference_only_in_its_learner() -> None:
+    ref = load_protocol(ARMS[0].protocol)
+    for arm in ARMS:
+        config = load_protocol(arm.protocol)
+        assert config.envs == ref.envs and config.training == ref.training
+        assert config.evaluation == ref.evaluation and config.protocol.epochs == 200
+        assert config.protocol.column == arm.label  # its column in the report
+    assert [a.name for a in arms(["paco"])] == ["sac_mt_mh", "paco"]  # the reference comes too
+    with pytest.raises(SealError, match="unknown mtrl arm 'nope'"):
+        arms(["nope"])
+
+
+def test_crossings_are_each_tasks_env_steps_at_its_first_evaluation_at_90(tmp_path: Path) -> None:
+    run = tmp_path / "seed-0"
+    run.mkdir()
+    (run / "config.toml").write_text('[protocol]\nname = "p"\n')
+    (run / "provenance.json").write_text(json.dumps({"seed": 0}))
+    (run / "metrics.csv").write_text(
+        HEADER
+        + "0,train,1,mw,reach-v3,0.95,1,150,1500,0.001,1\n"
+        + "0,train,1,mw,drawer-close-v3,0.5,1,150,1500,0.001,1\n"
+        + "0,train,2,mw,reach-v3,0.5,1,300,3000,0.002,2\n"
+        + "0,train,2,mw,drawer-close-v3,0.9,1,300,3000,0.002,2\n"
+    )
+    assert crossings({0: run}) == {0: {"reach-v3": 1500, "drawer-close-v3": 3000}}
+
+
+@pytest.mark.slow
+def test_tiny_end_to_end(tmp_path: Path) -> None:
+    # One seed of PaCo and the reference, 2 epochs at 8 wide: the plumbing only.
+    result = run_mtrl_bench(seeds=1, out=tmp_path, parallel=2, overrides=TINY, only=["paco"])
+    assert list(result["learners"]) == ["sac_mt_mh", "paco"]
+    for learner in result["learners"].values():
+        assert learner["seeds"] == 1 and learner["every_task_90"] in (0, 1)
+        assert set(learner["first_crossing_env_steps"]["0"]) == {
+            "reach-v3",
+            "drawer-close-v3",
+            "window-close-v3",
+        }
+        assert learner["updates_per_s"] > 0
+    assert result["learners"]["sac_mt_mh"]["speed_vs_reference"] == 1.0
+    assert "| SAC-MT-MH" in result["by_task_table"] and "| PaCo" in result["by_task_table"]
+    text = format_result(result)
+    assert "PaCo" in text and "updates/s (x SAC-MT-MH)" in text
