@@ -145,8 +145,9 @@ def test_cli_rejects_set_outside_protocol_and_table1(capsys) -> None:
     from seal.cli.main import main
 
     assert main(["bench", "--learn", "transfer", "--set", "protocol.epochs=2"]) == 2
-    assert "--set only applies to --protocol and to --learn table1, quickstart, reach_sb3 and" in (
-        capsys.readouterr().err
+    assert (
+        "--set only applies to --protocol and to --learn table1, quickstart, reach_sb3, kitchen "
+        "and mtrl" in capsys.readouterr().err
     )
 
 

@@ -13,23 +13,18 @@ import pandas as pd
 import pytest
 
 from seal.errors import SealError
-from seal.experiments.transfer import (
-    ARMS,
+from seal.experiments.arms import ARMS, arms
+from seal.experiments.launcher import agent_mismatches, code_versions, finished_run
+from seal.experiments.statistics import (
     TargetCost,
-    agent_mismatches,
-    arm_mdes,
-    arms,
-    code_versions,
-    finished_run,
-    format_result,
-    format_table,
-    run_transfer_bench,
     summarise,
     target_auc,
     target_budget,
     target_cost,
     updates_saved,
 )
+from seal.experiments.tables import format_table
+from seal.experiments.transfer import arm_mdes, format_result, run_transfer_bench
 from seal.protocols import load_protocol
 from seal.protocols.loader import config_to_dict
 from seal.protocols.phase_model import build_adapters
@@ -344,7 +339,7 @@ def test_code_versions_group_runs_by_commit() -> None:
 
 
 def test_every_arm_has_the_jsons_keys() -> None:
-    from seal.experiments.transfer import summarise
+    from seal.experiments.statistics import summarise
 
     def cost(steps: int) -> TargetCost:
         return TargetCost(8.0 * steps, steps, 0, 1, {"t0": 8.0 * steps}, ("t0",), {"t0": steps})
@@ -371,7 +366,7 @@ def test_every_arm_has_the_jsons_keys() -> None:
 
 
 def test_a_run_predating_a_key_is_reused_only_at_that_keys_default() -> None:
-    from seal.experiments.transfer import _same_tables
+    from seal.experiments.launcher import _same_tables
 
     today = {
         "agent": {"latent_dim": 8, "head_hidden": [], "clip_per": "optimizer"},
@@ -430,7 +425,7 @@ def _cost(steps: int) -> TargetCost:
 
 
 def test_summary_has_each_statistics_ci_sd_mde_and_seeds_for_mde() -> None:
-    from seal.experiments.transfer import summarise
+    from seal.experiments.statistics import summarise
     from seal.stats import mde, seeds_for_mde, t_ci
 
     chosen = arms(only=["high_source"])
@@ -484,7 +479,8 @@ def _synthetic_runs(seeds: int = 5) -> dict[tuple[str, int], pd.DataFrame]:
 
 
 def test_transfer_tables_and_plots(tmp_path) -> None:
-    from seal.experiments.transfer import format_table, summarise, write_transfer_report
+    from seal.experiments.statistics import summarise
+    from seal.experiments.tables import format_table, write_transfer_report
 
     runs = _synthetic_runs()
     chosen = arms(only=["high_source", "oracle_policy"])
@@ -605,16 +601,16 @@ def _stop_one(child: str, wait_s: float, *args: str) -> int:
     import subprocess
     import sys
 
-    import seal.experiments.transfer as transfer
+    import seal.experiments.launcher as launcher
 
     proc = subprocess.Popen([sys.executable, "-c", child, *args], stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout.readline().strip() == "ready"  # type: ignore[union-attr]
-        transfer.STOP_WAIT_S, wait = wait_s, transfer.STOP_WAIT_S
+        launcher.STOP_WAIT_S, wait = wait_s, launcher.STOP_WAIT_S
         try:
-            transfer._stop_runs([proc])
+            launcher._stop_runs([proc])
         finally:
-            transfer.STOP_WAIT_S = wait
+            launcher.STOP_WAIT_S = wait
     finally:
         proc.kill()
         proc.wait()
@@ -645,7 +641,7 @@ def test_sigterm_reaches_a_launchers_cleanup() -> None:
     import os
     import signal
 
-    from seal.experiments.transfer import terminate_as_exit
+    from seal.experiments.launcher import terminate_as_exit
 
     before = signal.getsignal(signal.SIGTERM)
     with pytest.raises(SystemExit) as stopped, terminate_as_exit():

@@ -2,7 +2,7 @@
 
 Every arm is an ordinary protocol under `protocols/kitchen_learn/` (MTMHSAC on one kitchen task,
 stopping at its first evaluation at >= 90% success), run by `seal run` in its own process through
-the transfer bench's launcher; this module reads the run directories. Per run it reports the env
+`seal.experiments.launcher`; this module reads the run directories. Per run it reports the env
 steps (the learner's own: demonstrations are not counted) and the updates (millions of consumed
 transitions) at the first evaluation at >= 90%; a run that never got there is censored at its total.
 Goals: every arm's task reaches 90% within 150k env steps in every seed (issue 11); at least 4 of
@@ -27,6 +27,7 @@ import numpy as np
 
 from seal.errors import SealError, SealWarning, UnknownNameError
 from seal.evaluation import SUCCESS_TOLERANCE
+from seal.experiments.arms import Arm
 from seal.experiments.kitchen_rules import (
     ENV_STEP_BUDGET,
     RULE_SEEDS,
@@ -36,8 +37,7 @@ from seal.experiments.kitchen_rules import (
     within_budget,
 )
 from seal.experiments.kitchen_rules import collapse_test as _collapse_test
-from seal.experiments.transfer import (
-    Arm,
+from seal.experiments.launcher import (
     code_versions,
     finished_run,
     run_or_reuse,

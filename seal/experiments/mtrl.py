@@ -2,7 +2,7 @@
 
 Every arm of protocols/mtrl_learn is one learner (SAC-MT-MH, SAC-MT, PCGrad, PaCo, MOORE, CARE,
 Soft Modular) on the same three easy MT10 tasks with the same budget, run by `seal run` in its own
-process (the transfer bench's launcher, two at a time, `--reuse` across sessions). Per learner it
+process (`seal.experiments.launcher`, two at a time, `--reuse` across sessions). Per learner it
 prints: k of n seeds in which every task reached 90% at some evaluation, the first crossing of each
 task per seed (env steps of that task), its FLOPs an update (counted) and its updates/s against
 SAC-MT-MH's, timed side by side in this bench run (the same batch shapes, the arms interleaved,
@@ -21,7 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from seal.errors import SealError, UnknownNameError
-from seal.experiments.transfer import Arm, code_versions, run_or_reuse, versions_note
+from seal.experiments.arms import Arm
+from seal.experiments.launcher import code_versions, run_or_reuse, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
 MTRL_LEARN = Path(__file__).resolve().parents[2] / "protocols" / "mtrl_learn"

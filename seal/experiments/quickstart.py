@@ -1,7 +1,7 @@
 """`seal bench --learn quickstart`: README command 1's protocol over seeds 0-9, as the README shows it.
 
-The shipped `protocols/quickstart.toml`, run by `seal run` for each seed in its own process (the
-transfer bench's launcher), then `seal report` on the ten run directories. It writes what the
+The shipped `protocols/quickstart.toml`, run by `seal run` for each seed in its own process
+(`seal.experiments.launcher`), then `seal report` on the ten run directories. It writes what the
 README includes: `docs/quickstart_table.md` (the report's table over the seeds and the
 "k of n seeds" line), the report's success curves with their 95% bootstrap band (the kitchen's
 copied to `docs/quickstart_success_fk.png`), and seed 0's own table, which is what command 1
@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from seal.errors import SealError, UnknownNameError
-from seal.experiments.transfer import Arm, code_versions, run_or_reuse, versions_note
+from seal.experiments.arms import Arm
+from seal.experiments.launcher import code_versions, run_or_reuse, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
 REPO = Path(__file__).resolve().parents[2]

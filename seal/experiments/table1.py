@@ -3,7 +3,7 @@
 Meta-World drawer-close-v3 (no demonstrations) and the kitchen's slide-cabinet (30 of its
 expert's episodes) under the paper's four columns (Single Env, 50/50, High FK, High MW), each
 ratio column with its batch-matched alone arms. Every
-arm is an ordinary protocol run by `seal run` in its own process (the transfer bench's launcher,
+arm is an ordinary protocol run by `seal run` in its own process (`seal.experiments.launcher`,
 two at a time); the table is `seal report`'s on their run directories, so its cells, changes,
 CIs, [reached/seeds] and plots (changes with their MDE, success with a bootstrap band) are the
 ones a user gets from `seal report` on the same runs. Beside it, `auc_changes`: the paired area
@@ -22,7 +22,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from seal.errors import SealError, UnknownNameError
-from seal.experiments.transfer import Arm, code_versions, run_or_reuse, versions_note
+from seal.experiments.arms import Arm
+from seal.experiments.launcher import code_versions, run_or_reuse, versions_note
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -101,7 +102,7 @@ def auc_changes(runs: Mapping[tuple[str, int], pd.DataFrame]) -> list[dict[str, 
     batch-matched arm the two are proportional, against Single Env it is "the same number of
     network updates".
     """
-    from seal.experiments.transfer import ARM_CI, target_auc
+    from seal.experiments.statistics import ARM_CI, target_auc
     from seal.stats import paired_power
 
     budget = max(int(m["grad_steps"].max()) for m in runs.values())
