@@ -25,10 +25,10 @@ from torch import nn
 from seal.device import resolve_device
 from seal.errors import SealError, TrainingDivergedError, UnknownNameError
 from seal.learner import lever
-from seal.learner.config import MTRL_ARCHITECTURES, AgentConfig, Batch, EnvSpec
+from seal.learner.build import build_networks
+from seal.learner.config import AgentConfig, Batch, EnvSpec
 from seal.learner.losses import Policy, TwinQ
 from seal.learner.mtrl import pcgrad
-from seal.learner.mtrl.network import TaskConditionedNetwork
 from seal.learner.networks import (
     HEAD_BOUND,
     LOG_STD_MAX,
@@ -179,89 +179,9 @@ class Agent:
     # ------------------------------------------------------------------ construction and reset
     def _build_networks(self, specs: Sequence[EnvSpec]) -> None:
         """The policy, the twin critics (per env or shared) and the per-task log temperatures."""
-        config, keys = self.config, self._keys
-        task_segment = {
-            s.name: (
-                (("task", s.num_tasks),)
-                if config.one_hot
-                else (("belief", config.belief_dim),)
-                if config.belief_dim
-                else ()
-            )
-            for s in specs
-        }
-        self.actor_segments: dict[str, Segments] = {
-            keys[s.name]: (("obs", s.obs_dim), *task_segment[s.name]) for s in specs
-        }
-        self.critic_segments: dict[str, Segments] = {
-            keys[s.name]: (("obs", s.obs_dim), *task_segment[s.name], ("action", s.critic_act_dim))
-            for s in specs
-        }
-        if config.architecture in MTRL_ARCHITECTURES:
-            self._build_task_conditioned(specs)
-            return
-        translator = (
-            None
-            if config.architecture == "mtmhsac"
-            else (config.translator_hidden, config.latent_dim)
-        )
-        trunk = config.hidden if config.architecture == "mtmhsac" else config.trunk_hidden
-        self.actor = TaskNetwork(
-            self.actor_segments,
-            {keys[s.name]: 2 * s.act_dim for s in specs},
-            {keys[s.name]: s.num_tasks if config.multi_head_policy else 1 for s in specs},
-            trunk,
-            translator,
-            ensemble=1,
-            head_hidden=config.head_hidden,
-            head_per_task=config.head_per_task,
-        )
-        critic_heads = {keys[s.name]: s.num_tasks if config.critic_multi_head else 1 for s in specs}
-        self.critic: TaskNetwork | PerEnvCritic
-        if config.architecture == "seal" and config.critic_sharing == "per_env":
-            self.critic = PerEnvCritic(
-                self.critic_segments,
-                critic_heads,
-                config.critic_hidden,
-                ensemble=2,
-                layer_norm=config.critic_layer_norm,
-                block=config.critic_block,
-            )
-        else:
-            self.critic = TaskNetwork(
-                self.critic_segments,
-                {keys[s.name]: 1 for s in specs},
-                critic_heads,
-                trunk,
-                translator,
-                ensemble=2,  # twin Q: qf1 and qf2 as one stacked network
-                layer_norm=config.critic_layer_norm,
-                block=config.critic_block,
-            )
-        self.log_alpha = nn.ParameterDict(
-            {keys[s.name]: nn.Parameter(torch.empty(s.num_tasks)) for s in specs}
-        )
-
-    def _build_task_conditioned(self, specs: Sequence[EnvSpec]) -> None:
-        """The policy and twin critics of a task-conditioned architecture (`seal.learner.mtrl`)."""
-        config, keys = self.config, self._keys
-        self.actor = TaskConditionedNetwork(
-            self.actor_segments,
-            {keys[s.name]: 2 * s.act_dim for s in specs},
-            {keys[s.name]: s.num_tasks for s in specs},
-            config,
-        )
-        self.critic = TaskConditionedNetwork(
-            self.critic_segments,
-            {keys[s.name]: 1 for s in specs},
-            {keys[s.name]: s.num_tasks for s in specs},
-            config,
-            ensemble=2,
-            layer_norm=config.critic_layer_norm,
-        )
-        self.log_alpha = nn.ParameterDict(
-            {keys[s.name]: nn.Parameter(torch.empty(s.num_tasks)) for s in specs}
-        )
+        built = build_networks(specs, self.config, self._keys)
+        self.actor_segments, self.critic_segments = built.actor_segments, built.critic_segments
+        self.actor, self.critic, self.log_alpha = built.actor, built.critic, built.log_alpha
 
     def _build_encoders(self, specs: Sequence[EnvSpec], draw: bool = True) -> None:
         """SMT's task encoders (agent.task_encoder = "smt_gru"): drawn once, kept by an SMT reset."""
