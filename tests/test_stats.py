@@ -1,5 +1,6 @@
 """seal.stats: bootstrap CIs against scipy and hand-worked cases, probability of improvement, the
-minimum detectable effect (by hand and by simulation), the IQM and the false-positive rate."""
+minimum detectable effect (by hand and by simulation), the IQM, the false-positive rate, and
+intervals of bounded statistics (in their bounds, their coverage by simulation)."""
 
 from __future__ import annotations
 
@@ -11,14 +12,21 @@ from scipy import stats as scipy_stats
 
 from seal.errors import SealError
 from seal.stats import (
+    COVERAGE_CASES,
     MIN_SEEDS_RESOLVED,
     binomial_ci,
     bootstrap_band,
     bootstrap_ci,
+    bounded_ci_coverage,
+    bounded_t_ci,
     change_ci,
+    clip_ci,
+    format_coverage,
     interquartile_mean,
     iqm_ci,
     mde,
+    near_bound_case,
+    normal_case,
     paired_power,
     probability_of_improvement,
     resolved,
@@ -379,3 +387,75 @@ def test_t_ci() -> None:
     assert t_ci(x) == pytest.approx((0.25 - half, 0.25 + half))
     assert t_ci([0.2, 0.2]) == (0.2, 0.2)
     assert all(math.isnan(v) for v in t_ci([0.2]))
+
+
+# ---------------------------------------------------------------- bounded statistics
+
+# oracle_policy's steps_saved per seed in round 5 (docs/transfer_testbed.md): exactly 1 in 2 seeds.
+ORACLE = [0.913, 0.840, 1.0, 0.923, 1.0]
+
+
+def test_bounded_t_ci_is_t_cut_at_the_bound() -> None:
+    low, high = t_ci(ORACLE)
+    assert high > 1  # the t interval claims savings above 1, which no seed can have
+    assert bounded_t_ci(ORACLE, (-math.inf, 1.0)) == (low, 1.0)
+    assert bounded_t_ci(ORACLE) == (low, high)  # no bounds: Student's t
+    # Within the bounds nothing changes; each end is cut on its own.
+    assert bounded_t_ci([0.1, 0.3, 0.2, 0.4], (-1.0, 1.0)) == t_ci([0.1, 0.3, 0.2, 0.4])
+    assert clip_ci((-1.2, -0.8), (-1.0, math.inf)) == (-1.0, -0.8)
+    assert clip_ci((0.9, 1.3), (-1.0, 1.0)) == (0.9, 1.0)
+    assert all(math.isnan(v) for v in clip_ci((math.nan, math.nan), (-1.0, 1.0)))
+    assert all(math.isnan(v) for v in bounded_t_ci([0.5], (-1.0, 1.0)))
+    assert bounded_t_ci([1.0, 1.0, math.nan], (-math.inf, 1.0)) == (1.0, 1.0)
+    with pytest.raises(SealError, match="leave their statistic's range"):
+        bounded_t_ci([0.5, 1.2], (-1.0, 1.0))
+    with pytest.raises(SealError, match="expected low <= high"):
+        clip_ci((0.0, 1.0), (1.0, -1.0))
+
+
+def test_bounded_ci_coverage_stays_in_bounds_and_keeps_ts_coverage() -> None:
+    near = [near_bound_case(0.4, 0.1), near_bound_case(0.9, 0.1)]  # means 0.94 and 0.99
+    rows = bounded_ci_coverage(near, seeds=(5,), replicates=400, seed=1)
+    assert [r["mean"] for r in rows] == pytest.approx([0.94, 0.99])
+    for r in rows:
+        assert r["outside"]["bounded t"] == 0.0  # never above 1
+        assert r["outside"]["t"] > 0  # where t's interval leaves [.., 1]
+        # The mean lies in the bounds, so cutting there loses no coverage: the same share.
+        assert r["coverage"]["bounded t"] == r["coverage"]["t"]
+        assert r["above"]["bounded t"] == r["above"]["t"] <= 1 - r["coverage"]["t"]
+    # 90% of the seeds at 1: at 5 seeds about 0.9^5 = 59% of samples have no spread at all.
+    assert rows[1]["no_spread"] == pytest.approx(0.9**5, abs=0.08)
+    assert bounded_ci_coverage(near, seeds=(5,), replicates=400, seed=1) == rows
+
+
+def test_bounded_ci_coverage_is_nominal_away_from_the_bound() -> None:
+    # Normal values far from the bound (like High Src's steps_saved): Student's t is exact there,
+    # so the coverage of 1,000 replicates lies within 3 binomial SEs of 0.95.
+    replicates = 1_000
+    tolerance = 3 * math.sqrt(0.95 * 0.05 / replicates)  # 0.021
+    for r in bounded_ci_coverage([normal_case(0.1, 0.15)], (5, 10), replicates, seed=2):
+        assert r["outside"]["bounded t"] == 0.0
+        assert abs(r["coverage"]["bounded t"] - 0.95) <= tolerance
+        low, high = r["coverage_ci95"]["bounded t"]
+        assert low <= r["coverage"]["bounded t"] <= high
+
+
+def test_format_coverage_and_the_default_cases() -> None:
+    assert len(COVERAGE_CASES) == 7 and COVERAGE_CASES[0].mean == pytest.approx(0.94)
+    assert COVERAGE_CASES[0].label == "1 w.p. 0.4, else 1 - Exp(mean 0.1)"
+    uniform = near_bound_case(0.4, 0.08, "uniform")
+    assert (uniform.label, uniform.mean) == (
+        "1 w.p. 0.4, else 1 - U(0, 0.16)",
+        pytest.approx(0.952),
+    )
+    text = format_coverage(bounded_ci_coverage(COVERAGE_CASES[:1], (5,), 20))
+    lines = text.splitlines()
+    assert lines[0] == (
+        "| case | mean | n | coverage t | coverage bounded t | above t | above bounded t "
+        "| outside t | outside bounded t | no spread |"
+    )
+    assert lines[2].startswith("| 1 w.p. 0.4, else 1 - Exp(mean 0.1) | 0.940 | 5 |")
+    with pytest.raises(SealError, match="expected 0 <= at_bound <= 1"):
+        near_bound_case(1.5, 0.1)
+    with pytest.raises(SealError, match="replicates"):
+        bounded_ci_coverage(replicates=0)

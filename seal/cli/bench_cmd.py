@@ -45,7 +45,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "2,000 env steps and stopped at the first >= 90%, and prints k of 3 per side; "
             "--learn mtrl runs SMT Table 1's learners (protocols/mtrl_learn) on three easy MT10 "
             "tasks, seeds 0-2, and prints per learner k of 3 seeds with every task >= 90%, each "
-            "task's first crossing and its updates/s against MTMHSAC's, timed side by side."
+            "task's first crossing and its updates/s against MTMHSAC's, timed side by side. "
+            "Every --learn run is a Ray task (the ray extra: pip install 'seal[ray]') that runs its "
+            "protocol as `seal run` does, on a private local Ray of --jobs CPUs or, with --address, "
+            "on a Ray cluster whose nodes all see --out at the same path (a shared filesystem)."
         ),
     )
     parser.add_argument(
@@ -99,7 +102,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--jobs",
         type=int,
         default=None,
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: `seal run` processes at a time (default 2; 1 for quickstart, whose shipped threads assume the machine to itself)",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: CPUs of the private local Ray the runs share (default 2). A run reserves the CPUs its protocol.threads resolves to, one for every shipped bench protocol, so --jobs 2 runs two at a time; a quickstart run reserves them all, so its seeds run one at a time. Not with --address",
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        metavar="auto|HOST:PORT",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: run on the Ray cluster at this address (auto: the one `ray start` began on this machine) instead of a private local Ray; every node must see --out at the same path (a shared filesystem), which is checked before the first run",
     )
     parser.add_argument(
         "--out",
@@ -203,6 +212,11 @@ def run(args: argparse.Namespace) -> int:
         raise SealError("--fpr only applies to --learn transfer, without --full and --arms")
     if args.no_run and args.learn != "kitchen":
         raise SealError("--no-run only applies to --learn kitchen")
+    if (args.address is not None or args.jobs is not None) and args.learn not in LEARN_SETS:
+        raise SealError(
+            "--jobs and --address only apply to --learn transfer, kitchen, table1, quickstart, "
+            "reach_sb3 and mtrl"
+        )
     if args.arms and args.learn not in LEARN_SETS:
         raise SealError(
             "--arms only applies to --learn transfer, kitchen, table1, quickstart, reach_sb3 and mtrl"
@@ -217,7 +231,11 @@ def run(args: argparse.Namespace) -> int:
         import importlib
 
         module, default_seeds, default_out = LEARN_SETS[args.learn]
-        jobs = args.jobs if args.jobs is not None else (1 if args.learn == "quickstart" else 2)
+        if args.jobs is not None and args.address is not None:
+            raise SealError(
+                "--jobs sets the CPUs of a local Ray; with --address the cluster's nodes decide"
+            )
+        jobs = 2 if args.jobs is None else args.jobs
         if jobs < 1:
             raise SealError(f"--jobs must be >= 1, got {jobs}")
         bench = importlib.import_module(module)
@@ -228,6 +246,7 @@ def run(args: argparse.Namespace) -> int:
                 parallel=jobs,
                 log=log,
                 reuse=args.reuse,
+                address=args.address,
             )
             print(json.dumps(result, indent=2) if args.json else bench.format_fpr(result))
             return 0
@@ -245,6 +264,7 @@ def run(args: argparse.Namespace) -> int:
             log=log,
             only=args.arms,
             reuse=args.reuse,
+            address=args.address,
             **extra,
         )
         print(

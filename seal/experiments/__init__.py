@@ -1,13 +1,13 @@
 """The learning experiments: the instrument that measures transfer, and the learning evidence.
 
-Each module launches ordinary protocols with `seal run` (two at a time on 2 cores), reads their run
-directories and reports against a stated goal: `transfer` (the transfer testbed: its arms, the
+Each module launches ordinary protocol runs as Ray tasks (`launcher`: a private local Ray of
+`--jobs` CPUs, or a cluster with `--address`), reads their run directories and reports against a
+stated goal: `transfer` (the transfer testbed: its arms, the
 ladder of positive controls, seed-paired changes, the MDE and the false-positive rate), `table1`
 (paper Table 1 at laptop scale), `kitchen` (single kitchens from their own rewards), `quickstart`
 (README command 1 over ten seeds) and `learn` (point and reach-v3 evidence). The transfer testbed
-is split by idea: `arms` (what is compared; `Arm` is every experiment's unit), `launcher` (the
-`seal run` processes, reuse and resume, stopping, code versions; every experiment launches through
-it), `statistics` (the testbed's costs, paired changes and their CIs, MDEs, AUC, false-positive
+is split by idea: `arms` (what is compared; `Arm` is every experiment's unit), `launcher` (the runs
+as Ray tasks, reuse and resume, stopping, code versions; every experiment launches through it), `statistics` (the testbed's costs, paired changes and their CIs, MDEs, AUC, false-positive
 rate) and `tables` (its tables and plots), which `transfer` wires to its goals. The statistical
 methods are `seal.stats`'; the CLI is `seal bench --learn <name>`.
 """

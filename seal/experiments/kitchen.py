@@ -1,8 +1,8 @@
 """`seal bench --learn kitchen`: learning evidence on single dense kitchens, with and without demonstrations.
 
 Every arm is an ordinary protocol under `protocols/kitchen_learn/` (MTMHSAC on one kitchen task,
-stopping at its first evaluation at >= 90% success), run by `seal run` in its own process through
-`seal.experiments.launcher`; this module reads the run directories. Per run it reports the env
+stopping at its first evaluation at >= 90% success), each seed one Ray task that runs it as
+`seal run` does (`seal.experiments.launcher`); this module reads the run directories. Per run it reports the env
 steps (the learner's own: demonstrations are not counted) and the updates (millions of consumed
 transitions) at the first evaluation at >= 90%; a run that never got there is censored at its total.
 Goals: every arm's task reaches 90% within 150k env steps in every seed (issue 11); at least 4 of
@@ -39,6 +39,7 @@ from seal.experiments.kitchen_rules import (
 from seal.experiments.kitchen_rules import collapse_test as _collapse_test
 from seal.experiments.launcher import (
     code_versions,
+    describe_ray,
     finished_run,
     run_or_reuse,
     versions_note,
@@ -184,6 +185,7 @@ def run_kitchen_bench(
     only: Sequence[str] | None = None,
     reuse: bool = False,
     run: bool = True,
+    address: str | None = None,
 ) -> dict[str, Any]:
     """Run (or, with `reuse`, take finished runs of) every arm's seeds; the figures as a JSON-able dict.
 
@@ -201,7 +203,9 @@ def run_kitchen_bench(
     started = time.monotonic()
     jobs = [(arm, seed) for seed in range(seeds) for arm in chosen]
     if run:
-        run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
+        run_dirs, reused = run_or_reuse(
+            jobs, Path(out), overrides, parallel, log, reuse, address=address
+        )
     else:
         found = {(a.name, s): finished_run(a, s, Path(out), overrides) for a, s in jobs}
         run_dirs = reused = {key: path for key, path in found.items() if path is not None}
@@ -261,6 +265,7 @@ def run_kitchen_bench(
         "missing": missing,
         "wall_s": time.monotonic() - started,
         "parallel": parallel,
+        "ray": describe_ray(parallel, address),
         "load_before": load_before,
         "load_after": machine_load(),
     }
@@ -504,7 +509,7 @@ def format_result(result: Mapping[str, Any]) -> str:
             if result.get("missing")
             else []
         ),
-        f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s wall"
+        f"{result['seeds']} seeds on {result['ray']}, {result['wall_s']:.0f} s wall"
         f"{reused}; load before "
         f"{load['loadavg_1m']} (1 min) on {load['cpus']} CPUs, after {result['load_after']['loadavg_1m']}",
     ]

@@ -1,9 +1,9 @@
 """`seal bench --learn mtrl`: each learner of SMT Table 1 learning at laptop scale, with its speed.
 
 Every arm of protocols/mtrl_learn is one learner (SAC-MT-MH, SAC-MT, PCGrad, PaCo, MOORE, CARE,
-Soft Modular) on the same three easy MT10 tasks with the same budget, run by `seal run` in its own
-process (`seal.experiments.launcher`, two at a time, `--reuse` across sessions). Per learner it
-prints: k of n seeds in which every task reached 90% at some evaluation, the first crossing of each
+Soft Modular) on the same three easy MT10 tasks with the same budget, each seed one Ray task that
+runs it as `seal run` does (`seal.experiments.launcher`, two at a time on a local Ray of 2 CPUs,
+`--reuse` across sessions). Per learner it prints: k of n seeds in which every task reached 90% at some evaluation, the first crossing of each
 task per seed (env steps of that task), its FLOPs an update (counted) and its updates/s against
 SAC-MT-MH's, timed side by side in this bench run (the same batch shapes, the arms interleaved,
 the best of `repeats`), so the ratio does not depend on the machine. `seal report` over the arms' runs writes the table in
@@ -22,7 +22,7 @@ from typing import Any
 
 from seal.errors import SealError, UnknownNameError
 from seal.experiments.arms import Arm
-from seal.experiments.launcher import code_versions, run_or_reuse, versions_note
+from seal.experiments.launcher import code_versions, describe_ray, run_or_reuse, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
 MTRL_LEARN = Path(__file__).resolve().parents[2] / "protocols" / "mtrl_learn"
@@ -113,8 +113,10 @@ def run_mtrl_bench(
     log: Callable[[str], None] = lambda _: None,
     only: Sequence[str] | None = None,
     reuse: bool = False,
+    address: str | None = None,
 ) -> dict[str, Any]:
-    """Run (or reuse) every arm's seeds 0..seeds-1, time the updates, report the runs."""
+    """Run (or reuse) every arm's seeds 0..seeds-1 on Ray (a local Ray of `parallel` CPUs, or
+    the cluster at `address`), time the updates, report the runs."""
     from seal import load_run
     from seal.bench.timing import machine_load
     from seal.reports import report
@@ -125,7 +127,9 @@ def run_mtrl_bench(
     load_before = machine_load()
     started = time.monotonic()
     jobs = [(arm, seed) for seed in range(seeds) for arm in chosen]
-    run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
+    run_dirs, reused = run_or_reuse(
+        jobs, Path(out), overrides, parallel, log, reuse, address=address
+    )
     wall = time.monotonic() - started
     log("timing the updates side by side")
     rates, flops = update_rates([a.name for a in chosen], overrides)
@@ -162,6 +166,7 @@ def run_mtrl_bench(
         "overrides": list(overrides),
         "wall_s": wall,
         "parallel": parallel,
+        "ray": describe_ray(parallel, address),
         "load_before": load_before,
         "load_after": machine_load(),
     }

@@ -1,7 +1,7 @@
 """`seal bench --learn quickstart`: README command 1's protocol over seeds 0-9, as the README shows it.
 
-The shipped `protocols/quickstart.toml`, run by `seal run` for each seed in its own process
-(`seal.experiments.launcher`), then `seal report` on the ten run directories. It writes what the
+The shipped `protocols/quickstart.toml`, each seed one Ray task that runs it as `seal run` does
+and reserves a whole node, so the seeds run one at a time (`seal.experiments.launcher`), then `seal report` on the ten run directories. It writes what the
 README includes: `docs/quickstart_table.md` (the report's table over the seeds and the
 "k of n seeds" line), the report's success curves with their 95% bootstrap band (the kitchen's
 copied to `docs/quickstart_success_fk.png`), and seed 0's own table, which is what command 1
@@ -21,7 +21,7 @@ from typing import Any
 
 from seal.errors import SealError, UnknownNameError
 from seal.experiments.arms import Arm
-from seal.experiments.launcher import code_versions, run_or_reuse, versions_note
+from seal.experiments.launcher import code_versions, describe_ray, run_or_reuse, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
 REPO = Path(__file__).resolve().parents[2]
@@ -80,16 +80,19 @@ def k_of_n_line(reached: Mapping[int, Mapping[str, bool]], where: str) -> str:
 def run_quickstart_bench(
     seeds: int = SEEDS,
     out: str | os.PathLike[str] = "reports/bench_quickstart",
-    parallel: int = 1,
+    parallel: int = 2,
     overrides: Sequence[str] = (),
     log: Callable[[str], None] = lambda _: None,
     only: Sequence[str] | None = None,
     reuse: bool = False,
     docs: Path | None = DOCS,
+    address: str | None = None,
 ) -> dict[str, Any]:
-    """Run seeds 0..seeds-1 of the quickstart with `seal run`, report them, and (with `docs`) write
-    the README's table, curve and k-of-n line there. One run at a time by default: the shipped
-    threads are chosen for a machine the run has to itself."""
+    """Run seeds 0..seeds-1 of the quickstart on Ray (a local Ray of `parallel` CPUs, or the
+    cluster at `address`), report them, and (with `docs`) write the README's table, curve and
+    k-of-n line there. Each run reserves a whole node, so one runs at a time on it: the shipped
+    settings (threads, the overlapped collection and evaluation workers) assume a machine the
+    run has to itself."""
     from seal.bench.timing import machine_load
     from seal.reports import report
 
@@ -101,7 +104,9 @@ def run_quickstart_bench(
     load_before = machine_load()
     started = time.monotonic()
     jobs = [(arm, seed) for seed in range(seeds)]
-    run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
+    run_dirs, reused = run_or_reuse(
+        jobs, Path(out), overrides, parallel, log, reuse, address=address, whole_node=True
+    )
     wall = time.monotonic() - started
     by_seed = {s: run_dirs[(arm.name, s)] for s in range(seeds)}
     result = report(list(by_seed.values()), out=Path(out) / "quickstart" / "all_seeds")
@@ -154,6 +159,7 @@ def run_quickstart_bench(
         "code_versions": versions,
         "wall_s": wall,
         "parallel": parallel,
+        "ray": describe_ray(parallel, address),
         "load_before": load_before,
         "load_after": machine_load(),
     }

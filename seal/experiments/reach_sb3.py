@@ -13,23 +13,28 @@ env steps in >= 2 of 3 seeds, under SEAL's loop and under stable-baselines3's `S
   episode, the episode set drawn by the gradient-step count. SB3 acts through
   `predict(deterministic=True)`. Each run stops at its first evaluation at >= 90%.
 
-Each (side, seed) runs in its own spawned process at one torch thread, `parallel` at a time, and
-writes `<out>/<side>-seed<N>.json`, which `reuse` takes instead of running it again.
+Each (side, seed) is one Ray task on one CPU at one torch thread (`seal.experiments.launcher`:
+a local Ray of `parallel` CPUs, or the cluster at `address`): SEAL's a protocol run into
+`<out>/reach/<group>/seed-<N>` as every bench's, SB3's a call of `run_sb3_side`. Each writes
+`<out>/<side>-seed<N>.json`, which `reuse` takes instead of running it again.
 """
 
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypedDict
 
-from seal.errors import UnknownNameError
+from seal.errors import SealError, UnknownNameError
+from seal.experiments.arms import Arm
+from seal.experiments.launcher import launching, run_failure, seal_run_command
 from seal.protocols.rundir import atomic_write_text
 
 PROTOCOL = Path(__file__).resolve().parents[2] / "protocols" / "learn" / "reach.toml"
+REACH = Arm("reach", "reach-v3", None, directory=PROTOCOL.parent)
+"""SEAL's side as an arm (its `seal run` command line)."""
 SIDES = ("seal", "sb3")
 GOAL_SEEDS = 2
 """Issue 36 item 2: at least 2 of 3 seeds reach the threshold on each side."""
@@ -62,9 +67,9 @@ def _evaluations_of(metrics_csv: Path) -> list[dict[str, float]]:
 
 
 def _side_run(
-    side: str, seed: int, evaluations: list[dict[str, float]], threshold: float, start: float
+    side: str, seed: int, evaluations: list[dict[str, float]], threshold: float, wall_s: float
 ) -> SideRun:
-    """The record of a run that began at `start` (perf_counter) and evaluated `evaluations`."""
+    """The record of a run that took `wall_s` and evaluated `evaluations`."""
     from seal.evaluation import reaches
 
     return {
@@ -74,19 +79,17 @@ def _side_run(
         "reached_at_env_steps": next(
             (int(e["env_steps"]) for e in evaluations if reaches(e["success"], threshold)), None
         ),
-        "wall_s": time.perf_counter() - start,
+        "wall_s": wall_s,
     }
 
 
-def run_seal_side(seed: int, out: Path, overrides: Sequence[str] = ()) -> SideRun:
-    """`protocols/learn/reach.toml` under `seal run`'s runner, one thread, into `out`."""
-    from seal.protocols import load_protocol, run_seed
+SEAL_THREADS = ["protocol.threads=1"]
+"""SEAL's side runs at one torch thread, as SB3's does (`run_sb3_side`)."""
 
-    config = load_protocol(PROTOCOL, ["protocol.threads=1", *overrides])
-    start = time.perf_counter()
-    result = run_seed(config, seed, out / "seal")
-    evaluations = _evaluations_of(result.run_dir / "metrics.csv")
-    return _side_run("seal", seed, evaluations, config.evaluation.threshold, start)
+
+def seal_side(run_dir: Path, seed: int, threshold: float, wall_s: float) -> SideRun:
+    """The record of SEAL's run of `protocols/learn/reach.toml` in `run_dir`."""
+    return _side_run("seal", seed, _evaluations_of(run_dir / "metrics.csv"), threshold, wall_s)
 
 
 def run_sb3_side(seed: int, overrides: Sequence[str] = ()) -> SideRun:
@@ -149,17 +152,8 @@ def run_sb3_side(seed: int, overrides: Sequence[str] = ()) -> SideRun:
         model.learn(total_timesteps=budget, callback=Evaluate())
     finally:
         collector.close()
-    return _side_run("sb3", seed, evaluations, config.evaluation.threshold, start)
-
-
-def _job(job: tuple[str, int, str, list[str]]) -> SideRun:
-    import torch
-
-    side, seed, out, overrides = job
-    torch.set_num_threads(1)
-    if side == "seal":
-        return run_seal_side(seed, Path(out), overrides)
-    return run_sb3_side(seed, overrides)
+    wall_s = time.perf_counter() - start
+    return _side_run("sb3", seed, evaluations, config.evaluation.threshold, wall_s)
 
 
 def run_reach_sb3_bench(
@@ -171,16 +165,21 @@ def run_reach_sb3_bench(
     only: Sequence[str] | None = None,
     reuse: bool = False,
     overrides: Sequence[str] = (),
+    address: str | None = None,
 ) -> dict[str, Any]:
-    """Run seeds 0..seeds-1 on each side (`only`: the sides to run), `parallel` processes at a
-    time, and return the per-run records and each side's k of n within the budget. Each record
-    is written as it finishes, with the overrides it ran under; `reuse` takes only a record of
-    the same overrides."""
+    """Run seeds 0..seeds-1 on each side (`only`: the sides to run) as Ray tasks of one CPU each,
+    on a local Ray of `parallel` CPUs or the cluster at `address`, and return the per-run records
+    and each side's k of n within the budget. Each record is written as it finishes, with the
+    overrides it ran under; `reuse` takes only a record of the same overrides."""
+    from seal.protocols import load_protocol
+    from seal.protocols.rundir import seed_dir
+    from seal.protocols.runner import new_group_dir
+
     for side in only or ():
         if side not in SIDES:
             raise UnknownNameError("reach_sb3 side", side, list(SIDES))
     sides = [s for s in SIDES if not only or s in only]
-    root = Path(out)
+    root = Path(out).absolute()
     root.mkdir(parents=True, exist_ok=True)
     runs: dict[tuple[str, int], dict[str, Any]] = {}
     todo = []
@@ -192,22 +191,34 @@ def run_reach_sb3_bench(
                 runs[side, seed] = saved
                 log(f"reuse {side} seed {seed}: {path}")
             else:
-                todo.append((side, seed, str(root), list(overrides)))
+                todo.append((side, seed))
     start = time.perf_counter()
-    log(
-        f"{len(todo)} runs, {parallel} at a time: "
-        + ", ".join(f"{s} seed {n}" for s, n, *_ in todo)
-    )
-    with mp.get_context("spawn").Pool(max(1, min(parallel, len(todo) or 1))) as pool:
-        for run in pool.imap_unordered(_job, todo):
-            key = (run["side"], run["seed"])
-            record = {**run, "overrides": list(overrides)}
-            atomic_write_text(root / f"{key[0]}-seed{key[1]}.json", json.dumps(record, indent=2))
-            log(
-                f"done {key[0]} seed {key[1]} in {run['wall_s']:.0f} s: "
-                f"reached at {run['reached_at_env_steps']} env steps"
-            )
-            runs[key] = record
+    if todo:
+        log(f"{len(todo)} runs: " + ", ".join(f"{s} seed {n}" for s, n in todo))
+        config = load_protocol(PROTOCOL, [*SEAL_THREADS, *overrides])
+        group = new_group_dir(config, root)
+        with launching(root, parallel, address, log) as launch:
+            launch.hint = "run the same command with --reuse to take the finished runs' records"
+            for side, seed in todo:
+                if side == "seal":
+                    command = seal_run_command(REACH, seed, root, [*SEAL_THREADS, *overrides])
+                    launch.run((side, seed), config, seed_dir(group, seed), 1, command)
+                else:
+                    launch.call((side, seed), run_sb3_side, seed, list(overrides))
+            while launch.pending:
+                (side, seed), got = launch.next()
+                if side == "seal":
+                    if got.status != "finished":
+                        raise SealError(run_failure(got))
+                    threshold = config.evaluation.threshold
+                    got = seal_side(Path(got.run_dir), seed, threshold, got.wall_s)
+                record = {**got, "overrides": list(overrides)}
+                atomic_write_text(root / f"{side}-seed{seed}.json", json.dumps(record, indent=2))
+                log(
+                    f"done {side} seed {seed} in {got['wall_s']:.0f} s: "
+                    f"reached at {got['reached_at_env_steps']} env steps"
+                )
+                runs[side, seed] = record
     summary = {
         side: {
             "reached": sum(runs[side, s]["reached_at_env_steps"] is not None for s in range(seeds)),

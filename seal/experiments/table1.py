@@ -3,8 +3,8 @@
 Meta-World drawer-close-v3 (no demonstrations) and the kitchen's slide-cabinet (30 of its
 expert's episodes) under the paper's four columns (Single Env, 50/50, High FK, High MW), each
 ratio column with its batch-matched alone arms. Every
-arm is an ordinary protocol run by `seal run` in its own process (`seal.experiments.launcher`,
-two at a time); the table is `seal report`'s on their run directories, so its cells, changes,
+arm is an ordinary protocol, each seed one Ray task that runs it as `seal run` does
+(`seal.experiments.launcher`, two at a time on a local Ray of 2 CPUs); the table is `seal report`'s on their run directories, so its cells, changes,
 CIs, [reached/seeds] and plots (changes with their MDE, success with a bootstrap band) are the
 ones a user gets from `seal report` on the same runs. Beside it, `auc_changes`: the paired area
 under each task's success curve, which no censored seed drops.
@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 from seal.errors import SealError, UnknownNameError
 from seal.experiments.arms import Arm
-from seal.experiments.launcher import code_versions, run_or_reuse, versions_note
+from seal.experiments.launcher import code_versions, describe_ray, run_or_reuse, versions_note
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -102,7 +102,7 @@ def auc_changes(runs: Mapping[tuple[str, int], pd.DataFrame]) -> list[dict[str, 
     batch-matched arm the two are proportional, against Single Env it is "the same number of
     network updates".
     """
-    from seal.experiments.statistics import ARM_CI, target_auc
+    from seal.experiments.statistics import ARM_CI, AUC_GAIN_BOUNDS, target_auc
     from seal.stats import paired_power
 
     budget = max(int(m["grad_steps"].max()) for m in runs.values())
@@ -137,7 +137,9 @@ def auc_changes(runs: Mapping[tuple[str, int], pd.DataFrame]) -> list[dict[str, 
                         "auc_vs": statistics.fmean(base),
                         "auc_diff_per_seed": diff,
                         "auc_diff": statistics.fmean(diff),
-                        "auc_diff_ci95": list(ARM_CI(diff)),
+                        "auc_diff_ci95": list(
+                            ARM_CI(diff, AUC_GAIN_BOUNDS)
+                        ),  # a difference of AUCs in [0, 1]
                         **paired_power(diff, "auc"),
                     }
                 )
@@ -179,8 +181,10 @@ def run_table1_bench(
     log: Callable[[str], None] = lambda _: None,
     only: Sequence[str] | None = None,
     reuse: bool = False,
+    address: str | None = None,
 ) -> dict[str, Any]:
-    """Run every arm's seeds with `seal run`, then `seal report` on their run directories; a JSON-able dict.
+    """Run every arm's seeds on Ray (a local Ray of `parallel` CPUs, or the cluster at
+    `address`), then `seal report` on their run directories; a JSON-able dict.
 
     `overrides` go to every run (`--set agent.preset=...`, or the tiny sizes of the CI test);
     `reuse` takes finished runs under `out` whose resolved config is today's.
@@ -196,12 +200,14 @@ def run_table1_bench(
     chosen = arms(only)
     load_before = machine_load()
     started = time.monotonic()
-    # Joint arms first (the longest), so the last process does not run alone while a core idles.
+    # Joint arms first (the longest), so the last run does not run alone while a core idles.
     jobs = sorted(
         ((arm, seed) for seed in range(seeds) for arm in chosen),
         key=lambda job: job[0].name not in REFERENCES,
     )
-    run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
+    run_dirs, reused = run_or_reuse(
+        jobs, Path(out), overrides, parallel, log, reuse, address=address
+    )
     wall = time.monotonic() - started
     ordered = [run_dirs[(a.name, s)] for a in chosen for s in range(seeds)]
     result = report(ordered, out=Path(out) / "table1")
@@ -234,6 +240,7 @@ def run_table1_bench(
             "met": (wall <= BUDGET_S and seeds >= MIN_SEEDS) if fresh else None,
         },
         "parallel": parallel,
+        "ray": describe_ray(parallel, address),
         "load_before": load_before,
         "load_after": machine_load(),
     }
@@ -258,7 +265,7 @@ def format_result(result: Mapping[str, Any]) -> str:
         lines.append(f"WARNING, {note}")
     reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
     lines.append(
-        f"{result['seeds']} seeds of {len(result['arms'])} arms, {result['parallel']} runs at a time, "
+        f"{result['seeds']} seeds of {len(result['arms'])} arms, on {result['ray']}, "
         f"{result['wall_s']:.0f} s wall{reused} (budget {budget['wall_s_le']} s with >= "
         f"{budget['seeds_ge']} seeds: {verdict}); load before {load['loadavg_1m']} (1 min) on "
         f"{load['cpus']} CPUs, after {result['load_after']['loadavg_1m']}"

@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from seal.experiments.arms import ARMS, TARGET_ENV, Arm
-from seal.experiments.statistics import TargetCost
+from seal.experiments.statistics import CHANGE_BOUNDS, TargetCost
 from seal.metrics import AT_LEAST, DEFAULT_THRESHOLD, format_count, format_number
 
 TASK_LABEL = "point_view"
@@ -77,10 +77,11 @@ def _change_rows(
     costs: Mapping[str, Sequence[TargetCost]], chosen: Sequence[Arm], tasks: Sequence[str]
 ) -> pd.DataFrame:
     """Per (task or Total, arm with an alone arm): the change of the mean transitions to 90%
-    against the alone arm, with its paired 95% Fieller CI over seeds, as
-    `seal.reports.changes.change_rows` lays changes out (censored seeds count their totals)."""
+    against the alone arm, with its paired 95% Fieller CI over seeds cut at -100%
+    (`CHANGE_BOUNDS`: transitions are >= 0), as `seal.reports.changes.change_rows` lays changes
+    out (censored seeds count their totals)."""
     from seal.reports.changes import CHANGE_ROW_COLUMNS
-    from seal.stats import MIN_SEEDS_RESOLVED, change_ci, resolved
+    from seal.stats import MIN_SEEDS_RESOLVED, change_ci, clip_ci, resolved
 
     labels = {a.name: a.label for a in ARMS}
     records = []
@@ -89,7 +90,7 @@ def _change_rows(
             if arm.alone is None:
                 continue
             mine, base = _values(costs[arm.name], task), _values(costs[arm.alone], task)
-            low, high = change_ci(mine, base, paired=True)
+            low, high = clip_ci(change_ci(mine, base, paired=True), CHANGE_BOUNDS)
             base_mean = float(np.mean(base))
             n = len(mine)
             records.append(
@@ -155,7 +156,8 @@ def _statistics_notes(chosen: Sequence[Arm], summary: Mapping[str, Any]) -> list
         "run's total); AUC = per task the area under the evaluated success over gradient steps "
         "0..the alone arm's budget (success 0 at step 0 unless evaluated there), over the budget, "
         "mean over the tasks.",
-        "[lo, hi] = 95% Student's t CI of the mean over seeds (the percentile bootstrap called "
+        "[lo, hi] = 95% Student's t CI of the mean over seeds, cut at the statistic's range "
+        "(steps <= 1, auc in [-1, 1]; the percentile bootstrap called "
         "17% of no-effect 5/5 splits resolved: --fpr); * = it excludes 0. sd_paired_<stat> = SD of the per-seed "
         "values; mde_<stat> = (t(0.975, n-1) + t(0.80, n-1)) sd / sqrt(n), the effect found with "
         "power 0.8 at these n seeds; seeds_for_mde_0p10_<stat> = the seeds an MDE <= 0.10 needs "
@@ -238,7 +240,8 @@ def transfer_documents(
         else [],
         [
             "Change = mean(arm) / mean(alone) - 1 of the target's transitions to 90% (censored "
-            "seeds at their totals), 95% CI = paired Fieller interval (t quantiles) in percent; "
+            "seeds at their totals), 95% CI = paired Fieller interval (t quantiles) in percent, "
+            "cut at -100%; "
             "bold = it excludes 0 with >= 3 seeds; n = seed pairs; tasks = the tasks in a total.",
             *_statistics_notes(chosen, summary),
         ],

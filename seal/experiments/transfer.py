@@ -1,8 +1,8 @@
 """`seal bench --learn transfer`: the fast cross-environment transfer testbed (docs/transfer_testbed.md).
 
-Every arm is an ordinary protocol under `protocols/testbed/`, run by `seal run` in its own
-process (two at a time on a 2-core machine); `seal.experiments.launcher` launches them and this
-module reads their run directories. The figure is
+Every arm is an ordinary protocol under `protocols/testbed/`, each seed one Ray task that runs
+it as `seal run` does (`seal.experiments.launcher`: two at a time on a local Ray of 2 CPUs, or
+on a cluster); this module reads their run directories. The figure is
 
     transfer_updates_saved = 1 - C(high-source) / C(target alone),
 
@@ -44,6 +44,7 @@ from seal.experiments.arms import arms
 from seal.experiments.launcher import (
     agent_mismatches,
     code_versions,
+    describe_ray,
     run_or_reuse,
     versions_note,
 )
@@ -122,8 +123,10 @@ def run_transfer_bench(
     log: Callable[[str], None] = lambda _: None,
     only: Sequence[str] | None = None,
     reuse: bool = False,
+    address: str | None = None,
 ) -> dict[str, Any]:
-    """Run every arm's seeds with `seal run`, read their run directories, and return the result as JSON-able dict.
+    """Run every arm's seeds on Ray (a local Ray of `parallel` CPUs, or the cluster at
+    `address`), read their run directories, and return the result as JSON-able dict.
 
     `only` runs just the named arms (with the arms they need), e.g. the `--full` arms after the
     minimum set; the headline figures are then None where not run. `reuse` takes finished runs
@@ -140,12 +143,14 @@ def run_transfer_bench(
     load_before = machine_load()
     started = time.monotonic()
     # Pre-training first (the positive controls wait on it), then the longest arms, so the last
-    # process does not run alone while a core idles.
+    # run does not run alone while a core idles.
     jobs = sorted(
         ((arm, seed) for seed in range(seeds) for arm in chosen),
         key=lambda job: (job[0].has_target, job[0].alone is None),
     )
-    run_dirs, reused = run_or_reuse(jobs, Path(out), overrides, parallel, log, reuse)
+    run_dirs, reused = run_or_reuse(
+        jobs, Path(out), overrides, parallel, log, reuse, address=address
+    )
     wall = time.monotonic() - started
     loaded = {key: load_run(path) for key, path in run_dirs.items()}
     targets = [a for a in chosen if a.has_target]
@@ -267,6 +272,7 @@ def run_transfer_bench(
         "code_versions": versions,
         "wall_s": wall,
         "parallel": parallel,
+        "ray": describe_ray(parallel, address),
         "load_before": load_before,
         "load_after": machine_load(),
     }
@@ -285,6 +291,7 @@ def run_fpr_bench(
     log: Callable[[str], None] = lambda _: None,
     reuse: bool = False,
     splits: int = FPR_SPLITS,
+    address: str | None = None,
 ) -> dict[str, Any]:
     """`seal bench --learn transfer --fpr`: run (or, with `reuse`, take) the alone arm's seeds
     0..seeds-1 under `out`, then `false_positive_rate` on them; a JSON-able dict."""
@@ -297,7 +304,7 @@ def run_fpr_bench(
     load_before = machine_load()
     started = time.monotonic()
     jobs = [(alone, seed) for seed in range(seeds)]
-    run_dirs, reused = run_or_reuse(jobs, Path(out), (), parallel, log, reuse)
+    run_dirs, reused = run_or_reuse(jobs, Path(out), (), parallel, log, reuse, address=address)
     wall = time.monotonic() - started
     paths = [run_dirs[(alone.name, s)] for s in range(seeds)]
     shas = {(alone.name, s): load_run(p).provenance.get("git_sha") for s, p in enumerate(paths)}
@@ -310,6 +317,7 @@ def run_fpr_bench(
         "code_versions": code_versions(shas),
         "wall_s": wall,
         "parallel": parallel,
+        "ray": describe_ray(parallel, address),
         "load_before": load_before,
         "load_after": machine_load(),
     }
@@ -345,7 +353,7 @@ def format_fpr(result: Mapping[str, Any]) -> str:
         lines.append(f"WARNING, {note}")
     reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
     lines.append(
-        f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s "
+        f"{result['seeds']} seeds on {result['ray']}, {result['wall_s']:.0f} s "
         f"wall{reused}; load before {result['load_before']['loadavg_1m']} (1 min), after "
         f"{result['load_after']['loadavg_1m']}"
     )
@@ -416,7 +424,7 @@ def format_result(result: Mapping[str, Any]) -> str:
     lines.append(f"Tables and plots: {result['report_dir']}")
     reused = f" ({len(result['reused'])} runs reused)" if result["reused"] else ""
     lines.append(
-        f"{result['seeds']} seeds, {result['parallel']} runs at a time, {result['wall_s']:.0f} s wall{reused}; "
+        f"{result['seeds']} seeds on {result['ray']}, {result['wall_s']:.0f} s wall{reused}; "
         f"load before {load['loadavg_1m']} (1 min) on {load['cpus']} CPUs, after {result['load_after']['loadavg_1m']}"
     )
     return "\n".join(lines)

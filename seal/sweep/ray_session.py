@@ -9,7 +9,7 @@ fail early with a SealError where Ray itself would retry or wait forever. Ray is
 from __future__ import annotations
 
 from types import ModuleType
-from typing import Any
+from typing import Any, ClassVar
 
 from seal.errors import SealError
 from seal.protocols import sweep_tables
@@ -27,17 +27,26 @@ class RaySession:
 
     address None starts a private local Ray in this process's machine (address="local", never an
     unrelated cluster found through RAY_ADDRESS); "auto" or "HOST:PORT" joins an existing cluster.
-    If Ray is already initialised (e.g. by a test fixture or a notebook), that session is used.
+    If Ray is already initialised (e.g. by a test fixture or a notebook), that session is used;
+    with `strict`, only if it is the one asked for (`_check_same`), else SealError.
     """
 
-    def __init__(self, address: str | None = None, num_cpus: int | None = None) -> None:
+    opened: ClassVar[tuple[str | None, int | None] | None] = None
+    """(address, num_cpus) of the Ray a RaySession started in this process, while it runs."""
+
+    def __init__(
+        self, address: str | None = None, num_cpus: int | None = None, *, strict: bool = False
+    ) -> None:
         self.address = address
         self.num_cpus = num_cpus
+        self.strict = strict
         self.started = False
 
     def __enter__(self) -> ModuleType:
         ray = import_ray()
         if ray.is_initialized():
+            if self.strict:
+                self._check_same(ray)
             return ray
         kwargs: dict[str, Any] = {
             "include_dashboard": False,
@@ -70,11 +79,41 @@ class RaySession:
             )
             raise SealError(f"cannot start or join {where}: {exc}{hint}") from None
         self.started = True
+        RaySession.opened = (self.address, self.num_cpus)
         return ray
+
+    def _check_same(self, ray: ModuleType) -> None:
+        """SealError unless the Ray already initialised here is the one asked for: a RaySession's
+        of the same address and CPUs, or the cluster whose GCS is at the HOST:PORT asked for. A
+        command that means a private local Ray must not run on a cluster a notebook joined, nor
+        one asked to join a cluster on a local Ray."""
+        if RaySession.opened == (self.address, self.num_cpus):
+            return
+        gcs = ray.get_runtime_context().gcs_address
+        if self.address == gcs:
+            return
+
+        def cpus(n: int | None) -> str:
+            return "every CPU" if n is None else f"{n} CPUs"
+
+        opened = RaySession.opened
+        if opened is not None and opened[0] is None:
+            have = f"a local Ray with {cpus(opened[1])}, started here"
+        else:
+            have = f"the Ray whose GCS is at {gcs}"
+        if self.address is None:
+            want = f"a private local Ray with {cpus(self.num_cpus)}"
+        else:
+            want = f"the Ray cluster at --address {self.address}"
+        raise SealError(
+            f"Ray is already initialised in this process ({have}), not as asked ({want}); "
+            "ask for that one, or call ray.shutdown() first"
+        )
 
     def __exit__(self, *exc: object) -> None:
         if self.started:
             import_ray().shutdown()
+            RaySession.opened = None
 
 
 def check_feasible(ray: ModuleType, config: ProtocolConfig, res: Resources) -> None:
@@ -113,12 +152,12 @@ def check_address(address: str | None, timeout_s: float = 5.0) -> None:
         ) from None
 
 
-def import_ray() -> ModuleType:
-    """The `ray` module, or SealError saying how to install it."""
+def import_ray(command: str = "seal sweep") -> ModuleType:
+    """The `ray` module, or SealError saying that `command` needs it and how to install it."""
     try:
         import ray
     except ImportError:
         raise SealError(
-            "seal sweep needs Ray: pip install 'seal[ray]' (or pip install 'ray[tune]')"
+            f"{command} needs Ray: pip install 'seal[ray]' (or pip install 'ray[tune]')"
         ) from None
     return ray

@@ -1,0 +1,339 @@
+"""`seal.experiments.launcher`: every run of `seal bench --learn` is a Ray task.
+
+What a run reserves, the one-line errors (no Ray, --jobs with --address, a Ray initialised
+otherwise, an --out a node does not see), and on a local Ray how a stopped bench stops its runs
+(each saves its last finished epoch; one that ignores the gentle cancel is cut off at a second
+signal) and how a run whose worker is lost runs again from its last checkpoint. The stop and
+retry tests act on events (a run's first evaluation, its first checkpoint, the driver's
+"stopping" line), never on how long something took: their only time limit, HUNG_S, calls a
+step that never comes hung. The runs are a tiny `point` protocol, a few seconds each.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+import seal.experiments.launcher as launcher
+from seal.errors import SealError
+from seal.experiments.arms import ARMS, Arm
+from seal.experiments.launcher import check_shared_out, run_all, run_cpus, run_or_reuse
+from seal.protocols import load_protocol, run_seed
+from seal.protocols.preemption import Preempted
+from seal.sweep.ray_session import RaySession
+from seal.sweep.trials import is_finished, last_preemption, read_evaluations
+
+HUNG_S = 900.0
+"""How long a test waits for a run's next step before calling it hung."""
+
+POINT = """
+[protocol]
+name = "tiny"
+kind = "baseline"
+epochs = {epochs}
+seeds = 1
+device = "cpu"
+threads = 1
+[envs.pt]
+adapter = "point"
+tasks = ["east", "north"]
+episode_length = 10
+[agent]
+hidden = [8, 8]
+[training]
+warmup_steps = 10
+batch_per_task = 8
+collector = "sync"
+[evaluation]
+interval = 1
+episodes = 1
+[checkpoint]
+interval = {interval}
+keep_last = 2
+[logging]
+tensorboard = false
+"""
+
+
+def tiny_arm(tmp_path: Path, epochs: int, interval: int = 5) -> Arm:
+    """An arm whose protocol is POINT, written to tmp_path/protocols/tiny.toml."""
+    directory = tmp_path / "protocols"
+    directory.mkdir(exist_ok=True)
+    (directory / "tiny.toml").write_text(POINT.format(epochs=epochs, interval=interval))
+    return Arm("tiny", "Tiny", None, directory=directory)
+
+
+def wait_until(ready: Callable[[], bool], what: str) -> None:
+    deadline = time.monotonic() + HUNG_S
+    while not ready():
+        assert time.monotonic() < deadline, f"never {what}"
+        time.sleep(0.05)
+
+
+def run_dirs(out: Path) -> list[Path]:
+    return list(out.glob("tiny/*/seed-0"))
+
+
+def worker_pid(out: Path) -> int:
+    """The pid of the Ray worker that runs seed 0 (its run directory's lock file says it)."""
+    (run,) = run_dirs(out)
+    return int(json.loads((run / ".seal.lock").read_text())["pid"])
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+@contextlib.contextmanager
+def in_background(steps: Callable[[], None]) -> Iterator[None]:
+    """Run `steps` in a thread while the test's body runs; re-raise its failure after."""
+    failed: list[BaseException] = []
+
+    def target() -> None:
+        try:
+            steps()
+        except BaseException as exc:  # noqa: BLE001 - reported by the test
+            failed.append(exc)
+
+    thread = threading.Thread(target=target, daemon=True)
+    thread.start()
+    yield
+    thread.join(HUNG_S)
+    if failed:
+        raise failed[0]
+
+
+# ---------------------------------------------------------------- without a Ray
+
+
+def test_a_run_reserves_the_cpus_its_threads_resolve_to(monkeypatch: pytest.MonkeyPatch) -> None:
+    alone = next(a for a in ARMS if a.name == "alone")
+    # Every shipped bench protocol resolves to one thread: one CPU, so --jobs 2 runs two.
+    assert run_cpus(load_protocol(alone.protocol), node_cpus=2) == 1
+    assert run_cpus(load_protocol(alone.protocol, ["protocol.threads=3"]), node_cpus=8) == 3
+    assert run_cpus(load_protocol(alone.protocol, ["protocol.threads=3"]), node_cpus=2) == 2
+    # torch's default (every core) and the quickstart's rule take the whole node.
+    assert run_cpus(load_protocol(alone.protocol, ["protocol.threads=0"]), node_cpus=6) == 6
+    assert run_cpus(load_protocol(alone.protocol), node_cpus=6, whole_node=True) == 6
+    # "auto" with a team of t threads (on a 16-core machine here): the 2 t cores the rule keeps
+    # for it, on which the task resolves "auto" to t again.
+    import seal.device
+
+    monkeypatch.setattr(seal.device, "usable_cores", lambda: 16)
+    wide = ["agent.trunk_hidden=[1024, 1024]", "agent.critic_hidden=[1024, 1024]"]
+    big = load_protocol(alone.protocol, [*wide, "training.batch_per_task=4000"])
+    from seal.protocols.phase_model import build_adapters
+    from seal.protocols.resources import choose_update_threads, estimate_resources
+
+    estimate = estimate_resources(big, build_adapters(big), "cpu")
+    threads = choose_update_threads(big, estimate).threads
+    assert threads >= 2
+    assert run_cpus(big, node_cpus=64) == 2 * threads
+    assert choose_update_threads(big, estimate, cores=2 * threads).threads == threads
+    assert run_cpus(big, node_cpus=3) == 3
+
+
+def test_without_ray_the_bench_says_how_to_install_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from seal.cli.main import main
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` fails as if not installed
+    args = ["bench", "--learn", "transfer", "--arms", "alone", "--seeds", "1"]
+    assert main([*args, "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        "seal bench: error: seal bench --learn needs Ray: pip install 'seal[ray]' "
+        "(or pip install 'ray[tune]')\n"
+    )
+
+
+def test_jobs_and_address_mistakes_are_one_line_errors(capsys: pytest.CaptureFixture[str]) -> None:
+    from seal.cli.main import main
+
+    assert main(["bench", "--learn", "transfer", "--jobs", "2", "--address", "auto"]) == 2
+    assert "--jobs sets the CPUs of a local Ray" in capsys.readouterr().err
+    assert main(["bench", "--jobs", "2"]) == 2
+    assert "--jobs and --address only apply to --learn transfer" in capsys.readouterr().err
+    assert main(["bench", "--learn", "transfer", "--address", "127.0.0.1:1"]) == 2
+    assert "no Ray cluster answers there" in capsys.readouterr().err
+
+
+def test_a_run_that_waits_on_an_unscheduled_pretraining_is_an_error(tmp_path: Path) -> None:
+    rung = next(a for a in ARMS if a.name == "pretrained_trunk")
+    with pytest.raises(SealError, match=r"not scheduled: \['pretrain_source seed 0'\]"):
+        run_all([(rung, 0)], tmp_path)
+    assert not any(tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------- on a local Ray
+
+
+@pytest.fixture(scope="module")
+def ray_session():  # noqa: ANN201 - yields the ray module
+    """One local Ray of 2 CPUs for every test below, which `run_all(parallel=2)` takes."""
+    with RaySession(num_cpus=2) as ray:
+        if RaySession.opened != (None, 2):
+            pytest.skip("another module's Ray is initialised in this process")
+        yield ray
+
+
+def test_a_ray_initialised_otherwise_is_an_error_for_the_bench(ray_session) -> None:  # noqa: ANN001
+    # The bench takes only the Ray it asks for: the same local Ray, or the cluster at its GCS.
+    with RaySession(None, 2, strict=True) as ray:
+        assert ray is ray_session
+    gcs = ray_session.get_runtime_context().gcs_address
+    with RaySession(gcs, strict=True):
+        pass
+    with pytest.raises(
+        SealError, match=r"already initialised in this process \(a local Ray with 2 CPUs"
+    ):
+        RaySession(None, 3, strict=True).__enter__()
+    with pytest.raises(SealError, match=r"not as asked \(the Ray cluster at --address auto\)"):
+        RaySession("auto", strict=True).__enter__()
+    # `seal sweep` (not strict) still uses whatever Ray is initialised, as its tests rely on.
+    with RaySession(None, 3) as ray:
+        assert ray is ray_session
+    assert ray_session.is_initialized()
+
+
+def test_the_shared_filesystem_check(
+    ray_session, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # noqa: ANN001
+    out = tmp_path / "out"
+    check_shared_out(ray_session, out)  # one machine: its node sees it
+    assert list(out.iterdir()) == []  # the probe is gone
+
+    def blind(path: str, token: str) -> bool:
+        return False
+
+    monkeypatch.setattr(launcher, "_sees", blind)  # a node without the shared filesystem
+    (node,) = [n["NodeManagerAddress"] for n in ray_session.nodes() if n["Alive"]]
+    with pytest.raises(SealError, match=f"node {node} of the Ray cluster do not see it"):
+        check_shared_out(ray_session, out)
+    assert list(out.iterdir()) == []
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(3 * HUNG_S)
+def test_a_stopped_bench_lets_its_run_save_and_reuse_continues_it(
+    ray_session, tmp_path: Path
+) -> None:  # noqa: ANN001
+    """A SIGTERM to the bench cancels its run gently: the run saves its last finished epoch (as
+    `seal run` on SIGINT), the bench raises Preempted (exit 143), and `--reuse` continues the
+    run in its own directory from that checkpoint to the end."""
+    arm, out = tiny_arm(tmp_path, epochs=200), tmp_path / "out"
+    stopping = threading.Event()
+
+    def log(line: str) -> None:
+        if "SIGTERM: stopping 1 runs" in line:
+            stopping.set()
+
+    def stop_the_bench() -> None:
+        # The run is held (SIGSTOP) from its first evaluation until the bench is stopping, so it
+        # cannot finish first however fast the machine is.
+        wait_until(lambda: any(read_evaluations(r) for r in run_dirs(out)), "evaluated")
+        held = worker_pid(out)
+        os.kill(held, signal.SIGSTOP)
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)  # the bench's own SignalStop takes it
+            assert stopping.wait(HUNG_S), "the bench never began stopping"
+        finally:
+            os.kill(held, signal.SIGCONT)  # now the gentle cancel reaches it mid-run
+
+    with pytest.raises(Preempted) as stopped, in_background(stop_the_bench):
+        run_all([(arm, 0)], out, parallel=2, log=log, grace_s=HUNG_S)
+    assert stopped.value.exit_code == 143
+    assert str(stopped.value).startswith("SIGTERM: stopped the bench (1 stopped); run the same")
+    (run,) = run_dirs(out)
+    assert not is_finished(run)
+    assert last_preemption(run).startswith("SIGINT ")  # Ray's gentle cancel is a SIGINT
+    saved = max(int(p.stem.split("-")[1]) for p in (run / "checkpoints").glob("ckpt-*.pt"))
+    assert saved >= 1
+
+    dirs, reused = run_or_reuse([(arm, 0)], out, (), 2, lambda _: None, reuse=True)
+    assert dirs == {("tiny", 0): run} and reused == {}
+    assert is_finished(run)
+    resumes = json.loads((run / "provenance.json").read_text())["resumes"]
+    assert [r["from"] for r in resumes] == [f"ckpt-{saved:07d}.pt"]
+    assert pd.read_csv(run / "metrics.csv")["epoch"].max() == 200
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(3 * HUNG_S)
+def test_a_run_that_ignores_the_gentle_cancel_is_cut_off_at_a_second_signal(
+    ray_session, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:  # noqa: ANN001
+    """The bench waits for a stopped run to save, however long (grace_s is an hour here); a
+    run that never ends is force-cancelled once a second signal says to stop waiting, and its
+    worker is gone: no run outlives the bench."""
+    flags = tmp_path / "flags"
+    flags.mkdir()
+
+    def ignores_cancel(config, record, *, threads=1, command=None):  # noqa: ANN001, ANN202
+        (flags / "pid").write_text(str(os.getpid()))
+        while True:
+            try:
+                time.sleep(0.05)
+            except KeyboardInterrupt:
+                (flags / "interrupted").touch()
+
+    monkeypatch.setattr(launcher, "execute_trial", ignores_cancel)
+
+    def signal_twice() -> None:
+        wait_until((flags / "pid").exists, "started")
+        os.kill(os.getpid(), signal.SIGTERM)
+        wait_until((flags / "interrupted").exists, "cancelled gently")
+        os.kill(os.getpid(), signal.SIGTERM)  # the second: stop waiting
+
+    arm = tiny_arm(tmp_path, epochs=2)
+    with pytest.raises(Preempted) as stopped, in_background(signal_twice):
+        run_all([(arm, 0)], tmp_path / "out", parallel=2, grace_s=3600.0)
+    assert stopped.value.exit_code == 143
+    pid = int((flags / "pid").read_text())
+    wait_until(lambda: not alive(pid), "force-cancelled")
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(3 * HUNG_S)
+def test_a_run_whose_worker_is_lost_runs_again_from_its_last_checkpoint(
+    ray_session, tmp_path: Path
+) -> None:  # noqa: ANN001
+    """A worker killed mid-run (as a lost node loses it) is retried by Ray (RETRIES); the task
+    continues the run directory from its last checkpoint, and the rows are those of a run
+    never interrupted."""
+    arm, out = tiny_arm(tmp_path, epochs=100), tmp_path / "out"
+    killed: list[int] = []
+
+    def kill_the_worker() -> None:
+        def checkpointed() -> bool:
+            return any(any((r / "checkpoints").glob("ckpt-*.pt")) for r in run_dirs(out))
+
+        wait_until(checkpointed, "checkpointed")
+        killed.append(worker_pid(out))
+        os.kill(killed[0], signal.SIGKILL)
+
+    with in_background(kill_the_worker):
+        dirs = run_all([(arm, 0)], out, parallel=2)
+    run = dirs[("tiny", 0)]
+    assert killed and worker_pid(out) != killed[0]  # another worker finished it
+    assert is_finished(run)
+    resumes = json.loads((run / "provenance.json").read_text())["resumes"]
+    assert len(resumes) == 1 and resumes[0]["from"].startswith("ckpt-")
+    ref = run_seed(load_protocol(arm.protocol), 0, tmp_path / "ref").run_dir
+    got, want = (pd.read_csv(Path(d) / "metrics.csv") for d in (run, ref))
+    pd.testing.assert_frame_equal(got.drop(columns="wall_s"), want.drop(columns="wall_s"))
