@@ -10,23 +10,25 @@ import numpy as np
 import pytest
 from scipy import stats as scipy_stats
 
+from seal.coverage import (
+    COVERAGE_CASES,
+    bounded_ci_coverage,
+    format_coverage,
+    near_bound_case,
+    normal_case,
+)
 from seal.errors import SealError
 from seal.stats import (
-    COVERAGE_CASES,
     MIN_SEEDS_RESOLVED,
     binomial_ci,
     bootstrap_band,
     bootstrap_ci,
-    bounded_ci_coverage,
     bounded_t_ci,
     change_ci,
     clip_ci,
-    format_coverage,
     interquartile_mean,
     iqm_ci,
     mde,
-    near_bound_case,
-    normal_case,
     paired_power,
     probability_of_improvement,
     resolved,

@@ -1,4 +1,4 @@
-"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1|quickstart|reach_sb3|mtrl] [--full | --fpr]]`: learner and collection speed as ratios, learning evidence."""
+"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1|quickstart|reach_sb3|mtrl] [--full | --fpr] [--seeds-until-mde T --max-seeds N]]`: learner and collection speed as ratios, learning evidence."""
 
 from __future__ import annotations
 
@@ -80,6 +80,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=int,
         default=None,
         help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: seeds per arm (default 5 for transfer, 2 for kitchen, 5 for table1, 10 for quickstart, 3 for reach_sb3 and mtrl)",
+    )
+    parser.add_argument(
+        "--seeds-until-mde",
+        type=float,
+        default=None,
+        metavar="TARGET",
+        help="with --learn transfer and --max-seeds: instead of --seeds, add seeds in batches of as many as runs can go at once (the local Ray's --jobs CPUs, or the cluster's, over the CPUs a run reserves) from 5 until the MDE of every named statistic (steps_saved and AUC gain of high_source, pretrained_trunk, oracle_translator and no_correspondence; arms that never reached have none) is <= TARGET, the MDE taken from the one-sided 80%% chi-square upper limit on the paired SD, or --max-seeds is reached; with --fpr: the arms' CI's false-positive rate under that rule on max(40, 2 x --max-seeds) alone seeds (docs/transfer_testbed.md)",
+    )
+    parser.add_argument(
+        "--max-seeds",
+        type=int,
+        default=None,
+        metavar="N",
+        help="with --seeds-until-mde: the most seeds the rule runs (>= 5)",
     )
     parser.add_argument(
         "--arms",
@@ -210,6 +224,20 @@ def run(args: argparse.Namespace) -> int:
         raise SealError("--full only applies to --learn transfer")
     if args.fpr and (args.learn != "transfer" or args.full or args.arms):
         raise SealError("--fpr only applies to --learn transfer, without --full and --arms")
+    until_mde = args.seeds_until_mde is not None
+    if (until_mde or args.max_seeds is not None) and args.learn != "transfer":
+        raise SealError("--seeds-until-mde and --max-seeds only apply to --learn transfer")
+    if until_mde != (args.max_seeds is not None):
+        raise SealError("--seeds-until-mde TARGET and --max-seeds N go together")
+    if until_mde and args.seeds is not None:
+        raise SealError(
+            "--seeds N runs N seeds; --seeds-until-mde runs seeds until the MDE target "
+            "(up to --max-seeds): give one of them"
+        )
+    if until_mde:
+        from seal.experiments.until_mde import check_rule
+
+        check_rule(args.seeds_until_mde, args.max_seeds)
     if args.no_run and args.learn != "kitchen":
         raise SealError("--no-run only applies to --learn kitchen")
     if (args.address is not None or args.jobs is not None) and args.learn not in LEARN_SETS:
@@ -239,6 +267,21 @@ def run(args: argparse.Namespace) -> int:
         if jobs < 1:
             raise SealError(f"--jobs must be >= 1, got {jobs}")
         bench = importlib.import_module(module)
+        if until_mde:
+            bench = importlib.import_module("seal.experiments.until_mde")
+            rule = {"target": args.seeds_until_mde, "max_seeds": args.max_seeds}
+            common = {"out": args.out or default_out, "parallel": jobs, "log": log}
+            common.update(reuse=args.reuse, address=args.address)
+            if args.fpr:
+                result = bench.run_fpr_until_mde(**rule, **common)
+                text = bench.format_fpr_until_mde
+            else:
+                result = bench.run_transfer_until_mde(
+                    **rule, **common, full=args.full, only=args.arms
+                )
+                text = bench.format_result
+            print(json.dumps(result, indent=2, default=float) if args.json else text(result))
+            return 0
         if args.fpr:
             result = bench.run_fpr_bench(
                 seeds=bench.FPR_SEEDS if args.seeds is None else args.seeds,

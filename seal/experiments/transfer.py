@@ -23,7 +23,8 @@ The tables (counts, steps x batch, changes: one thing a cell) and plots (each ar
 with CI and MDE, the target's success with a bootstrap band) go to `<out>/transfer/`.
 
 This module holds the testbed's goals and wires the bench: `run_transfer_bench` and
-`run_fpr_bench`, and their outputs `format_result` and `format_fpr`. The arms are
+`run_fpr_bench`, and their outputs `format_result` and `format_fpr`; the seeds-until-MDE rule
+(`--seeds-until-mde T --max-seeds N`) is `seal.experiments.until_mde`'s. The arms are
 `seal.experiments.arms`', the statistics `seal.experiments.statistics`', the tables and plots
 `seal.experiments.tables`'.
 """
@@ -33,14 +34,14 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from seal.errors import SealError
-from seal.experiments.arms import arms
+from seal.experiments.arms import Arm, arms
 from seal.experiments.launcher import (
     agent_mismatches,
     code_versions,
@@ -132,7 +133,6 @@ def run_transfer_bench(
     minimum set; the headline figures are then None where not run. `reuse` takes finished runs
     under `out` whose resolved config is today's (`finished_run`).
     """
-    from seal import load_run
     from seal.bench.timing import machine_load
 
     if seeds < 1:
@@ -142,17 +142,55 @@ def run_transfer_bench(
     chosen = arms(full, only)
     load_before = machine_load()
     started = time.monotonic()
-    # Pre-training first (the positive controls wait on it), then the longest arms, so the last
-    # run does not run alone while a core idles.
-    jobs = sorted(
-        ((arm, seed) for seed in range(seeds) for arm in chosen),
+    run_dirs, reused = run_or_reuse(
+        _jobs(chosen, range(seeds)), Path(out), overrides, parallel, log, reuse, address=address
+    )
+    return _result(
+        chosen,
+        seeds,
+        run_dirs,
+        reused,
+        out=out,
+        full=full,
+        overrides=overrides,
+        parallel=parallel,
+        address=address,
+        wall=time.monotonic() - started,
+        load_before=load_before,
+    )
+
+
+def _jobs(chosen: Sequence[Arm], seeds: Iterable[int]) -> list[tuple[Arm, int]]:
+    """Every (arm, seed): pre-training first (the positive controls wait on it), then the longest
+    arms, so the last run does not run alone while a core idles."""
+    return sorted(
+        ((arm, seed) for seed in seeds for arm in chosen),
         key=lambda job: (job[0].has_target, job[0].alone is None),
     )
-    run_dirs, reused = run_or_reuse(
-        jobs, Path(out), overrides, parallel, log, reuse, address=address
-    )
-    wall = time.monotonic() - started
-    loaded = {key: load_run(path) for key, path in run_dirs.items()}
+
+
+def _result(
+    chosen: Sequence[Arm],
+    seeds: int,
+    run_dirs: Mapping[tuple[str, int], Path],
+    reused: Mapping[tuple[str, int], Path],
+    *,
+    out: str | os.PathLike[str],
+    full: bool,
+    overrides: Sequence[str],
+    parallel: int,
+    address: str | None,
+    wall: float,
+    load_before: Mapping[str, Any],
+    loaded: Mapping[tuple[str, int], Any] | None = None,
+) -> dict[str, Any]:
+    """`run_transfer_bench`'s result from the run directories of seeds 0..seeds-1 of `chosen`
+    (`loaded`: those already read, by key)."""
+    from seal import load_run
+    from seal.bench.timing import machine_load
+
+    known = dict(loaded or {})
+    loaded = {key: known[key] if key in known else load_run(path) for key, path in run_dirs.items()}
     targets = [a for a in chosen if a.has_target]
 
     def costs_of(consecutive: int) -> dict[str, list[TargetCost]]:
