@@ -15,7 +15,8 @@ runs. The nodes write the run directories under `out` and this process reads the
 cluster every node must see `out` at the same path (a shared filesystem: NFS or similar;
 nothing is copied between nodes), which `check_shared_out` checks before the first run. A task
 whose worker or node is lost runs again (RETRIES) and continues its run directory from its last
-checkpoint, as `execute_trial` continues a started one.
+checkpoint, as `execute_trial` continues a started one, or starts afresh where its checkpoints
+hold no replay (`_on_node`); a run's "done" line names its node.
 
 With `--reuse`, `run_or_reuse` takes the finished runs under `out` whose resolved config is
 today's (`finished_run`) and continues the unfinished ones that saved a checkpoint
@@ -138,7 +139,9 @@ class Launcher:
             int(n["Resources"].get("CPU", 0)) for n in ray.nodes() if n.get("Alive")
         )
         """The CPUs of the biggest node: what a run that wants a node to itself reserves."""
-        self._execute = ray.remote(execute_trial)
+        self.nodes: dict[Key, str] = {}  # where each collected run ran: "<ip> (<node id[:8]>)"
+        self._execute = ray.remote(_on_node)
+        self._trial = execute_trial  # as this module holds it now (a test may replace it)
         self._calls: dict[Callable[..., Any], Any] = {}
         self._checked: set[str] = set()
 
@@ -156,10 +159,8 @@ class Launcher:
         task = self._execute.options(
             num_cpus=cpus, num_gpus=res.gpus, max_retries=RETRIES, name=f"seal-bench:{record.trial}"
         )
-        self.pending[task.remote(config, record, threads=cpus, command=list(command))] = (
-            key,
-            record,
-        )
+        ref = task.remote(self._trial, config, record, threads=cpus, command=list(command))
+        self.pending[ref] = (key, record)
 
     def call(self, key: Key, fn: Callable[..., Any], *args: Any, cpus: int = 1) -> None:
         """Queue `fn(*args)` (a module-level function: each node imports it) on `cpus` CPUs."""
@@ -177,9 +178,12 @@ class Launcher:
             ready, _ = self.ray.wait(list(self.pending), num_returns=1, timeout=WAKE_S)
             if not ready:
                 continue
-            key, _ = self.pending.pop(ready[0])
+            key, record = self.pending.pop(ready[0])
             try:
-                return key, self.ray.get(ready[0])
+                if record is None:  # a call
+                    return key, self.ray.get(ready[0])
+                done, self.nodes[key] = self.ray.get(ready[0])
+                return key, done
             except self.ray.exceptions.RayTaskError as exc:  # the function raised
                 cause = exc.cause if exc.cause is not None else exc
                 raise SealError(f"{key[0]} seed {key[1]} failed: {_first_line(cause)}") from None
@@ -216,6 +220,22 @@ class Launcher:
             self.ray.cancel(ref, force=True)  # its newest checkpoint stays
         self.pending.clear()
         return _outcomes(record for _, record in left)
+
+
+def _on_node(
+    run: Callable[..., TrialRecord], config: ProtocolConfig, record: TrialRecord, **kwargs: Any
+) -> tuple[TrialRecord, str]:
+    """On a node: `run`'s record, and the node: "<ip> (<id, first 8>)". A started run whose
+    checkpoints hold no replay (checkpoint.save_replay = false; a retry after its node was lost)
+    cannot continue: it is moved to <group>/.lost/ and runs afresh, as seeded as the first."""
+    import ray
+
+    run_dir = Path(record.run_dir)
+    if not config.checkpoint.save_replay and is_started(run_dir) and not is_finished(run_dir):
+        (run_dir.parent / ".lost").mkdir(exist_ok=True)
+        run_dir.rename(run_dir.parent / ".lost" / f"{run_dir.name}-{secrets.token_hex(4)}")
+    node = f"{ray.util.get_node_ip_address()} ({ray.get_runtime_context().get_node_id()[:8]})"
+    return run(config, record, **kwargs), node
 
 
 def _first_line(exc: BaseException) -> str:
@@ -418,7 +438,8 @@ def run_all(
             if record.status != "finished":
                 raise SealError(run_failure(record))
             finished[key] = Path(record.run_dir)
-            log(f"done {key[0]} seed {key[1]} in {record.wall_s:.0f} s: {finished[key]}")
+            where = f"in {record.wall_s:.0f} s on node {launch.nodes[key]}"
+            log(f"done {key[0]} seed {key[1]} {where}: {finished[key]}")
             send_ready()
     return {job: finished[job] for job in finished if done is None or job not in done}
 
@@ -558,12 +579,15 @@ def finished_run(arm: Arm, seed: int, out: Path, overrides: Sequence[str] = ()) 
 
 def unfinished_run(arm: Arm, seed: int, out: Path, overrides: Sequence[str] = ()) -> Path | None:
     """The newest run of (arm, seed) under `out` with today's resolved config that did not finish
-    but saved an epoch checkpoint to go on from (`seal run --resume`), else None."""
+    but saved an epoch checkpoint with its replay to go on from (`seal run --resume`), else None."""
     name, want = resolved_tables(arm, overrides)
     for run in sorted(out.glob(f"{name}/*/seed-{seed}"), reverse=True):
         if not (run / "config.toml").is_file() or not any((run / "checkpoints").glob("ckpt-*.pt")):
             continue
-        if _same_tables(_tables(tomllib.loads((run / "config.toml").read_text())), want):
+        saved = tomllib.loads((run / "config.toml").read_text())
+        if saved.get("checkpoint", {}).get("save_replay", True) and _same_tables(
+            _tables(saved), want
+        ):
             return run
     return None
 
