@@ -105,7 +105,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--reuse",
         action="store_true",
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: take finished runs under --out whose resolved config is today's instead of running them again, and (except reach_sb3) resume unfinished ones from their last checkpoint",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: take finished runs under --out whose resolved config is today's instead of running them again, and (except reach_sb3) resume unfinished ones from their last checkpoint where it holds the replay (checkpoint.save_replay; the others run again)",
     )
     parser.add_argument(
         "--no-run",

@@ -5,7 +5,9 @@ Each module launches ordinary protocol runs as Ray tasks (`launcher`: a private 
 stated goal: `transfer` (the transfer testbed: its arms, the
 ladder of positive controls, seed-paired changes, the MDE and the false-positive rate), `table1`
 (paper Table 1 at laptop scale), `kitchen` (single kitchens from their own rewards), `quickstart`
-(README command 1 over ten seeds) and `learn` (point and reach-v3 evidence). The transfer testbed
+(README command 1 over ten seeds), `reach_sb3` (reach-v3 under seal run and SB3), `mtrl` (SMT
+Table 1's learners at laptop scale) and `learn` (point and reach-v3 evidence); `until_mde` runs
+the testbed's seeds until its MDEs are small enough. The transfer testbed
 is split by idea: `arms` (what is compared; `Arm` is every experiment's unit), `launcher` (the runs
 as Ray tasks, reuse and resume, stopping, code versions; every experiment launches through it), `statistics` (the testbed's costs, paired changes and their CIs, MDEs, AUC, false-positive
 rate) and `tables` (its tables and plots), which `transfer` wires to its goals. The statistical

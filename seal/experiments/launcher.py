@@ -65,7 +65,10 @@ RETRIES = 3
 run again: that is its error, in error.txt)."""
 WAKE_S = 0.5
 """How often the driver, waiting on its tasks, looks whether a signal asked it to stop."""
-REUSE_HINT = "run the same command with --reuse to take the finished runs and continue the others"
+REUSE_HINT = (
+    "run the same command with --reuse to take the finished runs and continue the others "
+    "(those whose checkpoints hold no replay run again from the start)"
+)
 """What a stopped bench's last line says to do."""
 
 # ---------------------------------------------------------------- the commands runs stand for

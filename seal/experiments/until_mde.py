@@ -3,7 +3,7 @@ precise enough (issue 58 item 4; docs/transfer_testbed.md, "Seeds until the MDE"
 
 `run_transfer_until_mde` runs the testbed's seeds in batches of as many runs as can go at once
 (`rule_batch`) and stops when every named statistic's MDE, taken from an upper confidence bound on
-its paired SD (`seal.stats`), is at most T, or at N seeds; `run_fpr_until_mde` (with `--fpr`)
+its paired SD (`seal.stopping`), is at most T, or at N seeds; `run_fpr_until_mde` (with `--fpr`)
 measures the false-positive rate of the arms' CI under that rule on the alone arm's seeds. The
 bench itself (`_jobs`, `_result`, the launcher's `run_or_reuse`) is reached through
 `seal.experiments.transfer`, so the two paths run and report the same way.

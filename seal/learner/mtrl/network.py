@@ -111,8 +111,10 @@ class TaskConditionedNetwork(nn.Module):
         }
 
     def env_parameters(self, key: str) -> list[nn.Parameter]:
-        """Every parameter: there is one environment."""
-        return list(self.parameters())
+        """Every parameter (there is one environment), the shared ones first, then the per-task
+        ones: each component one run of the list, as clip_per = "component" needs."""
+        components = self.components()
+        return [*components["trunk"], *components[f"head.{self.key}"]]
 
     def forward(self, key: str, x: torch.Tensor, task_ids: torch.Tensor) -> torch.Tensor:
         """The network of each member on the inputs without their one-hot columns."""

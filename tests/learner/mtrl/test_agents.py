@@ -120,3 +120,17 @@ def test_a_short_seal_run_of_each_learner(tmp_path: Path, learner: dict[str, str
     train = pd.read_csv(run / "train.csv")
     losses = train[train["key"] == "critic_loss"]["value"]
     assert len(losses) and np.isfinite(losses).all()
+
+
+@pytest.mark.parametrize("architecture", ["paco", "soft_modular", "moore", "care"])
+def test_clip_per_component_clips_the_shared_and_the_per_task_parameters_apart(
+    architecture: str,
+) -> None:
+    """Each component is one run of the slot's parameters (shared first, then per task), so
+    clip_per = "component" builds and steps."""
+    agent, replay = _filled(_config({"architecture": architecture}, clip_per="component"))
+    for net in (agent.actor, agent.critic):
+        parts = net.components()
+        assert net.env_parameters("mw") == [*parts["trunk"], *parts["head.mw"]]
+    logs = agent.update(replay.sample({"mw": np.array([4, 4, 4])}))
+    assert all(np.isfinite(v) for v in logs.values())
