@@ -8,9 +8,9 @@ import torch
 import torch.nn.functional as F
 
 from seal.learner import AgentConfig, EnvSpec
-from seal.learner.config import Batch
 from seal.learner.mtrl.care import Care
 from seal.learner.sac import Agent
+from tests.learner.mtrl.batches import random_batch as _batch
 
 CONFIG = AgentConfig(
     architecture="care",
@@ -112,18 +112,6 @@ def test_same_seed_same_draw_and_the_two_inits() -> None:
         net = Care(5, 4, 100, config)
         net.reset_parameters(torch.Generator().manual_seed(0), init, None)
         assert abs(float(net.table.detach().std()) / std - 1) < 0.05
-
-
-def _batch(n: int, tasks: int, seed: int) -> Batch:
-    g = torch.Generator().manual_seed(seed)
-    return Batch(
-        torch.randn(n, 6, generator=g),
-        torch.rand(n, 2, generator=g) * 2 - 1,
-        torch.randn(n, generator=g),
-        torch.randn(n, 6, generator=g),
-        torch.zeros(n),
-        torch.arange(n) % tasks,
-    )
 
 
 @pytest.mark.parametrize("layer_norm", [False, True])

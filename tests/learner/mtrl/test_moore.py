@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from seal.learner import AgentConfig, EnvSpec
-from seal.learner.config import Batch
 from seal.learner.mtrl.moore import Moore, gram_schmidt
 from seal.learner.sac import Agent
+from tests.learner.mtrl.batches import random_batch as _batch
 
 CONFIG = AgentConfig(architecture="moore", hidden=(8, 8), moore_experts=3, device="cpu")
 
@@ -93,18 +93,6 @@ def test_same_seed_same_draw_and_heads_within_the_bound() -> None:
     assert float(a.heads.weight.detach().abs().max()) <= 1e-3
     assert float(a.heads.bias.detach().abs().max()) <= 1e-3
     assert not torch.equal(a.layers[0].weight, _net(seed=4).layers[0].weight)
-
-
-def _batch(n: int, tasks: int, seed: int) -> Batch:
-    g = torch.Generator().manual_seed(seed)
-    return Batch(
-        torch.randn(n, 6, generator=g),
-        torch.rand(n, 2, generator=g) * 2 - 1,
-        torch.randn(n, generator=g),
-        torch.randn(n, 6, generator=g),
-        torch.zeros(n),
-        torch.arange(n) % tasks,
-    )
 
 
 @pytest.mark.parametrize("layer_norm", [False, True])

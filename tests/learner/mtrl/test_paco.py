@@ -8,9 +8,9 @@ import torch
 import torch.nn.functional as F
 
 from seal.learner import AgentConfig, EnvSpec
-from seal.learner.config import Batch
 from seal.learner.mtrl.paco import PaCo
 from seal.learner.sac import Agent
+from tests.learner.mtrl.batches import random_batch as _batch
 
 CONFIG = AgentConfig(architecture="paco", hidden=(8, 8), paco_sets=3, device="cpu")
 
@@ -73,18 +73,6 @@ def test_same_seed_same_draw_and_metaworld_init_zeroes_hidden_biases() -> None:
     assert all(not layer.bias.detach().any() for layer in a.hidden)
     assert float(a.out.weight.detach().abs().max()) <= 1e-3  # the output layer's head bound
     assert not torch.equal(a.hidden[0].weight, _net(seed=4).hidden[0].weight)
-
-
-def _batch(n: int, tasks: int, seed: int) -> Batch:
-    g = torch.Generator().manual_seed(seed)
-    return Batch(
-        torch.randn(n, 6, generator=g),
-        torch.rand(n, 2, generator=g) * 2 - 1,
-        torch.randn(n, generator=g),
-        torch.randn(n, 6, generator=g),
-        torch.zeros(n),
-        torch.arange(n) % tasks,
-    )
 
 
 @pytest.mark.parametrize("layer_norm", [False, True])

@@ -9,9 +9,9 @@ import torch
 import torch.nn.functional as F
 
 from seal.learner import AgentConfig, EnvSpec
-from seal.learner.config import Batch
 from seal.learner.mtrl.soft_modular import SoftModular
 from seal.learner.sac import Agent
+from tests.learner.mtrl.batches import random_batch as _batch
 
 CONFIG = AgentConfig(
     architecture="soft_modular",
@@ -199,18 +199,6 @@ def test_same_seed_same_draw_and_metaworld_init_zeroes_hidden_biases() -> None:
     c = _net(seed=3, init="torch")
     assert _max_abs(c.layers[0].bias) > 0.0
     assert all(_max_abs(layer.bias) == 0.0 for layer in c.logits)
-
-
-def _batch(n: int, tasks: int, seed: int) -> Batch:
-    g = torch.Generator().manual_seed(seed)
-    return Batch(
-        torch.randn(n, 6, generator=g),
-        torch.rand(n, 2, generator=g) * 2 - 1,
-        torch.randn(n, generator=g),
-        torch.randn(n, 6, generator=g),
-        torch.zeros(n),
-        torch.arange(n) % tasks,
-    )
 
 
 @pytest.mark.parametrize("layer_norm", [False, True])
