@@ -32,44 +32,19 @@ from seal.protocols import load_protocol, run_seed
 from seal.protocols.preemption import Preempted
 from seal.sweep.ray_session import RaySession
 from seal.sweep.trials import is_finished, last_preemption, read_evaluations
+from tests.faults.point_protocol import point_protocol
 
 HUNG_S = 900.0
 """How long a test waits for a run's next step before calling it hung."""
 
-POINT = """
-[protocol]
-name = "tiny"
-kind = "baseline"
-epochs = {epochs}
-seeds = 1
-device = "cpu"
-threads = 1
-[envs.pt]
-adapter = "point"
-tasks = ["east", "north"]
-episode_length = 10
-[agent]
-hidden = [8, 8]
-[training]
-warmup_steps = 10
-batch_per_task = 8
-collector = "sync"
-[evaluation]
-interval = 1
-episodes = 1
-[checkpoint]
-interval = {interval}
-keep_last = 2
-[logging]
-tensorboard = false
-"""
-
 
 def tiny_arm(tmp_path: Path, epochs: int, interval: int = 5) -> Arm:
-    """An arm whose protocol is POINT, written to tmp_path/protocols/tiny.toml."""
+    """An arm whose protocol is the fault tests' small point protocol, written to
+    tmp_path/protocols/tiny.toml."""
     directory = tmp_path / "protocols"
     directory.mkdir(exist_ok=True)
-    (directory / "tiny.toml").write_text(POINT.format(epochs=epochs, interval=interval))
+    text = point_protocol("tiny", epochs, interval=interval, train_interval=None)
+    (directory / "tiny.toml").write_text(text)
     return Arm("tiny", "Tiny", None, directory=directory)
 
 
