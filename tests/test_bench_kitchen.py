@@ -576,7 +576,7 @@ def test_every_committed_run_record_is_read_as_a_finished_run_of_todays_protocol
 
 def _taken(record: Path, by_protocol: dict) -> tuple:
     """(the record's arm, the run `--no-run` takes for its arm and seed)."""
-    from seal.experiments.launcher import finished_run
+    from seal.experiments.records import finished_run
 
     arm = by_protocol[record.parents[1].name]
     seed = int(record.name.removeprefix("seed-"))

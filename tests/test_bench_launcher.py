@@ -25,11 +25,12 @@ import pandas as pd
 import pytest
 
 import seal.experiments.launcher as launcher
+import seal.sweep.ray_session as ray_session_module
 from seal.errors import SealError
 from seal.experiments.arms import ARMS, Arm
 from seal.experiments.launcher import check_shared_out, run_all, run_cpus, run_or_reuse
 from seal.protocols import load_protocol, run_seed
-from seal.protocols.preemption import Preempted
+from seal.protocols.preemption import Preempted, SignalStop
 from seal.sweep.ray_session import RaySession
 from seal.sweep.trials import is_finished, last_preemption, read_evaluations
 from tests.faults.point_protocol import point_protocol
@@ -167,7 +168,9 @@ def ray_session():  # noqa: ANN201 - yields the ray module
         yield ray
 
 
-def test_a_ray_initialised_otherwise_is_an_error_for_the_bench(ray_session) -> None:  # noqa: ANN001
+def test_a_ray_initialised_otherwise_is_an_error_for_the_bench(
+    ray_session, monkeypatch: pytest.MonkeyPatch
+) -> None:  # noqa: ANN001
     # The bench takes only the Ray it asks for: the same local Ray, or the cluster at its GCS.
     with RaySession(None, 2, strict=True) as ray:
         assert ray is ray_session
@@ -180,6 +183,16 @@ def test_a_ray_initialised_otherwise_is_an_error_for_the_bench(ray_session) -> N
         RaySession(None, 3, strict=True).__enter__()
     with pytest.raises(SealError, match=r"not as asked \(the Ray cluster at --address auto\)"):
         RaySession("auto", strict=True).__enter__()
+    # A Ray this process joined otherwise (a notebook's ray.init("auto")): --address auto takes
+    # it when "auto" resolves to its GCS here, and refuses it when it names another cluster.
+    monkeypatch.setattr(RaySession, "opened", None)
+    monkeypatch.setattr(ray_session_module, "_auto_address", lambda: gcs)
+    with RaySession("auto", strict=True) as ray:
+        assert ray is ray_session
+    monkeypatch.setattr(ray_session_module, "_auto_address", lambda: "10.9.9.9:6379")
+    with pytest.raises(SealError, match=r"the Ray whose GCS is at .*--address auto"):
+        RaySession("auto", strict=True).__enter__()
+    monkeypatch.undo()
     # `seal sweep` (not strict) still uses whatever Ray is initialised, as its tests rely on.
     with RaySession(None, 3) as ray:
         assert ray is ray_session
@@ -201,6 +214,24 @@ def test_the_shared_filesystem_check(
     with pytest.raises(SealError, match=f"node {node} of the Ray cluster do not see it"):
         check_shared_out(ray_session, out)
     assert list(out.iterdir()) == []
+
+    def dies(path: str, token: str) -> bool:
+        raise ray_session.exceptions.WorkerCrashedError()  # as when the node dies mid-question
+
+    monkeypatch.setattr(launcher, "_sees", dies)
+    with pytest.raises(SealError, match=r"a node of the Ray cluster failed while asked"):
+        check_shared_out(ray_session, out)
+    assert list(out.iterdir()) == []
+
+
+def test_a_cluster_without_a_live_cpu_node_is_a_one_line_error() -> None:
+    class NoNodes:  # what ray.nodes() says once every worker node has died
+        @staticmethod
+        def nodes() -> list[dict]:
+            return [{"Alive": False, "Resources": {"CPU": 2.0}}, {"Alive": True, "Resources": {}}]
+
+    with pytest.raises(SealError, match="no alive node with a CPU"):
+        launcher.Launcher(NoNodes, SignalStop(), print, 1.0)
 
 
 @pytest.mark.slow

@@ -14,7 +14,7 @@ import pytest
 
 from seal.errors import SealError
 from seal.experiments.arms import ARMS, arms
-from seal.experiments.launcher import agent_mismatches, code_versions, finished_run
+from seal.experiments.records import agent_mismatches, code_versions, finished_run
 from seal.experiments.statistics import (
     TargetCost,
     summarise,
@@ -393,7 +393,7 @@ def test_every_arm_has_the_jsons_keys() -> None:
 
 
 def test_a_run_predating_a_key_is_reused_only_at_that_keys_default() -> None:
-    from seal.experiments.launcher import _same_tables
+    from seal.experiments.records import _same_tables
 
     today = {
         "agent": {"latent_dim": 8, "head_hidden": [], "clip_per": "optimizer"},

@@ -9,7 +9,8 @@ ladder of positive controls, seed-paired changes, the MDE and the false-positive
 Table 1's learners at laptop scale) and `learn` (point and reach-v3 evidence); `until_mde` runs
 the testbed's seeds until its MDEs are small enough. The transfer testbed
 is split by idea: `arms` (what is compared; `Arm` is every experiment's unit), `launcher` (the runs
-as Ray tasks, reuse and resume, stopping, code versions; every experiment launches through it), `statistics` (the testbed's costs, paired changes and their CIs, MDEs, AUC, false-positive
+as Ray tasks, resume, stopping; every experiment launches through it), `records` (the runs
+`--reuse` takes and the code versions and agent keys they were made with), `statistics` (the testbed's costs, paired changes and their CIs, MDEs, AUC, false-positive
 rate) and `tables` (its tables and plots), which `transfer` wires to its goals. The statistical
 methods are `seal.stats`'; the CLI is `seal bench --learn <name>`.
 """

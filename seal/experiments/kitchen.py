@@ -37,13 +37,8 @@ from seal.experiments.kitchen_rules import (
     within_budget,
 )
 from seal.experiments.kitchen_rules import collapse_test as _collapse_test
-from seal.experiments.launcher import (
-    code_versions,
-    describe_ray,
-    finished_run,
-    run_or_reuse,
-    versions_note,
-)
+from seal.experiments.launcher import describe_ray, run_or_reuse
+from seal.experiments.records import code_versions, finished_run, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 from seal.protocols import load_protocol
 

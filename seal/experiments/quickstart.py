@@ -21,7 +21,8 @@ from typing import Any
 
 from seal.errors import SealError, UnknownNameError
 from seal.experiments.arms import Arm
-from seal.experiments.launcher import code_versions, describe_ray, run_or_reuse, versions_note
+from seal.experiments.launcher import describe_ray, run_or_reuse
+from seal.experiments.records import code_versions, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
 REPO = Path(__file__).resolve().parents[2]

@@ -26,7 +26,7 @@ import pandas as pd
 
 from seal.errors import SealError
 from seal.experiments.arms import TARGET_ENV, TESTBED, Arm
-from seal.experiments.launcher import last_checkpoint
+from seal.experiments.records import last_checkpoint
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
 # ---------------------------------------------------------------- reading one run

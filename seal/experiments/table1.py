@@ -23,7 +23,8 @@ from typing import TYPE_CHECKING, Any
 
 from seal.errors import SealError, UnknownNameError
 from seal.experiments.arms import Arm
-from seal.experiments.launcher import code_versions, describe_ray, run_or_reuse, versions_note
+from seal.experiments.launcher import describe_ray, run_or_reuse
+from seal.experiments.records import code_versions, versions_note
 
 if TYPE_CHECKING:
     import pandas as pd

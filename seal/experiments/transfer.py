@@ -42,13 +42,8 @@ import numpy as np
 
 from seal.errors import SealError
 from seal.experiments.arms import Arm, arms
-from seal.experiments.launcher import (
-    agent_mismatches,
-    code_versions,
-    describe_ray,
-    run_or_reuse,
-    versions_note,
-)
+from seal.experiments.launcher import describe_ray, run_or_reuse
+from seal.experiments.records import agent_mismatches, code_versions, versions_note
 from seal.experiments.statistics import (
     FPR_HALF,
     FPR_SPLITS,

@@ -23,7 +23,8 @@ import numpy as np
 from seal.errors import SealError
 from seal.experiments import transfer
 from seal.experiments.arms import Arm, arms
-from seal.experiments.launcher import code_versions, describe_ray, versions_note
+from seal.experiments.launcher import describe_ray
+from seal.experiments.records import code_versions, versions_note
 from seal.experiments.statistics import FPR_SPLITS, target_auc, target_budget, target_cost
 
 RULE_ARMS = ("high_source", "pretrained_trunk", "oracle_translator", "no_correspondence")
@@ -57,16 +58,12 @@ def rule_batch(
     if address is None:
         nodes = [parallel]
     else:
-        from seal.sweep.ray_session import RaySession, check_address, import_ray
+        from seal.sweep.ray_session import RaySession, alive_cpu_nodes, check_address, import_ray
 
         import_ray("seal bench --learn")
         check_address(address)
         with RaySession(address, None, strict=True) as ray:
-            nodes = [
-                int(n["Resources"].get("CPU", 0))
-                for n in ray.nodes()
-                if n.get("Alive") and n["Resources"].get("CPU", 0) >= 1
-            ]
+            nodes = [int(n["Resources"]["CPU"]) for n in alive_cpu_nodes(ray)]
     if not nodes:
         raise SealError(f"the Ray cluster at --address {address} has no alive node with a CPU")
     per_run = max(run_cpus(load_protocol(a.protocol, overrides), max(nodes)) for a in chosen)
@@ -275,7 +272,7 @@ def run_fpr_until_mde(
     """
     from seal import load_run
     from seal.bench.timing import machine_load
-    from seal.experiments.launcher import finished_run
+    from seal.experiments.records import finished_run
     from seal.experiments.statistics import ARM_CI, SAVED_BOUNDS
     from seal.stats import split_false_positive_rate
     from seal.stopping import SD_BOUND_CONFIDENCE, sequential_false_positive_rate

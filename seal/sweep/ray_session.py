@@ -92,6 +92,10 @@ class RaySession:
         gcs = ray.get_runtime_context().gcs_address
         if self.address == gcs:
             return
+        # "auto" names the cluster this machine joins: the one a notebook's ray.init("auto")
+        # joined, never a private local Ray a RaySession started here.
+        if self.address == "auto" and RaySession.opened is None and _auto_address() == gcs:
+            return
 
         def cpus(n: int | None) -> str:
             return "every CPU" if n is None else f"{n} CPUs"
@@ -114,6 +118,23 @@ class RaySession:
         if self.started:
             import_ray().shutdown()
             RaySession.opened = None
+
+
+def _auto_address() -> str | None:
+    """The HOST:PORT that --address auto resolves to on this machine (RAY_ADDRESS, else the
+    cluster `ray start` left here), or None when there is none. Ray has no public call for this;
+    its own resolution (`ray._private.services`) is used so that both agree."""
+    try:
+        from ray._private.services import canonicalize_bootstrap_address
+
+        return canonicalize_bootstrap_address("auto")
+    except Exception:  # noqa: BLE001 - a private API that may move: then "auto" matches nothing
+        return None
+
+
+def alive_cpu_nodes(ray: ModuleType) -> list[dict[str, Any]]:
+    """The alive nodes of the Ray cluster with at least one CPU (`ray.nodes()`'s entries)."""
+    return [n for n in ray.nodes() if n.get("Alive") and n["Resources"].get("CPU", 0) >= 1]
 
 
 def check_feasible(ray: ModuleType, config: ProtocolConfig, res: Resources) -> None:

@@ -16,7 +16,7 @@ import torch
 from seal.envs.testbed import paired_states, point_action
 from seal.errors import ConfigError
 from seal.experiments.arms import TESTBED
-from seal.experiments.launcher import last_checkpoint
+from seal.experiments.records import last_checkpoint
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.probes import agent_from_state
 from seal.protocols import load_protocol, run_seed
