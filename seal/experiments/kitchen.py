@@ -37,7 +37,7 @@ from seal.experiments.kitchen_rules import (
     within_budget,
 )
 from seal.experiments.kitchen_rules import collapse_test as _collapse_test
-from seal.experiments.launcher import describe_ray, run_or_reuse
+from seal.experiments.launcher import bench_context, run_or_reuse
 from seal.experiments.records import code_versions, finished_run, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 from seal.protocols import load_protocol
@@ -258,11 +258,7 @@ def run_kitchen_bench(
         "run_dirs": {f"{a}/seed-{s}": str(p) for (a, s), p in run_dirs.items()},
         "reused": sorted(f"{a}/seed-{s}" for a, s in reused),
         "missing": missing,
-        "wall_s": time.monotonic() - started,
-        "parallel": parallel,
-        "ray": describe_ray(parallel, address),
-        "load_before": load_before,
-        "load_after": machine_load(),
+        **bench_context(time.monotonic() - started, parallel, address, load_before),
     }
 
 

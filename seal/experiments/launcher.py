@@ -56,6 +56,8 @@ from seal.sweep.trials import TrialRecord, execute_trial, is_finished, is_starte
 if TYPE_CHECKING:  # Ray is imported only where it is used (`import_ray`)
     from ray import ObjectRef
 
+    from seal.bench.timing import MachineLoad
+
 Key = tuple[str, int]
 """(arm name, seed): one run of an experiment."""
 
@@ -344,6 +346,21 @@ def describe_ray(parallel: int, address: str | None) -> str:
 
 
 # ---------------------------------------------------------------- running arms
+
+
+def bench_context(
+    wall_s: float, parallel: int, address: str | None, load_before: MachineLoad
+) -> dict[str, Any]:
+    """Where and how a bench ran, for its JSON: its wall time, the Ray it ran on, the load before and after."""
+    from seal.bench.timing import machine_load
+
+    return {
+        "wall_s": wall_s,
+        "parallel": parallel,
+        "ray": describe_ray(parallel, address),
+        "load_before": load_before,
+        "load_after": machine_load(),
+    }
 
 
 def run_failure(record: TrialRecord) -> str:

@@ -22,7 +22,7 @@ from typing import Any
 
 from seal.errors import SealError, UnknownNameError
 from seal.experiments.arms import Arm
-from seal.experiments.launcher import describe_ray, run_or_reuse
+from seal.experiments.launcher import bench_context, run_or_reuse
 from seal.experiments.records import code_versions, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
@@ -165,11 +165,7 @@ def run_mtrl_bench(
             {key: r.provenance.get("git_sha") for key, r in loaded.items()}
         ),
         "overrides": list(overrides),
-        "wall_s": wall,
-        "parallel": parallel,
-        "ray": describe_ray(parallel, address),
-        "load_before": load_before,
-        "load_after": machine_load(),
+        **bench_context(wall, parallel, address, load_before),
     }
 
 

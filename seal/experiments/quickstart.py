@@ -21,7 +21,7 @@ from typing import Any
 
 from seal.errors import SealError, UnknownNameError
 from seal.experiments.arms import Arm
-from seal.experiments.launcher import describe_ray, run_or_reuse
+from seal.experiments.launcher import bench_context, run_or_reuse
 from seal.experiments.records import code_versions, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
@@ -158,11 +158,7 @@ def run_quickstart_bench(
         "reused": sorted(f"seed-{s}" for _, s in reused),
         "run_wall_s": {f"seed-{s}": float(r.metrics["wall_s"].max()) for s, r in loaded.items()},
         "code_versions": versions,
-        "wall_s": wall,
-        "parallel": parallel,
-        "ray": describe_ray(parallel, address),
-        "load_before": load_before,
-        "load_after": machine_load(),
+        **bench_context(wall, parallel, address, load_before),
     }
 
 

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 from seal.errors import SealError, UnknownNameError
 from seal.experiments.arms import Arm
-from seal.experiments.launcher import describe_ray, run_or_reuse
+from seal.experiments.launcher import bench_context, run_or_reuse
 from seal.experiments.records import code_versions, versions_note
 
 if TYPE_CHECKING:
@@ -233,17 +233,13 @@ def run_table1_bench(
         "reused": sorted(f"{a}/seed-{s}" for a, s in reused),
         "code_versions": versions,
         "warnings": list(result.warnings),
-        "wall_s": wall,
         "budget": {
             "wall_s_le": BUDGET_S,
             "seeds_ge": MIN_SEEDS,
             # Only a run that made every run itself says whether the set fits the budget.
             "met": (wall <= BUDGET_S and seeds >= MIN_SEEDS) if fresh else None,
         },
-        "parallel": parallel,
-        "ray": describe_ray(parallel, address),
-        "load_before": load_before,
-        "load_after": machine_load(),
+        **bench_context(wall, parallel, address, load_before),
     }
 
 

@@ -42,7 +42,7 @@ import numpy as np
 
 from seal.errors import SealError
 from seal.experiments.arms import Arm, arms
-from seal.experiments.launcher import describe_ray, run_or_reuse
+from seal.experiments.launcher import bench_context, run_or_reuse
 from seal.experiments.records import agent_mismatches, code_versions, versions_note
 from seal.experiments.statistics import (
     FPR_HALF,
@@ -182,7 +182,6 @@ def _result(
     """`run_transfer_bench`'s result from the run directories of seeds 0..seeds-1 of `chosen`
     (`loaded`: those already read, by key)."""
     from seal import load_run
-    from seal.bench.timing import machine_load
 
     known = dict(loaded or {})
     loaded = {key: known[key] if key in known else load_run(path) for key, path in run_dirs.items()}
@@ -303,11 +302,7 @@ def _result(
         "reused": sorted(f"{a}/seed-{s}" for a, s in reused),
         "agent_mismatches": mismatches,
         "code_versions": versions,
-        "wall_s": wall,
-        "parallel": parallel,
-        "ray": describe_ray(parallel, address),
-        "load_before": load_before,
-        "load_after": machine_load(),
+        **bench_context(wall, parallel, address, load_before),
     }
 
 
@@ -348,11 +343,7 @@ def run_fpr_bench(
         "run_dirs": {f"{alone.name}/seed-{s}": str(p) for s, p in enumerate(paths)},
         "reused": sorted(f"{a}/seed-{s}" for a, s in reused),
         "code_versions": code_versions(shas),
-        "wall_s": wall,
-        "parallel": parallel,
-        "ray": describe_ray(parallel, address),
-        "load_before": load_before,
-        "load_after": machine_load(),
+        **bench_context(wall, parallel, address, load_before),
     }
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from seal.errors import SealError
 from seal.experiments import transfer
 from seal.experiments.arms import Arm, arms
-from seal.experiments.launcher import describe_ray
+from seal.experiments.launcher import bench_context, describe_ray
 from seal.experiments.records import code_versions, versions_note
 from seal.experiments.statistics import FPR_SPLITS, target_auc, target_budget, target_cost
 
@@ -339,11 +339,7 @@ def run_fpr_until_mde(
         "code_versions": code_versions(
             {(alone.name, s): r.provenance.get("git_sha") for s, r in enumerate(runs)}
         ),
-        "wall_s": wall,
-        "parallel": parallel,
-        "ray": describe_ray(parallel, address),
-        "load_before": load_before,
-        "load_after": machine_load(),
+        **bench_context(wall, parallel, address, load_before),
     }
 
 

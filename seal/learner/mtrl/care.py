@@ -26,21 +26,13 @@ affine map, before its ReLU; none in the context MLP, the attention MLP or the e
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from seal.learner.config import AgentConfig
-from seal.learner.mtrl.layers import Dense
-
-
-def _layers(dims: Sequence[int], members: int = 1) -> nn.ModuleList:
-    """Dense layers dims[0] -> dims[1] -> ... -> dims[-1], each of `members` maps."""
-    return nn.ModuleList(
-        Dense(i, o, members=members) for i, o in zip(dims[:-1], dims[1:], strict=True)
-    )
+from seal.learner.mtrl.layers import Dense, dense_stack
 
 
 def _mlp(layers: nn.ModuleList, x: torch.Tensor) -> torch.Tensor:
@@ -65,10 +57,10 @@ class Care(nn.Module):
         k, e, enc = config.care_experts, config.care_embedding, config.care_encoder_hidden
         self.temperature = config.care_temperature
         self.table = nn.Parameter(torch.empty(num_tasks, e))
-        self.context_mlp = _layers((e, *enc, e))
-        self.attention_mlp = _layers((e, *enc, k))
-        self.encoders = _layers((in_dim, *enc, e), members=k)
-        self.torso = _layers((2 * e, *config.hidden))
+        self.context_mlp = dense_stack((e, *enc, e))
+        self.attention_mlp = dense_stack((e, *enc, k))
+        self.encoders = dense_stack((in_dim, *enc, e), members=k)
+        self.torso = dense_stack((2 * e, *config.hidden))
         self.norms = nn.ModuleList(nn.LayerNorm(o) for o in (config.hidden if layer_norm else ()))
         self.out = Dense(config.hidden[-1], out_dim)
 

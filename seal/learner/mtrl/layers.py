@@ -12,6 +12,7 @@ U(+-bound) for both when given a bound (`networks.HEAD_BOUND` under "metaworld_a
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 import torch.nn.functional as F
@@ -66,6 +67,13 @@ class Dense(nn.Module):
         if self.bias is None:
             return torch.bmm(x, self.weight)
         return torch.baddbmm(self.bias, x, self.weight)
+
+
+def dense_stack(dims: Sequence[int], members: int = 1) -> nn.ModuleList:
+    """Dense layers dims[0] -> dims[1] -> ... -> dims[-1], each of `members` maps."""
+    return nn.ModuleList(
+        Dense(i, o, members=members) for i, o in zip(dims[:-1], dims[1:], strict=True)
+    )
 
 
 class Embedding(nn.Module):

@@ -29,7 +29,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from seal.learner.config import AgentConfig
-from seal.learner.mtrl.layers import Dense, Embedding
+from seal.learner.mtrl.layers import Dense, Embedding, dense_stack
 
 EPS = 1e-8  # metaworld-algorithms' orthogonal_1d: added to each norm
 
@@ -81,9 +81,7 @@ class Moore(nn.Module):
         self.num_tasks, self.out_dim = num_tasks, out_dim
         self.task_weights = Embedding(num_tasks, k, bias=False)
         dims = (in_dim, *config.hidden)
-        self.layers = nn.ModuleList(
-            Dense(i, o, members=k) for i, o in zip(dims[:-1], dims[1:], strict=True)
-        )
+        self.layers = dense_stack(dims, members=k)
         self.norms = nn.ModuleList(
             ExpertLayerNorm(k, o) for o in (config.hidden[:-1] if layer_norm else ())
         )

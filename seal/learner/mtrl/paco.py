@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from seal.learner.config import AgentConfig
-from seal.learner.mtrl.layers import Dense, Embedding
+from seal.learner.mtrl.layers import Dense, Embedding, dense_stack
 
 
 class PaCo(nn.Module):
@@ -39,9 +39,7 @@ class PaCo(nn.Module):
         k = config.paco_sets
         self.task_weights = Embedding(num_tasks, k)
         dims = (in_dim, *config.hidden)
-        self.hidden = nn.ModuleList(
-            Dense(i, o, members=k) for i, o in zip(dims[:-1], dims[1:], strict=True)
-        )
+        self.hidden = dense_stack(dims, members=k)
         self.norms = nn.ModuleList(nn.LayerNorm(o) for o in (config.hidden if layer_norm else ()))
         self.out = Dense(dims[-1], out_dim, members=k)
 
