@@ -671,3 +671,40 @@ def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
             if name == "metrics.csv":  # the wall-clock column aside
                 got, want = ([r.rsplit(",", 1)[0] for r in rows] for rows in (got, want))
             assert got == want
+
+
+def test_a_started_trial_without_a_saved_replay_is_set_aside_and_runs_afresh(
+    tmp_path: Path,
+) -> None:
+    """`seal sweep --resume` (and a bench task's retry) cannot continue a run whose checkpoints
+    hold no replay: execute_trial moves it to <group>/.lost/ and runs the seed from the start,
+    giving the rows a run that was never interrupted gives."""
+    import pandas as pd
+
+    from seal.protocols import load_protocol
+    from seal.sweep.trials import execute_trial
+    from tests.faults.point_protocol import point_protocol
+
+    path = tmp_path / "p.toml"
+    path.write_text(point_protocol("noreplay", 2))
+    config = load_protocol(path, ["checkpoint.save_replay=false"])
+
+    def trial(group: str) -> tuple[TrialRecord, Path]:
+        run_dir = tmp_path / "out" / "noreplay" / group / "seed-0"
+        return TrialRecord(trial="t", protocol="noreplay", seed=0, run_dir=str(run_dir)), run_dir
+
+    clean, clean_dir = trial("clean")
+    assert execute_trial(config, clean).status == "finished"
+    record, run_dir = trial("partial")
+    run_dir.mkdir(parents=True)
+    (run_dir / "config.toml").write_text("# a run stopped before its end\n")
+    record = execute_trial(config, record)
+    assert (record.status, record.start) == ("finished", "new")
+    (moved,) = (run_dir.parent / ".lost").iterdir()
+    assert moved.name.startswith("seed-0-")
+    assert (moved / "config.toml").read_text() == "# a run stopped before its end\n"
+    drop = ["wall_s"]
+    pd.testing.assert_frame_equal(
+        pd.read_csv(run_dir / "metrics.csv").drop(columns=drop),
+        pd.read_csv(clean_dir / "metrics.csv").drop(columns=drop),
+    )

@@ -222,15 +222,10 @@ class Launcher:
 def _on_node(
     run: Callable[..., TrialRecord], config: ProtocolConfig, record: TrialRecord, **kwargs: Any
 ) -> tuple[TrialRecord, str]:
-    """On a node: `run`'s record, and the node: "<ip> (<id, first 8>)". A started run whose
-    checkpoints hold no replay (checkpoint.save_replay = false; a retry after its node was lost)
-    cannot continue: it is moved to <group>/.lost/ and runs afresh, as seeded as the first."""
+    """On a node: `run`'s record, and the node: "<ip> (<id, first 8>)". (A retry of a run whose
+    checkpoints hold no replay runs afresh: `seal.sweep.trials.set_aside`.)"""
     import ray
 
-    run_dir = Path(record.run_dir)
-    if not config.checkpoint.save_replay and is_started(run_dir) and not is_finished(run_dir):
-        (run_dir.parent / ".lost").mkdir(exist_ok=True)
-        run_dir.rename(run_dir.parent / ".lost" / f"{run_dir.name}-{secrets.token_hex(4)}")
     node = f"{ray.util.get_node_ip_address()} ({ray.get_runtime_context().get_node_id()[:8]})"
     return run(config, record, **kwargs), node
 

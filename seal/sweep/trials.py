@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import json
+import secrets
 import time
 import traceback
 from collections.abc import Sequence
@@ -156,6 +157,8 @@ def execute_trial(
         record.start, record.status = "kept", "finished"
         record.refresh()
         return record
+    if not config.checkpoint.save_replay and is_started(run_dir):
+        set_aside(run_dir)
     record.start = "continued" if is_started(run_dir) else "new"
     (run_dir / "error.txt").unlink(missing_ok=True)
     try:
@@ -178,6 +181,15 @@ def execute_trial(
     record.wall_s = round(time.monotonic() - started, 3)
     record.refresh()
     return record
+
+
+def set_aside(run_dir: Path) -> Path:
+    """Move a started run whose checkpoints hold no replay (checkpoint.save_replay = false) to
+    <group>/.lost/<seed-n>-<hex>: it cannot continue exactly, so its trial runs afresh, as seeded
+    as the first, and what it had made stays readable there. Returns the new place."""
+    lost = run_dir.parent / ".lost"
+    lost.mkdir(exist_ok=True)
+    return run_dir.rename(lost / f"{run_dir.name}-{secrets.token_hex(4)}")
 
 
 def last_preemption(run_dir: str | Path) -> str:
