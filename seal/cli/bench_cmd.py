@@ -62,8 +62,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs="?",
         const="evidence",
         default=None,
-        metavar="transfer|kitchen|table1|quickstart|reach_sb3|mtrl",
-        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs; --learn table1: only paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md); --learn quickstart: README command 1 over seeds 0-9; --learn reach_sb3: reach-v3 learned under seal run and under SB3's SAC.learn; --learn mtrl: SMT Table 1's learners on three easy MT10 tasks (protocols/mtrl_learn), with their updates/s against MTMHSAC's",
+        metavar="transfer|kitchen|table1|quickstart|reach_sb3|mtrl|learner",
+        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs; --learn table1: only paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md); --learn quickstart: README command 1 over seeds 0-9; --learn reach_sb3: reach-v3 learned under seal run and under SB3's SAC.learn; --learn mtrl: SMT Table 1's learners on three easy MT10 tasks (protocols/mtrl_learn), with their updates/s against MTMHSAC's; --learn learner --set agent.KEY=VALUE: whether a learner change is no slower on Meta-World (issue 54's rule: the quickstart, table1's single_mw and reach, seed-paired)",
     )
     parser.add_argument(
         "--full",
@@ -100,7 +100,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs="+",
         metavar="ARM",
         default=None,
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: only these arms (protocols/testbed/<ARM>.toml and the alone arms and pre-trainings they need, positive_pretrained being round 4's name of pretrained_trunk; protocols/kitchen_learn/<ARM>.toml; protocols/table1_small/<ARM>.toml and its references; seal or sb3 for reach_sb3; protocols/mtrl_learn/<ARM>.toml and sac_mt_mh)",
+        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl|learner: only these arms (protocols/testbed/<ARM>.toml and the alone arms and pre-trainings they need, positive_pretrained being round 4's name of pretrained_trunk; protocols/kitchen_learn/<ARM>.toml; protocols/table1_small/<ARM>.toml and its references; seal or sb3 for reach_sb3; protocols/mtrl_learn/<ARM>.toml and sac_mt_mh; quickstart, table1_single_mw or reach for learner)",
     )
     parser.add_argument(
         "--reuse",
@@ -110,7 +110,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--no-run",
         action="store_true",
-        help="with --learn kitchen: run and resume nothing; report the finished runs under --out that --reuse would take (run records, say) and name the ones not found",
+        help="with --learn kitchen or learner: run and resume nothing; report the finished runs under --out that --reuse would take (run records, say) and name the ones not found",
     )
     parser.add_argument(
         "--jobs",
@@ -185,7 +185,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="TABLE.KEY=VALUE",
-        help="with --protocol or --learn table1, quickstart, reach_sb3, kitchen or mtrl: override a protocol value (e.g. protocol.device=cuda, evaluation.stop_when_reached=false)",
+        help="with --protocol or --learn table1, quickstart, reach_sb3, kitchen, mtrl or learner: override a protocol value (e.g. protocol.device=cuda, evaluation.stop_when_reached=false)",
     )
     parser.set_defaults(func=run)
 
@@ -197,9 +197,10 @@ LEARN_SETS: dict[str, tuple[str, int, str]] = {
     "quickstart": ("seal.experiments.quickstart", 10, "reports/bench_quickstart"),
     "reach_sb3": ("seal.experiments.reach_sb3", 3, "reports/bench_reach_sb3"),
     "mtrl": ("seal.experiments.mtrl", 3, "reports/bench_mtrl"),
+    "learner": ("seal.experiments.learner", 10, "reports/bench_learner"),
 }
 """`--learn <set>`: the module (with run_<set>_bench and format_result), default seeds and reports root."""
-OVERRIDE_SETS = ("table1", "quickstart", "reach_sb3", "kitchen", "mtrl")
+OVERRIDE_SETS = ("table1", "quickstart", "reach_sb3", "kitchen", "mtrl", "learner")
 """The `--learn` sets that take `--set` overrides of their protocols."""
 
 
@@ -238,8 +239,8 @@ def run(args: argparse.Namespace) -> int:
         from seal.experiments.until_mde import check_rule
 
         check_rule(args.seeds_until_mde, args.max_seeds)
-    if args.no_run and args.learn != "kitchen":
-        raise SealError("--no-run only applies to --learn kitchen")
+    if args.no_run and args.learn not in ("kitchen", "learner"):
+        raise SealError("--no-run only applies to --learn kitchen and learner")
     if (args.address is not None or args.jobs is not None) and args.learn not in LEARN_SETS:
         raise SealError(
             "--jobs and --address only apply to --learn transfer, kitchen, table1, quickstart, "
@@ -247,7 +248,7 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.arms and args.learn not in LEARN_SETS:
         raise SealError(
-            "--arms only applies to --learn transfer, kitchen, table1, quickstart, reach_sb3 and mtrl"
+            "--arms only applies to --learn transfer, kitchen, table1, quickstart, reach_sb3, mtrl and learner"
         )
     if args.overrides and args.protocol is None and args.learn not in OVERRIDE_SETS:
         raise SealError(

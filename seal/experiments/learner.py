@@ -1,0 +1,232 @@
+"""`seal bench --learn learner --set agent.KEY=VALUE`: is a learner change no slower on Meta-World?
+
+Issue 54's second rule (docs/hyperparameters.md, "The learner's default"): a learner change (the
+`--set` overrides, e.g. `agent.critic_layer_norm=true`) may become the default only if, on
+Meta-World, it is no slower than the learner it replaces. Three checks, each a shipped protocol
+run seed for seed as shipped ("old") and with the overrides ("new"):
+
+| check | protocol | seeds | task |
+|---|---|---|---|
+| quickstart | `protocols/quickstart.toml` | 0-9 | drawer-close-v3 |
+| table1_single_mw | `protocols/table1_small/single_mw.toml` | 0-4 | drawer-close-v3 |
+| reach | `protocols/learn/reach.toml` (reach_sb3's SEAL side) | 0-2 | reach-v3 |
+
+Per seed: the task's env steps at its first evaluation >= 90% (`seal.metrics.first_reach`); a
+seed that never got there counts at its run's total, a lower bound, marked "+". Per check: the
+paired change new - old, its mean and 95% Student's t CI (`seal.stats.t_ci`). The change is no
+slower when the CI includes 0 or lies below it; the learner passes when all three checks are.
+
+Both learners' runs share `out`: `--reuse` tells them apart by their saved agent table
+(`seal.experiments.records.finished_run`). The quickstart's runs reserve a whole node each, as
+`seal bench --learn quickstart`'s do; the others one CPU.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from seal.errors import SealError, UnknownNameError
+from seal.experiments.arms import Arm
+from seal.experiments.launcher import bench_context, run_or_reuse
+from seal.experiments.quickstart import ARM as QUICKSTART
+from seal.experiments.reach_sb3 import REACH
+from seal.experiments.records import code_versions, versions_note
+from seal.experiments.table1 import TABLE1
+from seal.metrics import DEFAULT_THRESHOLD, first_reach
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+
+@dataclass(frozen=True)
+class Check:
+    """One Meta-World check of the rule: an arm, the seeds it runs, the task whose crossing counts."""
+
+    name: str
+    arm: Arm
+    seeds: int
+    env: str
+    task: str
+    whole_node: bool = False
+
+
+CHECKS: tuple[Check, ...] = (
+    Check("quickstart", QUICKSTART, 10, "mw", "drawer-close-v3", whole_node=True),
+    Check(
+        "table1_single_mw",
+        Arm("single_mw", "Single Env (MW)", None, directory=TABLE1),
+        5,
+        "mw",
+        "drawer-close-v3",
+    ),
+    Check("reach", REACH, 3, "mw", "reach-v3"),
+)
+"""The rule's checks, with the seeds it names (docs/hyperparameters.md)."""
+
+
+def arms(only: Sequence[str] | None = None) -> list[Check]:
+    """The checks named in `only` (all without it)."""
+    if not only:
+        return list(CHECKS)
+    names = [c.name for c in CHECKS]
+    for name in only:
+        if name not in names:
+            raise UnknownNameError("--arms check", name, names)
+    return [c for c in CHECKS if c.name in only]
+
+
+def crossing(
+    metrics: pd.DataFrame, env: str, task: str, threshold: float = DEFAULT_THRESHOLD
+) -> dict[str, Any]:
+    """{"env_steps", "reached"}: the task's env steps at its first evaluation >= threshold in a
+    run's metrics, else at its last evaluation (a lower bound on what reaching would have cost)."""
+    mine = metrics[(metrics["env"] == env) & (metrics["task"] == task)]
+    if mine.empty:
+        raise SealError(f"metrics.csv: no evaluation of {env}/{task}")
+    (row,) = first_reach(mine, threshold).itertuples(index=False)
+    steps = row.env_steps if row.reached else mine["env_steps"].max()
+    return {"env_steps": int(steps), "reached": bool(row.reached)}
+
+
+def paired_change(old: Sequence[float], new: Sequence[float]) -> dict[str, Any]:
+    """The seed-paired change new - old: per seed, mean, 95% t CI, and whether it is no slower
+    (the CI includes 0 or lies below it; None below two seeds, where there is no CI)."""
+    from seal.stats import t_ci
+
+    if len(old) != len(new):
+        raise SealError(f"paired change: {len(old)} old seeds against {len(new)} new ones")
+    diffs = [float(b) - float(a) for a, b in zip(old, new, strict=True)]
+    low, high = t_ci(diffs)
+    return {
+        "differences": diffs,
+        "mean": float(sum(diffs) / len(diffs)) if diffs else math.nan,
+        "ci95": [low, high],
+        "no_slower": None if math.isnan(low) else bool(low <= 0.0),
+    }
+
+
+def run_learner_bench(
+    seeds: int = 10,
+    out: str = "reports/bench_learner",
+    parallel: int = 2,
+    overrides: Sequence[str] = (),
+    log: Callable[[str], None] = lambda _: None,
+    only: Sequence[str] | None = None,
+    reuse: bool = False,
+    address: str | None = None,
+    run: bool = True,
+) -> dict[str, Any]:
+    """Run (or, with `run=False`, read) each check's seeds (at most `seeds`) as shipped and with
+    `overrides`, and apply the rule."""
+    from seal import load_run
+    from seal.bench.timing import machine_load
+
+    if not overrides:
+        raise SealError(
+            "--learn learner compares a learner change against the shipped learner: give the "
+            "change as --set overrides, e.g. --set agent.critic_layer_norm=true"
+        )
+    if seeds < 2:
+        raise SealError(f"--seeds must be >= 2 for a paired CI, got {seeds}")
+    load_before = machine_load()
+    started = time.monotonic()
+    checks, shas = [], {}
+    for check in arms(only):
+        n = min(seeds, check.seeds)
+        jobs = [(check.arm, s) for s in range(n)]
+        sides = {}
+        for side, sets in (("old", ()), ("new", tuple(overrides))):
+            if run:
+                dirs, _ = run_or_reuse(
+                    jobs,
+                    Path(out),
+                    sets,
+                    parallel,
+                    log,
+                    reuse,
+                    address=address,
+                    whole_node=check.whole_node,
+                )
+            else:
+                from seal.experiments.records import finished_run
+
+                dirs = {}
+                for arm, s in jobs:
+                    found = finished_run(arm, s, Path(out), sets)
+                    if found is not None:
+                        dirs[(arm.name, s)] = found
+            runs = {s: dirs.get((check.arm.name, s)) for s in range(n)}
+            sides[side] = {}
+            for s, d in runs.items():
+                if d is None:
+                    sides[side][s] = None
+                    continue
+                loaded = load_run(d)
+                found = crossing(loaded.metrics, check.env, check.task)
+                sides[side][s] = {**found, "run_dir": str(d)}
+                shas[(f"{check.name}_{side}", s)] = loaded.provenance.get("git_sha")
+        both = [s for s in range(n) if sides["old"][s] and sides["new"][s]]
+        change = paired_change(
+            [sides["old"][s]["env_steps"] for s in both],
+            [sides["new"][s]["env_steps"] for s in both],
+        )
+        checks.append(
+            {
+                "check": check.name,
+                "protocol": str(check.arm.protocol),
+                "task": f"{check.env}/{check.task}",
+                "seeds": n,
+                "paired_seeds": both,
+                "old": {str(s): v for s, v in sides["old"].items()},
+                "new": {str(s): v for s, v in sides["new"].items()},
+                "change": change,
+            }
+        )
+    verdicts = [c["change"]["no_slower"] for c in checks]
+    complete = all(len(c["paired_seeds"]) == c["seeds"] for c in checks)
+    versions = code_versions(shas)
+    return {
+        "overrides": list(overrides),
+        "checks": checks,
+        "no_slower": (all(verdicts) if complete and None not in verdicts else None),
+        "complete": complete,
+        "code_versions": versions,
+        "versions_note": versions_note(versions),
+        **bench_context(time.monotonic() - started, parallel, address, load_before),
+    }
+
+
+def format_result(result: Mapping[str, Any]) -> str:
+    """The human-readable output of `run_learner_bench`."""
+    change = " ".join(result["overrides"])
+    lines = [f"Meta-World, no slower: {change} (new) against the protocols as shipped (old)"]
+    for c in result["checks"]:
+
+        def cell(v: Mapping[str, Any] | None) -> str:
+            if v is None:
+                return "not run"
+            return f"{v['env_steps']:,}{'' if v['reached'] else '+'}"
+
+        per_seed = ", ".join(
+            f"s{s} {cell(c['old'][str(s)])} -> {cell(c['new'][str(s)])}" for s in range(c["seeds"])
+        )
+        ch = c["change"]
+        low, high = ch["ci95"]
+        verdict = {True: "no slower", False: "SLOWER", None: "no CI"}[ch["no_slower"]]
+        lines.append(f"{c['check']} ({c['task']}), env steps to 90% old -> new: {per_seed}")
+        lines.append(
+            f"  change new - old over {len(c['paired_seeds'])} paired seeds: mean "
+            f"{ch['mean']:+,.0f}, 95% t CI [{low:+,.0f}, {high:+,.0f}]: {verdict}"
+        )
+    overall = {True: "passes", False: "fails", None: "not decided (runs missing)"}
+    lines.append(f"rule (every check no slower): {overall[result['no_slower']]}")
+    lines.append("+ = never reached 90%: the run's total env steps, a lower bound")
+    if result["versions_note"]:
+        lines.append(f"note, {result['versions_note']}")
+    lines.append(f"{result['wall_s']:.0f} s wall on {result['ray']}")
+    return "\n".join(lines)
