@@ -35,7 +35,7 @@ from seal.experiments.arms import Arm
 from seal.experiments.launcher import bench_context, run_or_reuse
 from seal.experiments.quickstart import ARM as QUICKSTART
 from seal.experiments.reach_sb3 import REACH
-from seal.experiments.records import code_versions, versions_note
+from seal.experiments.records import code_versions, finished_run, versions_note
 from seal.experiments.table1 import TABLE1
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
@@ -70,14 +70,14 @@ CHECKS: tuple[Check, ...] = (
 
 
 def arms(only: Sequence[str] | None = None) -> list[Check]:
-    """The checks named in `only` (all without it)."""
+    """The checks named in `only`, in that order (all without it)."""
     if not only:
         return list(CHECKS)
     names = [c.name for c in CHECKS]
     for name in only:
         if name not in names:
             raise UnknownNameError("--arms check", name, names)
-    return [c for c in CHECKS if c.name in only]
+    return [next(c for c in CHECKS if c.name == name) for name in dict.fromkeys(only)]
 
 
 def crossing(
@@ -136,33 +136,29 @@ def run_learner_bench(
     load_before = machine_load()
     started = time.monotonic()
     checks, shas = [], {}
-    for check in arms(only):
+    sides_of = ("old", ()), ("new", tuple(overrides))
+    chosen = arms(only)
+    dirs: dict[tuple[str, str, int], Path] = {}
+    for check in chosen if run else ():
         n = min(seeds, check.seeds)
-        jobs = [(check.arm, s) for s in range(n)]
-        sides = {}
-        for side, sets in (("old", ()), ("new", tuple(overrides))):
-            if run:
-                dirs, _ = run_or_reuse(
-                    jobs,
-                    Path(out),
-                    sets,
-                    parallel,
-                    log,
-                    reuse,
-                    address=address,
-                    whole_node=check.whole_node,
-                )
-            else:
-                from seal.experiments.records import finished_run
-
-                dirs = {}
-                for arm, s in jobs:
-                    found = finished_run(arm, s, Path(out), sets)
-                    if found is not None:
-                        dirs[(arm.name, s)] = found
-            runs = {s: dirs.get((check.arm.name, s)) for s in range(n)}
+        # Seeds in chunks, each run as shipped and then with the change, so that a bench stopped
+        # part-way (--reuse continues it) leaves pairs: one seed a chunk where a run takes a node.
+        chunk = 1 if check.whole_node else max(1, parallel)
+        for first in range(0, n, chunk):
+            jobs = [(check.arm, s) for s in range(first, min(n, first + chunk))]
+            for side, sets in sides_of:
+                got, _ = run_or_reuse(
+                    jobs, Path(out), sets, parallel, log, reuse,
+                    address=address, whole_node=check.whole_node,
+                )  # fmt: skip
+                dirs.update({(check.name, side, s): d for (_, s), d in got.items()})
+    for check in chosen:
+        n = min(seeds, check.seeds)
+        sides: dict[str, dict[int, dict[str, Any] | None]] = {}
+        for side, sets in sides_of:
             sides[side] = {}
-            for s, d in runs.items():
+            for s in range(n):
+                d = dirs.get((check.name, side, s)) or finished_run(check.arm, s, Path(out), sets)
                 if d is None:
                     sides[side][s] = None
                     continue
