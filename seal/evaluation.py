@@ -122,6 +122,8 @@ def evaluate(
     backend: str = "auto",
     draw: int | None = None,
     probe: CriticProbe | None = None,
+    threshold: float | None = None,
+    end_on_success: bool = False,
 ) -> dict[str, dict[str, dict[str, float]]]:
     """Success rate and mean return per task: {env: {task: {"success": s, "return": r}}}, and with
     a `probe` the critic's mean Q at the episodes' first states and what they earned ("q_start",
@@ -131,6 +133,11 @@ def evaluate(
     own, ideally with `evaluation_replicas` replicas) to avoid rebuilding envs; otherwise one is
     built from `adapters`, `seed` and `tasks`, with several instances per task so episodes run
     in parallel. `draw` picks the set of episodes (see `Collector.evaluate`).
+
+    With a `threshold`, a task stops once its verdict against it is settled (`EarlyDecision`,
+    `evaluation.decide_early`): its numbers are over its episodes up to the one that settled it,
+    "episodes" says how many, "decided_early" (1.0 or 0.0) whether that was fewer than `episodes`. `end_on_success`
+    ends each episode at its first success (`evaluation.end_on_success`).
     """
     from seal.learner.collection import Collector, evaluation_replicas
 
@@ -145,16 +152,20 @@ def evaluate(
         replicas = evaluation_replicas(episodes, count)
         collector = Collector(adapters, seed=seed, tasks=tasks, backend=backend, replicas=replicas)
     try:
-        raw = collector.evaluate(policy, episodes, draw=draw, probe=probe)
+        decide = None if threshold is None else EarlyDecision(episodes, threshold)
+        raw = collector.evaluate(
+            policy, episodes, draw=draw, probe=probe, decide=decide, end_on_success=end_on_success
+        )
     finally:
         if own:
             collector.close()
+    kept = ("q_start", "earned", *(() if threshold is None else ("episodes", "decided_early")))
     return {
         env: {
             task: {
                 "success": float(v["success_rate"]),
                 "return": float(v["mean_return"]),
-                **{k: float(v[k]) for k in ("q_start", "earned") if k in v},
+                **{k: float(v[k]) for k in kept if k in v},
             }
             for task, v in per_task.items()
         }
@@ -170,6 +181,43 @@ SUCCESS_TOLERANCE = 1e-9
 def reaches(success: float, threshold: float) -> bool:
     """Whether a success rate counts as reaching `threshold` (the update-count metric's one rule)."""
     return success >= threshold - SUCCESS_TOLERANCE
+
+
+class EarlyDecision:
+    """When a task's first episodes settle whether all `episodes` of them reach `threshold`
+    (`evaluation.decide_early`), by `reaches` itself.
+
+    `needed` is the fewest successes of `episodes` that reach it (45 of 50 at 0.9): a task with
+    that many has reached it whatever its other episodes do, and one with more than
+    `episodes - needed` failures (6 of 50) cannot. Either way its success over its episodes so
+    far, s / (s + f), gives the full evaluation's verdict: >= needed / episodes when reached, <=
+    (needed - 1) / episodes when not.
+    """
+
+    def __init__(self, episodes: int, threshold: float) -> None:
+        if episodes < 1:
+            raise SealError(f"evaluation episodes must be >= 1, got {episodes}")
+        if not 0.0 <= threshold <= 1.0:
+            raise SealError(
+                f"evaluation threshold must be a success rate in [0, 1], got {threshold}"
+            )
+        self.episodes, self.threshold = int(episodes), float(threshold)
+        # reaches(episodes / episodes) holds for any threshold <= 1, so `needed` always exists.
+        self.needed = next(s for s in range(self.episodes + 1) if self.reaches(s))
+
+    def reaches(self, successes: int) -> bool:
+        """Whether `successes` of all the episodes reach the threshold (`reaches`)."""
+        return reaches(successes / self.episodes, self.threshold)
+
+    def __call__(self, successes: np.ndarray, failures: np.ndarray) -> np.ndarray:
+        """Per task, from its successes and failures so far: whether its verdict is settled."""
+        successes, failures = np.asarray(successes), np.asarray(failures)
+        return (successes >= self.needed) | (failures > self.episodes - self.needed)
+
+    @property
+    def fewest_episodes(self) -> int:
+        """The fewest episodes that can settle a verdict: `needed` successes or one failure too many."""
+        return max(1, min(self.needed, self.episodes - self.needed + 1))
 
 
 def mean_success(results: Mapping[str, Mapping[str, Mapping[str, float]]]) -> float:

@@ -43,6 +43,7 @@ import numpy as np
 from seal.envs.base import EnvAdapter
 from seal.errors import SealError, UnknownNameError
 from seal.learner.critic_probe import CriticProbe
+from seal.learner.evaluation_waves import Decide, Played, evaluate_in_waves
 
 if TYPE_CHECKING:
     from seal.learner.task_encoder import BeliefMemory
@@ -83,19 +84,6 @@ def instance_seed(seed: int, env: str, task: str, replica: int = 0) -> int:
     key: tuple[int, ...] = (zlib.crc32(env.encode()), zlib.crc32(task.encode()))
     if replica:
         key = (*key, int(replica))
-    return int(np.random.SeedSequence(seed, spawn_key=key).generate_state(1, np.uint32)[0])
-
-
-# Tags the spawn keys of evaluation episode seeds apart from instance seeds.
-_EPISODE_KEY = 0x45564131
-
-
-def episode_seed(seed: int, env: str, task: str, draw: int, episode: int) -> int:
-    """The reset seed of evaluation episode `episode` of (env, task) in evaluation `draw`.
-
-    It fixes the episode by itself: the same on every backend, replica count and round.
-    """
-    key = (zlib.crc32(env.encode()), zlib.crc32(task.encode()), _EPISODE_KEY, draw, episode)
     return int(np.random.SeedSequence(seed, spawn_key=key).generate_state(1, np.uint32)[0])
 
 
@@ -801,9 +789,11 @@ class Collector:
         random_actions: bool,
         sink: TransitionSink | None,
         probe: CriticProbe | None = None,
+        end_on_success: bool = False,
     ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
         """One episode on each selected instance: per-instance (returns, successes, lengths).
-        A `probe` sees every episode's first state and action and every step."""
+        A `probe` sees every episode's first state and action and every step; `end_on_success`
+        ends an episode after its first successful step (not a termination: a probe bootstraps it)."""
         size = {env: len(ids) for env, ids in self._instance_ids.items()}
         returns = {env: np.zeros(k) for env, k in size.items()}
         successes = {env: np.zeros(k, dtype=bool) for env, k in size.items()}
@@ -834,9 +824,11 @@ class Collector:
             step_running, step_obs, step_actions = running, obs, actions
             running, obs = {}, {}
             dones: dict[str, np.ndarray] = {}
-            for env, (next_obs, _, terminated, truncated, _) in results.items():
+            for env, (next_obs, _, terminated, truncated, success) in results.items():
                 # An env that forgets to truncate at its episode length is cut there anyway.
                 done = terminated | truncated | (t >= self.adapters[env].episode_length)
+                if end_on_success:
+                    done = done | (success > 0.5)
                 dones[env] = done
                 if not done.all():
                     running[env] = step_running[env][~done]
@@ -916,16 +908,21 @@ class Collector:
         active: Mapping[str, Sequence[bool] | np.ndarray] | None = None,
         draw: int | None = None,
         probe: CriticProbe | None = None,
+        decide: Decide | None = None,
+        end_on_success: bool = False,
     ) -> dict[str, dict[str, dict[str, float]]]:
         """Mean success rate and return over `episodes` episodes per task: {env: {task: {...}}}.
 
         With a `probe` (`seal.learner.critic_probe`), also the means of its `q_start` and `earned`.
 
         Pass a deterministic policy and use a Collector seeded apart from the training one.
-        Episode e of a task resets with `episode_seed(seed, env, task, draw, e)`, so the results
-        do not depend on the backend or on `replicas`; `draw` (default: this Collector's count of
-        `evaluate` calls) picks a fresh set of episodes. The `replicas` instances of each task
-        run episodes `replicas` at a time, in rounds.
+        Episode e of a task resets with `evaluation_waves.episode_seed(seed, env, task, draw, e)`,
+        so the results do not depend on the backend or on `replicas`; `draw` (default: this
+        Collector's count of `evaluate` calls) picks a fresh set of episodes. The `replicas`
+        instances of each task run episodes `replicas` at a time, in waves
+        (`seal.learner.evaluation_waves`); with `decide` (`seal.evaluation.EarlyDecision`) a task
+        whose verdict is settled stops after its wave, and `end_on_success` ends every episode at
+        its first success.
         """
         if episodes < 1:
             raise SealError(f"evaluate: episodes must be >= 1, got {episodes}")
@@ -935,53 +932,31 @@ class Collector:
             raise SealError("this Collector is closed")
         draw = self._draws if draw is None else int(draw)
         self._draws += 1
-        mask = self._active_mask(active)
-        reps = self.replicas
-        # gym-async can only reset whole environments: a short last round runs spare episodes.
-        whole = isinstance(self._backend, _GymAsyncBackend)
-        succ = {env: np.zeros((episodes, len(ts)), dtype=bool) for env, ts in self.tasks.items()}
-        rets = {env: np.zeros((episodes, len(ts))) for env, ts in self.tasks.items()}
-        q_start = {env: np.zeros((episodes, len(ts))) for env, ts in self.tasks.items()}
-        earned = {env: np.zeros((episodes, len(ts))) for env, ts in self.tasks.items()}
-        for first in range(0, episodes, reps):
-            count = reps if whole else min(reps, episodes - first)
-            running: Selection = {}
-            seeds: Seeds = {}
-            for env, ts in self.tasks.items():
-                if not mask[env].any():
-                    continue
-                on = np.flatnonzero(mask[env])
-                running[env] = np.concatenate([r * len(ts) + on for r in range(count)])
-                seeds[env] = np.array(
-                    [
-                        episode_seed(self.seed, env, ts[i % len(ts)], draw, first + i // len(ts))
-                        for i in running[env]
-                    ],
-                    dtype=np.uint32,
-                )
-            returns, successes, _ = self._run(running, seeds, policy, False, None, probe)
+
+        def play(running: Selection, seeds: Seeds) -> Played:
+            returns, successes, _ = self._run(
+                running, seeds, policy, False, None, probe, end_on_success
+            )
+            played: Played = {}
             for env, run in running.items():
-                keep = first + run // len(self.tasks[env]) < episodes
-                run = run[keep]
-                rows, cols = first + run // len(self.tasks[env]), run % len(self.tasks[env])
-                succ[env][rows, cols] = successes[env][run]
-                rets[env][rows, cols] = returns[env][run]
+                played[env] = {"return": returns[env][run], "success": successes[env][run]}
                 if probe is not None:
                     ids = self._instance_ids[env][run]
-                    q_start[env][rows, cols], earned[env][rows, cols] = probe.finish(env, run, ids)
-        out: dict[str, dict[str, dict[str, float]]] = {}
-        for env, ts in self.tasks.items():
-            for i, task in enumerate(ts):
-                if mask[env][i]:
-                    out.setdefault(env, {})[task] = {
-                        "success_rate": float(np.mean(succ[env][:, i])),
-                        "mean_return": float(np.mean(rets[env][:, i])),
-                        "episodes": float(episodes),
-                    }
-                    if probe is not None:
-                        out[env][task]["q_start"] = float(np.mean(q_start[env][:, i]))
-                        out[env][task]["earned"] = float(np.mean(earned[env][:, i]))
-        return out
+                    played[env]["q_start"], played[env]["earned"] = probe.finish(env, run, ids)
+            return played
+
+        return evaluate_in_waves(
+            play,
+            self.tasks,
+            self._active_mask(active),
+            seed=self.seed,
+            draw=draw,
+            episodes=episodes,
+            replicas=self.replicas,
+            # gym-async can only reset whole environments: spare episodes, results dropped.
+            whole=isinstance(self._backend, _GymAsyncBackend),
+            decide=decide,
+        )
 
     def _active_mask(
         self, active: Mapping[str, Sequence[bool] | np.ndarray] | None

@@ -54,6 +54,7 @@ class PhaseStateFields(TypedDict):
     demos: NotRequired[dict[str, dict[str, float]]]
     collected_lengths: NotRequired[dict[str, int]]
     evaluated_at: NotRequired[int]
+    evaluations: NotRequired[int]
 
 
 class RunnerFields(TypedDict):

@@ -166,6 +166,35 @@ class EvaluationConfig:
     """Success rate at which a task counts as learned for the update-count metric."""
     stop_when_reached: bool = False
     """End each phase at the first evaluation at which every task has reached `threshold` (its update count is then fixed); for learning checks."""
+    decide_early: bool = False
+    """Stop a task's evaluation once its episodes so far settle whether it reaches `threshold` (at 50 episodes and 0.9: 45 successes, or 6 failures); the verdict is the full evaluation's, exactly.
+
+    Episodes run in their fixed order (episode k of a task is the same episode whether or not
+    other tasks stopped), in waves of the evaluation's parallel instances; the verdict is checked
+    after each wave by `seal.evaluation.reaches`, the update-count metric's own rule. A task
+    stopped early records its success and return over its episodes up to the one that settled
+    it (the rest of that wave is not counted, so the numbers do not depend on the machine's
+    cores), and train.csv records `eval_episodes/<task>` (those counted) and
+    `eval_decided_early/<task>` for every evaluation that may stop early. Such rates are not the full evaluation's (45/45 reads 1.0, 0/6 reads 0.0): `seal
+    report`'s success curves leave those evaluations out, best.pt is chosen among the evaluations
+    that ran every episode, and a phase whose evaluations steer training (a scheduler that reads
+    them, curriculum_v2; the pre-training whose best.pt starts fine-tuning) runs all episodes.
+    Off by default until measured (issue 60).
+    """
+    full_every: Annotated[int, Field(ge=1)] = 10
+    """With decide_early: every this-many-th evaluation of a phase, and its last epoch's, runs all episodes (1 = all do).
+
+    10 keeps a full-precision point every 10 evaluations (about 30 points on a paper-scale curve
+    at every_grad_steps = 16667) while at most a tenth of the evaluations pay the full cost.
+    """
+    end_on_success: bool = False
+    """End an evaluation episode at its first success; its return is then the sum of rewards up to and including that step (not the full episode's).
+
+    Success rates are unchanged (an episode succeeds if it succeeds at any step). Returns in
+    metrics.csv are cut returns, shorter and not comparable with runs that had it off; config.toml
+    records the choice. The critic probe bootstraps a cut episode as it does one cut at the time
+    limit: `earned` adds gamma^T Q(s_T, pi(s_T)) at the success step T.
+    """
     mode: Literal["sync", "async"] = "sync"
     """"sync": evaluate with training stopped, as the paper's loop; "async": a worker process evaluates a snapshot while training goes on (the same rows, written when they come back).
 

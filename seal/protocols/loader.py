@@ -595,6 +595,9 @@ def explain(config: ProtocolConfig) -> str:
     for name in ("replay", "training", "evaluation"):
         obj = getattr(config, name)
         section(name, obj, type(obj))
+    from seal.protocols.evaluation_cost import explain_lines
+
+    out[-1:] = [*explain_lines(config), ""]  # what its options save, below [evaluation]'s keys
     if config.scheduler is not None:
         section("scheduler", config.scheduler.to_table(), type(config.scheduler))
     if config.finetune is not None:

@@ -30,6 +30,7 @@ from seal.errors import SealError, TrainingDivergedError
 from seal.evaluation import evaluate, mean_success, reaches
 from seal.learner.sac import Agent
 from seal.protocols.config import ProtocolConfig
+from seal.protocols.evaluation_cost import decides_early, decision_rows, runs_all_episodes
 from seal.protocols.phase_model import (
     ACTING_THREADS,
     Phase,
@@ -123,6 +124,8 @@ class PhaseState:
     evaluated_at: int = -1
     """Gradient steps at the last evaluation (an evaluation every K steps that falls on the last
     update of the run is not repeated at its end)."""
+    evaluations: int = 0
+    """Evaluations started in the phase (`evaluation.full_every` counts them)."""
 
     def fields(self) -> PhaseStateFields:
         """The counters as a checkpoint holds them (`dataclasses.asdict`)."""
@@ -293,6 +296,8 @@ class PhaseLoop:
         # A scheduler that reads evaluations sees each one before its next plan, as it would
         # synchronously (asynchronous evaluation then waits for results before planning).
         self._reads_eval = type(self.scheduler).observe_eval is not SchedulerBase.observe_eval
+        self.decide_early = decides_early(cfg, phase.name, self._reads_eval, quiet=run.quiet)
+        """evaluation.decide_early applies to this phase (`seal.protocols.evaluation_cost`)."""
         if payload is None and any(cfg.demo_episodes(e) for e in model.env_tasks):
             with self.timed("demos"):
                 self.state.demos = self._demonstrations()
@@ -419,7 +424,7 @@ class PhaseLoop:
                     )
                     # A resumed run re-runs the evaluations its checkpoint left pending.
                     for pending in self.pending:
-                        self.evaluator.submit(pending.draw, pending.agent)
+                        self.evaluator.submit(pending.draw, pending.agent, pending.decide)
             if self.cfg.training.overlap:
                 with self.timed("collect", count=False):
                     self.actor = ActorWorker(
@@ -677,7 +682,9 @@ class PhaseLoop:
         with self.timed("update", count=False):
             self.agent.refresh_beliefs(self.replay)  # smt_gru with encoder_refresh_interval
         with self.timed("update", count=False):  # a mid-epoch evaluation counts to itself
-            for _ in range(self._grad_steps(plan, lengths)):
+            steps = self._grad_steps(plan, lengths)
+            last_epoch = state.epoch + 1 >= self.phase.epochs
+            for step in range(steps):
                 batches = self.replay.sample(sample_counts)
                 if model.alignment is not None:
                     batches = {
@@ -701,7 +708,9 @@ class PhaseLoop:
                         state.log_sums.get("charts/ratio_lever", 0.0) + lever
                     )
                 if every and state.grad_steps % every == 0:
-                    self._evaluate()  # mid-epoch: the update-count grid is K x batch
+                    # mid-epoch: the update-count grid is K x batch; on the phase's last update
+                    # it is the phase's last evaluation (`_end_epoch` does not repeat it)
+                    self._evaluate(final=last_epoch and step == steps - 1)
             self._read_logs()
 
     def _read_logs(self) -> None:
@@ -808,26 +817,33 @@ class PhaseLoop:
             for env, name, v in train_rows_for(key, value, self.model)
         ]
 
-    def _evaluate(self) -> None:
+    def _evaluate(self, final: bool = False) -> None:
         """Appendix B's evaluation: metrics.csv rows, first crossings, best.pt, then the callbacks.
 
         Synchronous (`evaluation.mode = "sync"`): here and now, training stopped. Asynchronous:
         a snapshot goes to the worker (`seal.protocols.workers`) and its results are recorded
         when they come back (`_finish_evaluations`); the loop waits only for the previous one.
+        `final`: the phase's last epoch's evaluation, which runs in full (`evaluation.full_every`).
         """
         self._read_logs()
-        state, agent = self.state, self.agent
+        state, agent, ev = self.state, self.agent, self.cfg.evaluation
         state.evaluated_at = state.grad_steps
+        state.evaluations += 1
+        decide = self.decide_early and not runs_all_episodes(
+            state.evaluations, ev.full_every, final
+        )
         if self.evaluator is None:
             with self.timed("evaluate"), torch_threads(ACTING_THREADS):
                 results = evaluate(
                     self.eval_policy,
                     self.model.adapters,
-                    episodes=self.cfg.evaluation.episodes,
+                    episodes=ev.episodes,
                     seed=0,
                     collector=self._eval_collector(),
                     draw=state.grad_steps,  # one evaluation per grad-step count: its own episode seeds
                     probe=self.eval_policy.critic_probe(self.cfg.agent.gamma),
+                    threshold=ev.threshold if decide else None,
+                    end_on_success=ev.end_on_success,
                 )
                 self.evaluated = Evaluated(state.epoch, state.grad_steps, agent)
                 self._record_evaluation(self._eval_rows(), results)
@@ -842,9 +858,10 @@ class PhaseLoop:
                     grad_steps=state.grad_steps,
                     rows=self._eval_rows(),
                     agent=cpu_copy(agent.state_dict()),
+                    decide=decide,
                 )
                 self.pending.append(pending)
-                self.evaluator.submit(pending.draw, pending.agent)
+                self.evaluator.submit(pending.draw, pending.agent, pending.decide)
 
     def _on_evaluation(self) -> None:
         """The callbacks' `on_evaluation` (the loggers: "log" time)."""
@@ -881,7 +898,7 @@ class PhaseLoop:
         self.last_critic_rows = critic_rows(rows, results)
         with self.timed("log"), self.stop.protected():
             self.owner.rundir.log_eval(rows)
-            self.owner.rundir.log_train(self.last_critic_rows)
+            self.owner.rundir.log_train([*self.last_critic_rows, *decision_rows(rows, results)])
         self.last_rows = rows
         state.last_success = {
             e: {t: results[e][t]["success"] for t in model.env_tasks[e]} for e in phase.envs
@@ -891,7 +908,10 @@ class PhaseLoop:
             self.evaluated.epoch, {(r["env"], r["task"]): r["success"] for r in rows}
         )
         mean = mean_success(results)
-        if mean > state.best_mean_success:
+        # A decided-early rate is over a task's first episodes (45/45 reads 1.0): best.pt is
+        # chosen among the evaluations in which every task ran all its episodes.
+        partial = any(r.get("decided_early") for per in results.values() for r in per.values())
+        if mean > state.best_mean_success and not partial:
             state.best_mean_success = mean
             with self.stop.protected():
                 for callback in self.callbacks:
@@ -1009,7 +1029,7 @@ class PhaseLoop:
         every = cfg.evaluation.every_grad_steps
         due = not every and epoch % cfg.evaluation.interval == 0
         if due or (last_epoch and not (every and state.evaluated_at == state.grad_steps)):
-            self._evaluate()
+            self._evaluate(final=last_epoch)
         request = scheduler.wants_scores()
         if request is not None:
             with self.timed("collect", count=False):  # SMT's scoring episodes

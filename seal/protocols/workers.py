@@ -42,7 +42,7 @@ import traceback
 import warnings
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
-from typing import TYPE_CHECKING, Any, Generic, TypedDict, TypeVar, cast
+from typing import TYPE_CHECKING, Any, Generic, NotRequired, TypedDict, TypeVar, cast
 
 import numpy as np
 import torch
@@ -93,6 +93,7 @@ class PendingFields(TypedDict):
     grad_steps: int
     rows: list[MetricsRow]
     agent: AgentState
+    decide: NotRequired[bool]
 
 
 @dataclass
@@ -107,6 +108,8 @@ class PendingEvaluation:
     """metrics.csv rows as they stood at the snapshot; success and return are filled in later."""
     agent: AgentState
     """The agent's `state_dict` at the snapshot, on the CPU."""
+    decide: bool = False
+    """Whether a task may stop once its verdict is settled (`evaluation.decide_early`)."""
 
     def fields(self) -> PendingFields:
         """What an epoch checkpoint stores of it (tensors and plain values only)."""
@@ -121,6 +124,8 @@ class PendingEvaluation:
             grad_steps=int(fields["grad_steps"]),
             rows=[dict(r) for r in fields["rows"]],  # type: ignore[misc]
             agent=cast("AgentState", dict(fields["agent"])),
+            # A checkpoint written before the key was kept had no early decisions.
+            decide=bool(fields.get("decide", False)),
         )
 
 
@@ -203,6 +208,7 @@ class EvaluationRequest(TypedDict):
 
     draw: int
     agent: AgentState
+    decide: bool
 
 
 class EvaluationWorker(PolicyWorker[Results]):
@@ -210,9 +216,10 @@ class EvaluationWorker(PolicyWorker[Results]):
 
     role = "evaluation"
 
-    def submit(self, draw: int, agent_state: AgentState) -> None:
-        """Evaluate `agent_state` with the episodes of `draw`; `result` returns `Results`, in order."""
-        self._submit({"draw": draw, "agent": agent_state})
+    def submit(self, draw: int, agent_state: AgentState, decide: bool = False) -> None:
+        """Evaluate `agent_state` with the episodes of `draw` (`decide`: stopping each task once
+        its verdict is settled); `result` returns `Results`, in order."""
+        self._submit({"draw": draw, "agent": agent_state, "decide": decide})
 
 
 Pass = tuple[bool, dict[str, list[bool]]]
@@ -324,14 +331,17 @@ class _Evaluation:
         from seal.evaluation import evaluate
 
         self.agent.load_state_dict(request["agent"])
+        ev = self.config.evaluation
         return evaluate(
             self.policy,
             self.model.adapters,
-            episodes=self.config.evaluation.episodes,
+            episodes=ev.episodes,
             seed=0,
             collector=self.collector,
             draw=int(request["draw"]),
             probe=self.policy.critic_probe(self.config.agent.gamma),
+            threshold=ev.threshold if request["decide"] else None,
+            end_on_success=ev.end_on_success,
         )
 
     def close(self) -> None:

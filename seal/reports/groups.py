@@ -19,7 +19,7 @@ import pandas as pd
 
 from seal.errors import SealError
 from seal.metrics import format_number
-from seal.reports.load import _EXPECTED, RunData, load_run, run_dirs
+from seal.reports.load import _EXPECTED, RunData, decided_early, load_run, run_dirs
 
 BASELINE_COLUMN = "Single Env"
 """The column every other column's percent change is measured against (Table 1)."""
@@ -275,6 +275,8 @@ def _labelled(groups: Sequence[_Group], frame_of: str) -> pd.DataFrame:
             frame["stops_when_reached"] = bool(
                 run.config.get("evaluation", {}).get("stop_when_reached", False)
             )
+            if frame_of == "metrics":  # rows whose success is over fewer episodes (decide_early)
+                frame["decided_early"] = decided_early(frame, run.train)
             frames.append(frame)
     if not frames:
         return pd.DataFrame()

@@ -23,6 +23,7 @@ import pandas as pd
 from seal.errors import SealError
 from seal.files import check_inside, check_regular_file
 from seal.metrics import REQUIRED_METRICS_COLUMNS
+from seal.protocols.evaluation_cost import DECIDED_KEY
 from seal.protocols.loader import read_toml
 from seal.protocols.rundir import (  # defined once, by the writer
     CONFIG_LIMIT,
@@ -153,6 +154,20 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
     provenance = read_provenance(run)
     _check_provenance(provenance, run / "provenance.json")
     return RunData(path=run, metrics=metrics, train=train, config=config, provenance=provenance)
+
+
+def decided_early(metrics: pd.DataFrame, train: pd.DataFrame) -> pd.Series:
+    """Per metrics.csv row: whether its task stopped before running all its episodes
+    (`evaluation.decide_early`: train.csv's `eval_decided_early/<task>` is 1 at that evaluation),
+    so its success is over its first episodes only; False for a run without the option."""
+    prefix = f"{DECIDED_KEY}/"
+    keys = ["phase", "env", "epoch", "grad_steps", "task"]
+    flags = train[train["key"].astype(str).str.startswith(prefix) & (train["value"] > 0.5)]
+    if flags.empty:
+        return pd.Series(False, index=metrics.index)
+    hits = flags.assign(task=flags["key"].str[len(prefix) :])[keys].drop_duplicates()
+    merged = metrics[keys].merge(hits.assign(hit=True), on=keys, how="left")
+    return pd.Series(merged["hit"].eq(True).to_numpy(), index=metrics.index)
 
 
 def _is_number(value: object) -> bool:

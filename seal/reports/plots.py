@@ -83,9 +83,17 @@ def success_curves(metrics: pd.DataFrame, x: XAxis) -> pd.DataFrame:
     A seed whose run stopped once every task had reached the threshold (`stops_when_reached`)
     holds its last evaluation at the epochs after it, as the transfer bench's AUC does: left out,
     the mean past the first stop would be that of the seeds still failing, and would fall.
+
+    Evaluations in which some task of the env stopped early (`decided_early`,
+    `evaluation.decide_early`) are hidden, for every seed of the column: such a task's success is
+    over its first episodes (45/45 reads 1.0), exact as a verdict but not as a rate, so the
+    curve is drawn through the evaluations that ran every episode (`evaluation.full_every`).
     """
     if "stops_when_reached" not in metrics.columns:
         metrics = metrics.assign(stops_when_reached=False)
+    if "decided_early" in metrics.columns:
+        hidden = metrics.groupby(["column", "env", "epoch"])["decided_early"].transform("any")
+        metrics = metrics[~hidden.astype(bool)]
     per_eval = (
         metrics.groupby(["column", "env", "seed", "epoch"], sort=False)
         .agg(
@@ -115,6 +123,8 @@ def success_curves(metrics: pd.DataFrame, x: XAxis) -> pd.DataFrame:
                 }
             )
         )
+    if not frames:  # every evaluation hidden (decided early): no point to draw
+        return pd.DataFrame(columns=["column", "env", "epoch", "x", "mean", "low", "high", "seeds"])
     return pd.concat(frames, ignore_index=True)
 
 
@@ -160,11 +170,20 @@ def plot_success(
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylabel("success rate (mean over tasks)")
         ax.set_title(f"{labels.get(env, env)}: success, mean over seeds, 95% bootstrap band")
+        notes = []
         if metrics.get("stops_when_reached", pd.Series(False)).any():
+            notes.append(
+                "runs stop once every task has reached the threshold; a stopped run holds its last value"
+            )
+        if metrics[metrics["env"] == env].get("decided_early", pd.Series(False)).any():
+            notes.append(
+                "evaluations decided early (evaluation.decide_early) hidden: points are full evaluations"
+            )
+        for i, note in enumerate(notes):
             ax.text(
                 0.0,
-                -0.2,
-                "runs stop once every task has reached the threshold; a stopped run holds its last value",
+                -0.2 - 0.06 * i,
+                note,
                 transform=ax.transAxes,
                 fontsize="x-small",
                 color="grey",

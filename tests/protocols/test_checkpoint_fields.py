@@ -49,7 +49,15 @@ def test_a_checkpoint_from_before_an_optional_counter_passes(checkpoints: dict[s
     """`NotRequired` keys may be absent: read from the annotations, since Python 3.11's
     `__required_keys__` counts them required under `from __future__ import annotations`."""
     old = copy.deepcopy(checkpoints["epoch"])
-    for key in ("log_sums", "log_updates", "seconds", "calls", "demos", "evaluated_at"):
+    for key in (
+        "log_sums",
+        "log_updates",
+        "seconds",
+        "calls",
+        "demos",
+        "evaluated_at",
+        "evaluations",
+    ):
         del old["runner"]["state"][key]
     check_epoch_checkpoint(old, "old", ["train"], 0)
     del old["runner"]["state"]["epoch"]  # a required one
