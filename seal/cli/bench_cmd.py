@@ -1,4 +1,4 @@
-"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1|quickstart|reach_sb3|mtrl] [--full | --fpr] [--seeds-until-mde T --max-seeds N]]`: learner and collection speed as ratios, learning evidence."""
+"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1|quickstart|reach_sb3|mtrl] [--full | --fpr | --ladder] [--seeds-until-mde T --max-seeds N]]`: learner and collection speed as ratios, learning evidence."""
 
 from __future__ import annotations
 
@@ -71,6 +71,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="with --learn transfer: also the per_env, 50/50 and high-target arms, the shared-critic diagnostic, and their target-alone arms",
     )
     parser.add_argument(
+        "--ladder",
+        action="store_true",
+        help="with --learn transfer: only the ladder (docs/transfer_testbed.md, \"Ladder\"): oracle_translator, the six ladder_* cells and oracle_policy (every subset of head, critic and temperatures mapped on top of the perfect translator) with their alone arm and pre-training; prints each arm's AUC and steps to 90%% and the 2^3 factorial's main effects and interactions with paired t CIs and MDEs beside each mapped piece's end drift, and writes <out>/transfer/ladder.json and plots/ladder.png",
+    )
+    parser.add_argument(
         "--fpr",
         action="store_true",
         help="with --learn transfer: only the false-positive rate: run the alone arm for --seeds seeds (default 10), draw 1,000 random 5/5 splits of them, pair the halves at random, and report the share of the arms' 95%% CIs that exclude 0, with its binomial 95%% CI",
@@ -110,7 +115,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--no-run",
         action="store_true",
-        help="with --learn kitchen or learner: run and resume nothing; report the finished runs under --out that --reuse would take (run records, say) and name the ones not found",
+        help="with --learn kitchen, learner or transfer (not with --fpr or --seeds-until-mde): run and resume nothing; report the finished runs under --out that --reuse would take (run records, say) and name the ones not found (transfer: over the seeds 0..k-1 that have a run of every arm)",
     )
     parser.add_argument(
         "--jobs",
@@ -239,8 +244,20 @@ def run(args: argparse.Namespace) -> int:
         from seal.experiments.until_mde import check_rule
 
         check_rule(args.seeds_until_mde, args.max_seeds)
-    if args.no_run and args.learn not in ("kitchen", "learner"):
-        raise SealError("--no-run only applies to --learn kitchen and learner")
+    if args.ladder and (
+        args.learn != "transfer" or args.full or args.fpr or args.arms or until_mde
+    ):
+        raise SealError(
+            "--ladder only applies to --learn transfer, without --full, --fpr, --arms and "
+            "--seeds-until-mde (it runs the ladder's own arms)"
+        )
+    if args.no_run and (
+        args.learn not in ("kitchen", "learner", "transfer") or args.fpr or until_mde
+    ):
+        raise SealError(
+            "--no-run only applies to --learn kitchen, learner and transfer, without --fpr and "
+            "--seeds-until-mde"
+        )
     if (args.address is not None or args.jobs is not None) and args.learn not in LEARN_SETS:
         raise SealError(
             "--jobs and --address only apply to --learn transfer, kitchen, table1, quickstart, "
@@ -293,6 +310,24 @@ def run(args: argparse.Namespace) -> int:
                 address=args.address,
             )
             print(json.dumps(result, indent=2) if args.json else bench.format_fpr(result))
+            return 0
+        if args.ladder:
+            from seal.experiments.ladder_bench import format_ladder_result, run_ladder_bench
+
+            result = run_ladder_bench(
+                seeds=default_seeds if args.seeds is None else args.seeds,
+                out=args.out or default_out,
+                parallel=jobs,
+                log=log,
+                reuse=args.reuse,
+                address=args.address,
+                run=not args.no_run,
+            )
+            print(
+                json.dumps(result, indent=2, default=float)
+                if args.json
+                else format_ladder_result(result)
+            )
             return 0
         extra: dict[str, object] = {}
         if args.learn == "transfer":

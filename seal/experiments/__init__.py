@@ -12,6 +12,8 @@ the testbed's seeds until its MDEs are small enough. The transfer testbed
 is split by idea: `arms` (what is compared; `Arm` is every experiment's unit), `launcher` (the runs
 as Ray tasks, resume, stopping; every experiment launches through it), `records` (the runs
 `--reuse` takes and the code versions and agent keys they were made with), `statistics` (the testbed's costs, paired changes and their CIs, MDEs, AUC, false-positive
-rate) and `tables` (its tables and plots), which `transfer` wires to its goals. The statistical
+rate) and `tables` (its tables and plots), which `transfer` wires to its goals; `ladder` (the
+2^3 factorial of what the oracle maps) and `ladder_bench` (`--ladder`) ask which piece carries
+transfer. The statistical
 methods are `seal.stats`'; the CLI is `seal bench --learn <name>`.
 """

@@ -39,6 +39,8 @@ class Arm:
     """The arm whose last checkpoint starts this one (`--set transfer.checkpoint=...`), seed for seed."""
     has_target: bool = True
     """False for a source-only run (the pre-training): it is no column of the table."""
+    ladder: bool = False
+    """Only with --ladder (or named in --arms): a cell of the ladder's factorial that no other mode runs."""
 
     @property
     def protocol(self) -> Path:
@@ -58,6 +60,19 @@ ARMS: tuple[Arm, ...] = (
     Arm("oracle_translator", "Oracle translator", "alone", pretrain="pretrain_source"),
     Arm("oracle_policy", "Oracle policy", "alone", pretrain="pretrain_source"),
     Arm("oracle_policy_clamp", "Oracle policy, clamp", "alone", pretrain="pretrain_source"),
+    # The ladder (docs/transfer_testbed.md, "Ladder"): the other six cells of head x critic x
+    # temperature mapped on top of oracle_translator's perfect translator (`--ladder`).
+    *(
+        Arm(f"ladder_{cell}", f"Ladder: {label}", "alone", pretrain="pretrain_source", ladder=True)
+        for cell, label in (
+            ("head", "head"),
+            ("critic", "critic"),
+            ("temperature", "temp."),
+            ("head_critic", "head+critic"),
+            ("head_temperature", "head+temp."),
+            ("critic_temperature", "critic+temp."),
+        )
+    ),
     Arm("alone_sparse", "Single Env (sparse tgt)", None),
     Arm("positive_sparse_target", "Pos: sparse tgt", "alone_sparse", pretrain="pretrain_source"),
     Arm("high_source_per_env", "High Src per_env", "alone", full=True),
@@ -87,14 +102,23 @@ ARMS: tuple[Arm, ...] = (
 high-source arm gives the round-3 headline, `seal.experiments.transfer.POSITIVE_CONTROLS` round 4's
 positive controls."""
 
+LADDER_ARMS: tuple[str, ...] = (
+    "oracle_translator",
+    *(a.name for a in ARMS if a.ladder),
+    "oracle_policy",
+)
+"""The ladder's eight arms: the perfect translator with every subset of head, critic and
+temperatures mapped too, from none (oracle_translator) to all (oracle_policy)."""
+
 ARM_ALIASES: dict[str, str] = {"positive_pretrained": "pretrained_trunk"}
 """Old arm names `--arms` still takes (round 4's results keep theirs)."""
 
 
 def arms(full: bool = False, only: Sequence[str] | None = None) -> list[Arm]:
-    """The arms run by `seal bench --learn transfer` (with `--full`: all of them; `only`: these and the arms they need)."""
+    """The arms run by `seal bench --learn transfer` (with `--full`: all of them but the ladder's
+    own; `only`: these and the arms they need)."""
     if not only:
-        return [a for a in ARMS if full or not a.full]
+        return [a for a in ARMS if (full or not a.full) and not a.ladder]
     by_name = {a.name: a for a in ARMS}
     only = [ARM_ALIASES.get(name, name) for name in only]
     for name in only:

@@ -43,7 +43,7 @@ import numpy as np
 from seal.errors import SealError
 from seal.experiments.arms import Arm, arms
 from seal.experiments.launcher import bench_context, run_or_reuse
-from seal.experiments.records import agent_mismatches, code_versions, versions_note
+from seal.experiments.records import agent_mismatches, code_versions, finished_run, versions_note
 from seal.experiments.statistics import (
     FPR_HALF,
     FPR_SPLITS,
@@ -120,13 +120,16 @@ def run_transfer_bench(
     only: Sequence[str] | None = None,
     reuse: bool = False,
     address: str | None = None,
+    run: bool = True,
 ) -> dict[str, Any]:
     """Run every arm's seeds on Ray (a local Ray of `parallel` CPUs, or the cluster at
     `address`), read their run directories, and return the result as JSON-able dict.
 
     `only` runs just the named arms (with the arms they need), e.g. the `--full` arms after the
     minimum set; the headline figures are then None where not run. `reuse` takes finished runs
-    under `out` whose resolved config is today's (`finished_run`).
+    under `out` whose resolved config is today's (`finished_run`). Without `run` nothing is run
+    or resumed: the result is of the finished runs `reuse` would take, over the seeds 0..k-1
+    that have one of every arm (`finished_seeds`), and `missing` names the runs not found.
     """
     from seal.bench.timing import machine_load
 
@@ -137,10 +140,16 @@ def run_transfer_bench(
     chosen = arms(full, only)
     load_before = machine_load()
     started = time.monotonic()
-    run_dirs, reused = run_or_reuse(
-        _jobs(chosen, range(seeds)), Path(out), overrides, parallel, log, reuse, address=address
-    )
-    return _result(
+    missing: list[str] = []
+    if run:
+        run_dirs, reused = run_or_reuse(
+            _jobs(chosen, range(seeds)), Path(out), overrides, parallel, log, reuse, address=address
+        )
+    else:
+        run_dirs, missing = finished_seeds(chosen, seeds, Path(out), overrides)
+        reused = run_dirs
+        seeds = len(run_dirs) // len(chosen)
+    result = _result(
         chosen,
         seeds,
         run_dirs,
@@ -153,6 +162,27 @@ def run_transfer_bench(
         wall=time.monotonic() - started,
         load_before=load_before,
     )
+    return {**result, "missing": missing}
+
+
+def finished_seeds(
+    chosen: Sequence[Arm], seeds: int, out: Path, overrides: Sequence[str] = ()
+) -> tuple[dict[tuple[str, int], Path], list[str]]:
+    """`--no-run`: the finished runs (`finished_run`) of every arm for seeds 0..k-1, k the first
+    seed lacking one (the paired statistics need every arm of a seed), and the (arm, seed) runs
+    of seeds 0..seeds-1 not found; SealError naming them when seed 0 lacks one."""
+    found = {(a.name, s): finished_run(a, s, out, overrides) for s in range(seeds) for a in chosen}
+    missing = [f"{name}/seed-{s}" for (name, s), path in found.items() if path is None]
+    complete = next(
+        (s for s in range(seeds) if any(found[(a.name, s)] is None for a in chosen)), seeds
+    )
+    if complete == 0:
+        raise SealError(
+            f"--no-run: {out} holds no finished run of every arm for seed 0; not found: "
+            + ", ".join(missing)
+        )
+    runs = {key: path for key, path in found.items() if path is not None and key[1] < complete}
+    return runs, missing
 
 
 def _jobs(chosen: Sequence[Arm], seeds: Iterable[int]) -> list[tuple[Arm, int]]:
@@ -438,6 +468,11 @@ def format_result(result: Mapping[str, Any]) -> str:
         lines.append(
             f"target success curve vs high_source's, same seed, mean |difference|: {moved}; "
             f"between seeds of high_source {distance['between_seeds']:.3f}"
+        )
+    if result.get("missing"):
+        lines.append(
+            f"--no-run: seeds 0-{result['seeds'] - 1} have a finished run of every arm; not "
+            f"found: {', '.join(result['missing'])}"
         )
     if result["seeds"] < 3:
         lines.append(f"{result['seeds']} seeds: fewer than 3, so no change is resolved.")

@@ -25,6 +25,7 @@ from seal.learner.networks import (
     TaskNetwork,
 )
 from seal.learner.sac import Agent, AgentState, module_key
+from seal.pieces import map_pieces
 
 
 def transfer_from(agent: Agent, state: AgentState, *, reinit_critic: bool | None = None) -> None:
@@ -200,9 +201,6 @@ def _copy_heads(param: torch.Tensor, old: torch.Tensor, name: str) -> torch.Tens
 # The log std at which a zero-mean tanh-Gaussian entry has expected log-density 0 (differential
 # entropy 0): solved numerically from tanh_gaussian's log-prob, E over 4e6 normal draws.
 UNMAPPED_ZERO_LOG_DENSITY = -1.354
-MAP_MODULES = ("all", "translator")
-"""What `map_env` starts: "all" = the env's policy translator, action heads, critics (online and
-target) and per-task temperatures; "translator" = its policy translator only."""
 
 
 def map_env(
@@ -214,15 +212,18 @@ def map_env(
     obs_map: np.ndarray,
     task_order: Sequence[int],
     actions: Sequence[tuple[int, float]],
-    modules: str = "all",
+    modules: str | Sequence[str] = "all",
     unmapped_log_std: float = LOG_STD_MIN,
 ) -> None:
     """Start env `target`'s modules from the saved agent's env `source` through known linear maps.
 
     The source's observation is `obs_map @` the target's, target task j is source task
     `task_order[j]`, and source action entry k is sign * target entry index for `actions[k] =
-    (index, sign)`. Every mapped module computes on the target's inputs what the source's
-    computed on the corresponding inputs: a first layer's weights W become Aᵀ W, where A maps
+    (index, sign)`. `modules` names the pieces mapped (`seal.pieces.map_pieces`: "all",
+    "translator" or a list holding "translator"): the policy translator, the action heads, the
+    critics (online and target), the per-task temperatures; the others keep their fresh init.
+    Every mapped module computes on the target's inputs what the source's computed on the
+    corresponding inputs: a first layer's weights W become Aᵀ W, where A maps
     the target's [obs, one-hot, action] columns to the source's; an output layer's become W Bᵀ,
     where B gives each target task's head its source task's head: the mapped entries' mean rows
     with their signs and their log-std rows, and for the entries the source has no counterpart
@@ -240,8 +241,10 @@ def map_env(
         )
     if target not in agent.specs:
         raise UnknownNameError("environment", target, list(agent.specs))
-    if modules not in MAP_MODULES:
-        raise SealError(f"map_env: modules = {modules!r}; valid: {', '.join(MAP_MODULES)}")
+    try:
+        pieces = map_pieces(modules)
+    except SealError as exc:
+        raise SealError(f"map_env: {exc}") from None
     saved_config = state["config"]
     if agent.config.architecture != "seal" or saved_config["architecture"] != "seal":
         raise SealError(
@@ -259,50 +262,60 @@ def map_env(
         _map_stack(
             agent.actor.translators[key_t], state["actor"], f"translators.{key_s}.", actor_in
         )
-        if modules == "translator":
-            return
-        _check_critic_layout(agent, state)
-        head, fill = _policy_head_map(
-            blocks["action"], int(saved["act_dim"]), spec.act_dim, unmapped_log_std
-        )
+        if "head" in pieces:
+            head, fill = _policy_head_map(
+                blocks["action"], int(saved["act_dim"]), spec.act_dim, unmapped_log_std
+            )
+            _map_head(
+                agent.actor.heads[key_t], state["actor"], f"heads.{key_s}.", head, fill, task_order
+            )
+        if "critic" in pieces:
+            _check_critic_layout(agent, state)
+            _map_critic(agent, state, key_s, key_t, blocks, task_order)
+        if "temperature" in pieces:
+            agent.log_alpha[key_t].copy_(state["log_alpha"][key_s][list(task_order)])
+
+
+def _map_critic(
+    agent: Agent,
+    state: AgentState,
+    key_s: str,
+    key_t: str,
+    blocks: Mapping[str, torch.Tensor],
+    task_order: Sequence[int],
+) -> None:
+    """Env `key_t`'s online critics from the saved env `key_s`'s through the input map and the
+    task order, then its target critics as copies of them."""
+    critic_in = _input_map(state["segments"]["critic"][key_s], agent.critic_segments[key_t], blocks)
+    q_head, q_fill = torch.ones(1, 1, dtype=torch.float64), torch.zeros(1, dtype=torch.float64)
+    critic, critic_target = agent.critic, agent.critic_target
+    if isinstance(critic, PerEnvCritic):
+        assert isinstance(critic_target, PerEnvCritic)
+        inner, prefix = critic.nets[key_t], f"nets.{key_s}."
+        _map_stack(inner.trunk, state["critic"], f"{prefix}trunk.", critic_in)
         _map_head(
-            agent.actor.heads[key_t], state["actor"], f"heads.{key_s}.", head, fill, task_order
+            inner.heads[key_t],
+            state["critic"],
+            f"{prefix}heads.{key_s}.",
+            q_head,
+            q_fill,
+            task_order,
         )
-        critic_in = _input_map(
-            state["segments"]["critic"][key_s], agent.critic_segments[key_t], blocks
+        mapped = [(critic_target.nets[key_t], inner)]
+    else:
+        assert isinstance(critic_target, TaskNetwork)
+        _map_stack(critic.translators[key_t], state["critic"], f"translators.{key_s}.", critic_in)
+        _map_head(
+            critic.heads[key_t], state["critic"], f"heads.{key_s}.", q_head, q_fill, task_order
         )
-        q_head, q_fill = torch.ones(1, 1, dtype=torch.float64), torch.zeros(1, dtype=torch.float64)
-        critic, critic_target = agent.critic, agent.critic_target
-        if isinstance(critic, PerEnvCritic):
-            assert isinstance(critic_target, PerEnvCritic)
-            inner, prefix = critic.nets[key_t], f"nets.{key_s}."
-            _map_stack(inner.trunk, state["critic"], f"{prefix}trunk.", critic_in)
-            _map_head(
-                inner.heads[key_t],
-                state["critic"],
-                f"{prefix}heads.{key_s}.",
-                q_head,
-                q_fill,
-                task_order,
-            )
-            mapped = [(critic_target.nets[key_t], inner)]
-        else:
-            assert isinstance(critic_target, TaskNetwork)
-            _map_stack(
-                critic.translators[key_t], state["critic"], f"translators.{key_s}.", critic_in
-            )
-            _map_head(
-                critic.heads[key_t], state["critic"], f"heads.{key_s}.", q_head, q_fill, task_order
-            )
-            mapped = [
-                (critic_target.translators[key_t], critic.translators[key_t]),
-                (critic_target.heads[key_t], critic.heads[key_t]),
-            ]
-        # The target critics copy the mapped online ones, as transfer_from's do: with a shared
-        # critic trunk (a copy of the online one there) only that keeps the target Q the source's.
-        for target_module, online in mapped:
-            target_module.load_state_dict(online.state_dict())
-        agent.log_alpha[key_t].copy_(state["log_alpha"][key_s][list(task_order)])
+        mapped = [
+            (critic_target.translators[key_t], critic.translators[key_t]),
+            (critic_target.heads[key_t], critic.heads[key_t]),
+        ]
+    # The target critics copy the mapped online ones, as transfer_from's do: with a shared
+    # critic trunk (a copy of the online one there) only that keeps the target Q the source's.
+    for target_module, online in mapped:
+        target_module.load_state_dict(online.state_dict())
 
 
 def _input_blocks(

@@ -72,6 +72,8 @@ class RunnerFields(TypedDict):
     """Phase name -> its final `PhaseState`."""
     pending_evaluations: list[PendingFields]
     """`PendingEvaluation.fields` of the asynchronous evaluations not yet written (resume re-runs them)."""
+    drift_start: NotRequired[dict[str, dict[str, torch.Tensor]]]
+    """With logging.drift: each env's pieces at the phase's start (`seal.learner.drift`), which resume measures from."""
 
 
 class CheckpointFields(TypedDict):

@@ -70,6 +70,8 @@ class Checkpointer(LoopCallback):
                 "pending_evaluations": [p.fields() for p in loop.pending],
             },
         }
+        if loop.drift_start is not None:
+            fields["runner"]["drift_start"] = loop.drift_start
         replay = loop.checkpoint_replay if checkpoint.save_replay else None
         save_checkpoint(
             self.rundir.checkpoint_path(state.epoch, self._label(loop)), loop.agent, replay, fields

@@ -255,16 +255,26 @@ class TransferConfig:
     # The maps are properties of the envs, not of SEAL: seal.envs registers them by name, a protocol names one.
     map: str = ""
     """A correspondence known by construction (seal.envs.env_map: "testbed_oracle", or "package.module:NAME") through which the env of the map's target adapter also starts from the checkpoint's env of its source adapter (a positive control's oracle, docs/transfer_testbed.md); "" = none."""
-    map_modules: Literal["all", "translator"] = "all"
-    """With map: what of the target env is mapped: "all" = its translator, action heads, critics and temperatures; "translator" = its policy translator only (the rest keeps its fresh init)."""
+    map_modules: str | tuple[Any, ...] = "all"
+    """With map: the target env's pieces that are mapped, a list from "translator", "head", "critic", "temperature" that holds "translator" (seal.pieces); "all" = all four, "translator" = ["translator"]; the pieces not mapped keep their fresh init."""
     map_unmapped_log_std: Annotated[float, Field(ge=-20.0, le=2.0)] = -20.0
-    """With map_modules = "all": the log std of the target's action entries that no source entry drives (the testbed's distractors), in [-20, 2]; -20 (the lower clamp) = no noise; -1.354 = expected log-density 0, so they add nothing to the mapped critic's soft Bellman target (docs/transfer_testbed.md, round 5)."""
+    """With map and the head mapped: the log std of the target's action entries that no source entry drives (the testbed's distractors), in [-20, 2]; -20 (the lower clamp) = no noise; -1.354 = expected log-density 0, so they add nothing to the mapped critic's soft Bellman target (docs/transfer_testbed.md, round 5)."""
 
     def __post_init__(self) -> None:
+        from seal.pieces import map_pieces
+
+        map_pieces(self.map_modules)  # a bad set fails at load, naming the valid ones
         if self.map:
             from seal.envs import env_map
 
             env_map(self.map)  # an unknown name fails at load, naming the valid ones
+
+    @property
+    def pieces(self) -> tuple[str, ...]:
+        """The pieces `map_modules` maps, in `seal.pieces.PIECES` order."""
+        from seal.pieces import map_pieces
+
+        return map_pieces(self.map_modules)
 
 
 @with_config(SCHEMA)
@@ -295,6 +305,8 @@ class LoggingConfig:
     """Also write TensorBoard events under tb/<phase>/ (one TensorBoard run per phase)."""
     wandb: Literal["off", "offline", "online"] = "off"
     """Also log the same scalars to Weights & Biases under wandb/: "offline" never touches the network (`wandb sync` uploads later), "online" uploads as it runs; needs the extra: pip install -e ".[wandb]"."""
+    drift: bool = False
+    """At every evaluation, log each env's translator, head, critic and temperatures' distance from the phase's start, ||W - W0|| / ||W0|| over the piece's parameters concatenated (train.csv key drift/<piece>; seal.learner.drift); keeps W0 on the agent's device and in epoch checkpoints."""
 
 
 @dataclass(frozen=True, kw_only=True)

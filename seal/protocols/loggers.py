@@ -157,6 +157,44 @@ class AlignmentLogger(ScalarLogger):
         """Nothing (see `on_train_log`)."""
 
 
+class DriftLogger(ScalarLogger):
+    """[logging] drift: at every evaluation, each env's pieces' relative distance from the phase's
+    start (`seal.learner.drift`: ||W - W0|| / ||W0||, the piece's parameters concatenated), as
+    train rows `drift/<piece>` under the env, of the policy evaluated (an asynchronous
+    evaluation's snapshot). No gradient and no random draw: the run learns exactly as without it."""
+
+    def on_evaluation(self, loop: PhaseLoop) -> None:
+        from seal.learner.drift import relative_drift
+
+        evaluated, start = loop.evaluated, loop.drift_start
+        if evaluated is None or start is None:
+            return
+        drift = relative_drift(evaluated.agent, start, loop.model.agent_env)
+        rows: list[TrainRow] = [
+            {
+                "seed": loop.owner.seed,
+                "phase": loop.phase.name,
+                "epoch": evaluated.epoch,
+                "grad_steps": evaluated.grad_steps,
+                "env": env,
+                "key": f"drift/{piece}",
+                "value": value,
+            }
+            for (env, piece), value in drift.items()
+            if np.isfinite(value)
+        ]
+        loop.owner.rundir.log_train(rows)
+        for callback in loop.callbacks:
+            if callback is not self:
+                callback.on_train_log(loop, rows)
+
+    def on_train_log(self, loop: PhaseLoop, rows: Sequence[TrainRow]) -> None:
+        """Nothing: this logger makes rows, it mirrors none."""
+
+    def write(self, scalars: Mapping[str, float], step: int, loop: PhaseLoop) -> None:
+        """Nothing (see `on_train_log`)."""
+
+
 class TensorBoardLogger(ScalarLogger):
     """TensorBoard events, one TensorBoard run per phase under <run_dir>/tb/<phase>.
 
@@ -262,7 +300,8 @@ def open_loggers(
     config: ProtocolConfig, run_dir: Path, purge: Mapping[str, int] | None = None
 ) -> list[ScalarLogger]:
     """The loggers `[logging]` turns on for one run (TensorBoard is skipped if not installed),
-    then, in a joint run of the testbed's two envs, the `AlignmentLogger`; `purge`: per phase,
+    then, in a joint run of the testbed's two envs, the `AlignmentLogger`, then with
+    logging.drift the `DriftLogger`; `purge`: per phase,
     the step from which a resumed run hides events (`TensorBoardLogger`)."""
     loggers: list[ScalarLogger] = []
     if config.logging.tensorboard:
@@ -273,4 +312,6 @@ def open_loggers(
     testbed = alignment_envs(config)
     if testbed is not None:
         loggers.append(AlignmentLogger(*testbed))
+    if config.logging.drift:
+        loggers.append(DriftLogger())
     return loggers

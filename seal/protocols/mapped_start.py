@@ -30,8 +30,8 @@ class MappedStart:
     known: EnvMap
     task_order: tuple[int, ...]
     """For each of the target's tasks, the index of its task among the source's."""
-    modules: str
-    """`transfer.map_modules`."""
+    modules: tuple[str, ...]
+    """The pieces mapped: `transfer.map_modules` (`TransferConfig.pieces`)."""
     unmapped_log_std: float
     """`transfer.map_unmapped_log_std`."""
 
@@ -88,5 +88,5 @@ def mapped_start(
     except SealError as exc:
         raise ConfigError(f"{where}: {exc}") from None
     return MappedStart(
-        source, target, known, tuple(order), transfer.map_modules, transfer.map_unmapped_log_std
+        source, target, known, tuple(order), transfer.pieces, transfer.map_unmapped_log_std
     )

@@ -54,6 +54,7 @@ if TYPE_CHECKING:
     from seal.envs.alignment import Alignment
     from seal.learner.collection import Collector, EpisodeStats
     from seal.learner.config import AgentConfig
+    from seal.learner.drift import DriftStart
     from seal.learner.replay import MultiTaskReplay
     from seal.learner.sac import AgentState
     from seal.protocols.checkpoint_fields import EpochCheckpoint, PhaseStateFields
@@ -255,6 +256,11 @@ class PhaseLoop:
         """`timed`'s open parts, innermost last, each with the time its count resumed."""
         model = self.model = PhaseModel(cfg, phase, run.adapters, run.alignment)
         self.agent: Agent = run.initial_agent(phase, model, resuming=payload is not None)
+        self.drift_start: DriftStart | None = None
+        """logging.drift: W0, each env's pieces at the phase's start, after any mapped start
+        (`seal.learner.drift`); a resumed phase takes its checkpoint's, as the start is not redone."""
+        if cfg.logging.drift:
+            self.drift_start = self._drift_start(payload)
         self.replay: MultiTaskReplay = cfg.replay.build(
             model.replay_specs,
             device=run.device,
@@ -358,6 +364,20 @@ class PhaseLoop:
         if self.eval_collector is None:
             self.eval_collector = build_eval_collector(self.cfg, self.model, self.owner.seed)
         return self.eval_collector
+
+    def _drift_start(self, payload: EpochCheckpoint | None) -> DriftStart:
+        """W0 of the fresh phase's agent (before any restore), or the checkpoint's, on the agent's device."""
+        from seal.learner.drift import start_weights
+
+        if payload is None:
+            return start_weights(self.agent, self.model.agent_env)
+        saved = payload["runner"].get("drift_start")
+        if saved is None:
+            raise SealError(
+                f"{self.owner.rundir.path}: logging.drift is on, but the checkpoint holds no drift start (W0) to measure from; it was written without logging.drift"
+            )
+        device = self.agent.device
+        return {env: {p: t.to(device) for p, t in pieces.items()} for env, pieces in saved.items()}
 
     def _restore(self, payload: EpochCheckpoint) -> None:
         """Agent, replay, scheduler, counters and RNG streams from a checkpoint's payload."""

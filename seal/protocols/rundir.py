@@ -8,7 +8,8 @@
         train.csv          long format: seed,phase,epoch,grad_steps,env,key,value (TRAIN_COLUMNS);
                            each evaluation adds its critic probe (eval_q/<task>, eval_earned/<task>,
                            eval_q_ratio/<task>: seal.learner.critic_probe), an asynchronous one when
-                           its results come in (so among the training rows where timing puts them)
+                           its results come in (so among the training rows where timing puts them);
+                           with [logging] drift, each env's drift/<piece> (seal.learner.drift)
         scheduler.csv      the scheduler's timeline, when it has one
         tb/<phase>/        TensorBoard events, one run per phase ([logging] tensorboard; seal.protocols.loggers)
         wandb/             Weights & Biases files and run_id ([logging] wandb)

@@ -255,3 +255,64 @@ def test_distractors_at_zero_log_density_add_nothing_to_the_soft_target() -> Non
     head = torch.tensor([[0.0, UNMAPPED_ZERO_LOG_DENSITY]], dtype=torch.float64)
     _, log_prob = tanh_gaussian(head.expand(len(noise), 2), noise)
     assert abs(float(log_prob.mean())) < 0.01
+
+
+def _state_after(config: AgentConfig, modules: object) -> dict[str, torch.Tensor]:
+    """Every tensor of the joint agent's state (networks, targets, temperatures) after the mapped start."""
+    _, joint = _mapped(config, modules=modules)  # type: ignore[arg-type]
+    state = joint.state_dict()
+    out = {}
+    for part in ("actor", "critic", "critic_target"):
+        out.update({f"{part}.{k}": v for k, v in state[part].items()})
+    out.update({f"log_alpha.{k}": v for k, v in state["log_alpha"].items()})
+    return out
+
+
+@pytest.mark.parametrize("critic_sharing", ["per_env", "shared"])
+def test_the_spellings_all_and_translator_are_their_lists(critic_sharing: str) -> None:
+    config = _config(critic_sharing=critic_sharing)
+    for spelling, pieces in (
+        ("all", ["translator", "head", "critic", "temperature"]),
+        ("all", ["temperature", "critic", "head", "translator"]),  # any order
+        ("translator", ["translator"]),
+    ):
+        left, right = _state_after(config, spelling), _state_after(config, pieces)
+        assert left.keys() == right.keys()
+        for key, value in left.items():
+            assert torch.equal(value, right[key]), (spelling, pieces, key)
+
+
+@pytest.mark.parametrize(
+    "pieces",
+    [("head",), ("critic",), ("temperature",), ("head", "critic"), ("critic", "temperature")],
+)
+def test_each_piece_is_mapped_alone_and_the_rest_stays_fresh(pieces: tuple[str, ...]) -> None:
+    """A subset maps exactly its pieces: each is the full map's, each other one the translator
+    rung's (fresh), so the 2^3 factorial's cells differ in nothing else."""
+    config = _config()
+    subset = _state_after(config, ["translator", *pieces])
+    full, fresh = _state_after(config, "all"), _state_after(config, "translator")
+    owner = {
+        "translator": ("actor.translators.target.",),
+        "head": ("actor.heads.target.",),
+        "critic": ("critic.nets.target.", "critic_target.nets.target."),
+        "temperature": ("log_alpha.target",),
+    }
+    for key, value in subset.items():
+        piece = next((p for p, prefixes in owner.items() if key.startswith(prefixes)), None)
+        expected = full if piece == "translator" or piece in pieces else fresh
+        assert torch.equal(value, expected[key]), (pieces, key)
+    # Every piece differs between the full map and the fresh start (the test can tell them apart).
+    for piece, prefixes in owner.items():
+        if piece != "translator":
+            keys = [k for k in full if k.startswith(prefixes)]
+            assert any(not torch.equal(full[k], fresh[k]) for k in keys), piece
+
+
+def test_a_set_without_the_translator_is_refused() -> None:
+    config = _config()
+    state = _source_state(config)
+    joint = Agent([SOURCE, TARGET], config, seed=2)
+    kwargs = {"obs_map": ORACLE_MAP.obs, "task_order": ORDER, "actions": ORACLE_MAP.actions}
+    with pytest.raises(SealError, match=r"map_env: map_modules = \['head'\] is not valid \(no"):
+        map_env(joint, state, "source", "target", **kwargs, modules=["head"])

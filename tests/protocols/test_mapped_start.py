@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 
@@ -123,3 +124,31 @@ def test_a_map_that_does_not_fit_the_protocol_fails_before_any_run_dir(
     ):
         run_seed(config, 0, tmp_path / "g")
     assert not (tmp_path / "g").exists()
+
+
+@pytest.mark.parametrize(
+    ("rung", "pieces"),
+    [
+        ("oracle_policy", '["translator", "head", "critic", "temperature"]'),
+        ("oracle_translator", '["translator"]'),
+    ],
+)
+def test_a_rung_spelt_as_its_list_of_pieces_learns_the_same(
+    pretrained: Path, tmp_path: Path, rung: str, pieces: str
+) -> None:
+    """A few epochs with gradient steps: the list spelling gives the string's run, row for row."""
+    runs = {}
+    for name, modules in (("string", None), ("list", pieces)):
+        extra = [] if modules is None else [f"transfer.map_modules={modules}"]
+        config = load_protocol(
+            TESTBED / f"{rung}.toml",
+            [*TINY, "protocol.epochs=3", f"transfer.checkpoint={pretrained}", *extra],
+        )
+        runs[name] = run_seed(config, 0, tmp_path / name).run_dir
+    for table in ("metrics.csv", "train.csv"):
+        left, right = (pd.read_csv(runs[n] / table) for n in ("string", "list"))
+        if "wall_s" in left:
+            left, right = left.drop(columns="wall_s"), right.drop(columns="wall_s")
+        assert len(left) > 0
+        pd.testing.assert_frame_equal(left, right)
+    assert (pd.read_csv(runs["list"] / "metrics.csv")["grad_steps"] > 0).any()
