@@ -219,7 +219,16 @@ def _floor(
     cores: int,
     update_rate: float | None,
 ) -> dict[str, Any]:
-    """The "floor" entry of `bench_protocol`: per phase and for the whole seed."""
+    """The "floor" entry of `bench_protocol`: per phase and for the whole seed. Evaluation env
+    steps are the full evaluations' times the share that evaluation.decide_early and
+    end_on_success leave (`seal.bench.evaluation_cost`: a model, measured expert success steps)."""
+    shares: dict[str, dict[str, float]] = {}
+    success: dict[str, float] = {}
+    if config.evaluation.decide_early or config.evaluation.end_on_success:
+        from seal.bench.evaluation_cost import evaluation_shares, success_steps
+
+        success = success_steps(config, build_adapters(config))
+        shares = evaluation_shares(config, success)
     per_phase: dict[str, dict[str, Any]] = {}
     for phase in plan_phases(config):
         window = None if measured is None else measured[phase.name]
@@ -233,7 +242,10 @@ def _floor(
         evaluations = _evaluations(config, phase.epochs, grad_per_epoch)
         train = {e: phase.epochs * _env_steps_per_epoch(config, [e]) for e in phase.envs}
         evals = {
-            e: evaluations * config.evaluation.episodes * _env_steps_per_epoch(config, [e])
+            e: evaluations
+            * config.evaluation.episodes
+            * _env_steps_per_epoch(config, [e])
+            * shares.get(e, {"share": 1.0})["share"]
             for e in phase.envs
         }
         checkpoint_s = 0.0
@@ -265,6 +277,8 @@ def _floor(
         "parallel_efficiency": PARALLEL_EFFICIENCY,
         "update_rate": "given" if update_rate is not None else "measured",
         "step_ms": {e: s * 1e3 for e, s in step_s.items()},
+        "evaluation_share": shares,
+        "expert_success_step": success,
         "phases": per_phase,
         **totals,
     }
@@ -328,4 +342,14 @@ def format_protocol_bench(result: dict[str, Any]) -> str:
             f"{f['update_h']:.2f} h at the {f['update_rate']} rate, checkpoints {f['checkpoint_h']:.2f} h)"
         )
     lines.append(line)
+    if f.get("evaluation_share"):
+        per_env = ", ".join(
+            f"{e} {s['share']:.0%} (expert's first success at step {f['expert_success_step'][e]:.0f})"
+            for e, s in f["evaluation_share"].items()
+        )
+        lines.append(
+            f"    evaluation env steps at {per_env} of the full evaluation's, by the clean model "
+            "(a task fails every episode before its crossing, succeeds in every one after; a task "
+            "hovering near the threshold costs more: seal/bench/evaluation_cost.py)"
+        )
     return "\n".join(lines)
