@@ -822,3 +822,23 @@ def test_fpr_under_the_rule_says_how_many_alone_seeds_it_has(tmp_path) -> None:
         run_fpr_until_mde(0.10, 20, out=tmp_path, reuse=True, log=log)
     assert said[0].startswith("30 of the 40 alone seeds")
     assert "running the other 10" in said[0]
+
+
+def test_cli_set_reaches_every_transfer_arm_but_not_fpr(capsys, monkeypatch) -> None:  # noqa: ANN001
+    import seal.experiments.transfer as transfer
+    from seal.cli.main import main
+
+    seen = {}
+
+    def fake(**kwargs):  # noqa: ANN003, ANN202
+        seen.update(kwargs)
+        return {"fake": True}
+
+    monkeypatch.setattr(transfer, "run_transfer_bench", fake)
+    args = ["bench", "--learn", "transfer", "--json", "--set", "agent.critic_sharing=shared"]
+    assert main(args) == 0
+    assert seen["overrides"] == ["agent.critic_sharing=shared"]
+    assert main([*args, "--fpr"]) == 2
+    assert "--set applies to --learn transfer's arms" in capsys.readouterr().err
+    assert main([*args, "--seeds-until-mde", "0.1", "--max-seeds", "9"]) == 2
+    assert "not to --fpr or --seeds-until-mde" in capsys.readouterr().err

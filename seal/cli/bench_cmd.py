@@ -190,7 +190,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="TABLE.KEY=VALUE",
-        help="with --protocol or --learn table1, quickstart, reach_sb3, kitchen, mtrl or learner: override a protocol value (e.g. protocol.device=cuda, evaluation.stop_when_reached=false)",
+        help="with --protocol or --learn transfer, table1, quickstart, reach_sb3, kitchen, mtrl or learner: override a protocol value (e.g. protocol.device=cuda, evaluation.stop_when_reached=false)",
     )
     parser.set_defaults(func=run)
 
@@ -205,7 +205,7 @@ LEARN_SETS: dict[str, tuple[str, int, str]] = {
     "learner": ("seal.experiments.learner", 10, "reports/bench_learner"),
 }
 """`--learn <set>`: the module (with run_<set>_bench and format_result), default seeds and reports root."""
-OVERRIDE_SETS = ("table1", "quickstart", "reach_sb3", "kitchen", "mtrl", "learner")
+OVERRIDE_SETS = ("transfer", "table1", "quickstart", "reach_sb3", "kitchen", "mtrl", "learner")
 """The `--learn` sets that take `--set` overrides of their protocols."""
 
 
@@ -244,6 +244,11 @@ def run(args: argparse.Namespace) -> int:
         from seal.experiments.until_mde import check_rule
 
         check_rule(args.seeds_until_mde, args.max_seeds)
+    if args.overrides and args.learn == "transfer" and (args.fpr or until_mde):
+        raise SealError(
+            "--set applies to --learn transfer's arms (a testbed variant: every arm, alone arms "
+            "included, runs with it), not to --fpr or --seeds-until-mde"
+        )
     if args.ladder and (
         args.learn != "transfer" or args.full or args.fpr or args.arms or until_mde
     ):
@@ -322,6 +327,7 @@ def run(args: argparse.Namespace) -> int:
                 reuse=args.reuse,
                 address=args.address,
                 run=not args.no_run,
+                overrides=args.overrides,
             )
             print(
                 json.dumps(result, indent=2, default=float)

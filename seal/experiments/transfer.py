@@ -424,6 +424,7 @@ def format_result(result: Mapping[str, Any]) -> str:
 
     verdict = {None: "not run", True: "met", False: "not met"}[goal["met"]]
     lines = [
+        *([f"every arm with --set {' '.join(result['overrides'])}"] if result["overrides"] else []),
         result["table"],
         "",
         f"transfer_updates_saved (high-source, default shared_update) = {shown(result['transfer_updates_saved'])} "
