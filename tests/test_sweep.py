@@ -696,8 +696,9 @@ def test_a_started_trial_without_a_saved_replay_is_set_aside_and_runs_afresh(
     clean, clean_dir = trial("clean")
     assert execute_trial(config, clean).status == "finished"
     record, run_dir = trial("partial")
-    run_dir.mkdir(parents=True)
+    (run_dir / "checkpoints").mkdir(parents=True)
     (run_dir / "config.toml").write_text("# a run stopped before its end\n")
+    (run_dir / "checkpoints" / "ckpt-0000001.pt").write_bytes(b"an epoch checkpoint, no replay")
     record = execute_trial(config, record)
     assert (record.status, record.start) == ("finished", "new")
     (moved,) = (run_dir.parent / ".lost").iterdir()

@@ -99,11 +99,11 @@ def explain_lines(config: ProtocolConfig) -> list[str]:
             f"# decide_early is on: a task stops at {rule.needed} successes or "
             f"{ev.episodes - rule.needed + 1} failures of {ev.episodes} episodes, so after at least "
             f"{least} (rounded up to whole waves of its parallel instances).",
-            f"#   At most {ev.episodes - least} of its {ev.episodes} episodes ({saved:.0%}) saved in "
-            f"{ev.full_every - 1} of every {ev.full_every} evaluations (full_every; the phase's "
+            f"# decide_early saves at most {ev.episodes - least} of a task's {ev.episodes} "
+            f"episodes ({saved:.0%}) in {ev.full_every - 1} of every {ev.full_every} evaluations (full_every; the phase's "
             f"last runs in full): at most {saved * share:.0%} of evaluation env steps.",
-            "#   Not in a phase whose scheduler reads evaluations (curriculum_v2) nor in a finetune "
-            "protocol's pre-training: those run every episode.",
+            "# decide_early is off in a phase whose scheduler reads evaluations (curriculum_v2) "
+            "and in a finetune protocol's pre-training: those run every episode.",
         ]
     if ev.end_on_success:
         out.append(

@@ -157,8 +157,10 @@ def execute_trial(
         record.start, record.status = "kept", "finished"
         record.refresh()
         return record
-    if not config.checkpoint.save_replay and is_started(run_dir):
-        set_aside(run_dir)
+    if not config.checkpoint.save_replay and any(run_dir.glob("checkpoints/ckpt-*.pt")):
+        set_aside(
+            run_dir
+        )  # a checkpoint it cannot continue from exactly; without one it starts over in place
     record.start = "continued" if is_started(run_dir) else "new"
     (run_dir / "error.txt").unlink(missing_ok=True)
     try:

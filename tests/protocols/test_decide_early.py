@@ -137,7 +137,7 @@ def test_explain_says_what_the_options_can_save(tmp_path: Path) -> None:
     text = "\n".join(explain_lines(paper))
     assert "stops at 45 successes or 6 failures of 50 episodes, so after at least 6" in text
     # 44 of 50 episodes in 2 of every 3 evaluations: 88% x 2/3 = 59% at most.
-    assert "At most 44 of its 50 episodes (88%) saved in 2 of every 3" in text
+    assert "saves at most 44 of a task's 50 episodes (88%) in 2 of every 3" in text
     assert "at most 59% of evaluation env steps" in text
     assert "end_on_success is on" in text
 
