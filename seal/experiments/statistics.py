@@ -323,6 +323,7 @@ def alignment(
 
     A joint arm: its own two envs, from its last checkpoint. An alone arm: its target against
     the source of the pre-training run of the same seed, two runs that never met (the baseline).
+    An arm some of whose runs kept no checkpoint (a committed record: results/) has no entry.
     """
     from seal.learner.probes import cka_from_checkpoints
 
@@ -333,6 +334,11 @@ def alignment(
     for arm in chosen:
         pre = partner.get(arm.name, first)
         if not arm.has_target or (arm.alone is None and pre is None):
+            continue
+        dirs = [run_dirs[(arm.name, s)] for s in range(seeds)]
+        if arm.alone is None:
+            dirs += [run_dirs[(pre, s)] for s in range(seeds)]
+        if not all(any(d.glob("checkpoints/ckpt-*.pt")) for d in dirs):
             continue
         out[arm.name] = []
         for seed in range(seeds):
