@@ -34,24 +34,15 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from tests.testbed_tiny import SMALL
+
 pytest.importorskip("ray")
 
 HUNG_S = 900.0
 """How long a test waits for a step (a node, a checkpoint, a bench) before calling it hung."""
 ARMS = ["alone", "pretrain_source"]
 """Two runs of one seed, independent of each other: one CPU each, so one on each node."""
-OVERRIDES = [
-    "protocol.epochs=30",
-    "checkpoint.interval=2",
-    "training.warmup_steps=0",
-    "training.grad_steps_per_epoch=2",
-    "evaluation.interval=1",
-    "evaluation.episodes=1",
-    "agent.translator_hidden=[8]",
-    "agent.latent_dim=8",
-    "agent.trunk_hidden=[8]",
-    "agent.critic_hidden=[8]",
-]
+OVERRIDES = ["protocol.epochs=30", "checkpoint.interval=2", *SMALL]
 """tests/test_bench_transfer.py's TINY, for 30 epochs (about 20 s) with a checkpoint every 2
 (the kill's event)."""
 WORKER_RESOURCE = "seal_test_worker"

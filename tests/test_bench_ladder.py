@@ -17,18 +17,8 @@ from seal.experiments.arms import LADDER_ARMS, arms
 from seal.experiments.ladder import effects_per_seed
 from seal.experiments.records import last_checkpoint
 from seal.protocols import load_protocol, run_seed
+from tests.testbed_tiny import TINY
 
-TINY = [
-    "protocol.epochs=2",
-    "training.warmup_steps=0",
-    "training.grad_steps_per_epoch=2",
-    "evaluation.interval=1",
-    "evaluation.episodes=1",
-    "agent.translator_hidden=[8]",
-    "agent.latent_dim=8",
-    "agent.trunk_hidden=[8]",
-    "agent.critic_hidden=[8]",
-]
 SEEDS = 2
 
 

@@ -29,6 +29,7 @@ from seal.protocols import load_protocol
 from seal.protocols.loader import config_to_dict
 from seal.protocols.phase_model import build_adapters
 from seal.protocols.resources import choose_update_threads, estimate_resources
+from tests.testbed_tiny import TINY
 
 
 def _metrics(rows: list[tuple[int, str, str, float, int, float]]) -> pd.DataFrame:
@@ -192,19 +193,6 @@ def test_arms_adds_the_alone_arms_they_are_set_against() -> None:
         "pretrain_source",
         "pretrained_trunk",
     ]
-
-
-TINY = [
-    "protocol.epochs=2",
-    "training.warmup_steps=0",
-    "training.grad_steps_per_epoch=2",
-    "evaluation.interval=1",
-    "evaluation.episodes=1",
-    "agent.translator_hidden=[8]",
-    "agent.latent_dim=8",
-    "agent.trunk_hidden=[8]",
-    "agent.critic_hidden=[8]",
-]
 
 
 @pytest.mark.slow

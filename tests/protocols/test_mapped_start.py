@@ -21,17 +21,7 @@ from seal.experiments.records import last_checkpoint
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.probes import agent_from_state
 from seal.protocols import load_protocol, run_seed
-
-TINY = [
-    "training.warmup_steps=0",
-    "training.grad_steps_per_epoch=2",
-    "evaluation.interval=1",
-    "evaluation.episodes=1",
-    "agent.translator_hidden=[8]",
-    "agent.latent_dim=8",
-    "agent.trunk_hidden=[8]",
-    "agent.critic_hidden=[8]",
-]
+from tests.testbed_tiny import SMALL as TINY
 
 
 @pytest.fixture(scope="module")
