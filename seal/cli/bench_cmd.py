@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
+from typing import Any
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -303,7 +305,7 @@ def run(args: argparse.Namespace) -> int:
                     **rule, **common, full=args.full, only=args.arms
                 )
                 text = bench.format_result
-            print(json.dumps(result, indent=2, default=float) if args.json else text(result))
+            _emit(result, text, args.json)
             return 0
         if args.fpr:
             result = bench.run_fpr_bench(
@@ -314,7 +316,7 @@ def run(args: argparse.Namespace) -> int:
                 reuse=args.reuse,
                 address=args.address,
             )
-            print(json.dumps(result, indent=2) if args.json else bench.format_fpr(result))
+            _emit(result, bench.format_fpr, args.json)
             return 0
         if args.ladder:
             from seal.experiments.ladder_bench import format_ladder_result, run_ladder_bench
@@ -329,11 +331,7 @@ def run(args: argparse.Namespace) -> int:
                 run=not args.no_run,
                 overrides=args.overrides,
             )
-            print(
-                json.dumps(result, indent=2, default=float)
-                if args.json
-                else format_ladder_result(result)
-            )
+            _emit(result, format_ladder_result, args.json)
             return 0
         extra: dict[str, object] = {}
         if args.learn == "transfer":
@@ -352,11 +350,7 @@ def run(args: argparse.Namespace) -> int:
             address=args.address,
             **extra,
         )
-        print(
-            json.dumps(result, indent=2, default=float)
-            if args.json
-            else bench.format_result(result)
-        )
+        _emit(result, bench.format_result, args.json)
         return 0
     if args.protocol is not None:
         from seal.bench.protocol import bench_protocol, format_protocol_bench
@@ -372,7 +366,7 @@ def run(args: argparse.Namespace) -> int:
             update_rate=args.update_rate,
             floor_only=args.floor_only,
         )
-        print(json.dumps(result, indent=2) if args.json else format_protocol_bench(result))
+        _emit(result, format_protocol_bench, args.json)
         return 0
 
     if args.threads is not None:
@@ -394,5 +388,10 @@ def run(args: argparse.Namespace) -> int:
         learn=args.learn == "evidence",
         log=log,
     )
-    print(json.dumps(result, indent=2, default=float) if args.json else format_table(result))
+    _emit(result, format_table, args.json)
     return 0
+
+
+def _emit(result: Any, text: Callable[[Any], str], as_json: bool) -> None:
+    """Print a bench's result: one JSON object (numpy floats as floats) or its text table."""
+    print(json.dumps(result, indent=2, default=float) if as_json else text(result))
