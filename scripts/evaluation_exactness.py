@@ -53,6 +53,12 @@ def training_rows(run_dir: Path) -> pd.DataFrame:
     return train[keep].reset_index(drop=True)
 
 
+def timing(run_dir: Path) -> tuple[float, float]:
+    """The run's wall seconds and its loop's evaluation seconds (provenance's time_shares)."""
+    shares = load_run(run_dir).provenance.get("time_shares") or {}
+    return float(shares.get("wall_s", 0.0)), float(shares.get("parts_s", {}).get("evaluate", 0.0))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("protocol", type=Path)
@@ -64,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     cheap = args.overrides or CHEAP
     threshold = load_protocol(args.protocol, args.base).evaluation.threshold
     same = True
+    seconds = {"full": [0.0, 0.0], "cheap": [0.0, 0.0]}
     for seed in args.seeds:
         full = run_or_read(args.protocol, seed, args.out, list(args.base))
         fast = run_or_read(args.protocol, seed, args.out, list(args.base) + cheap)
@@ -81,8 +88,15 @@ def main(argv: list[str] | None = None) -> int:
             f"seed {seed}: crossings {'identical' if equal_cross else 'DIFFER'}, training rows "
             f"{'identical' if equal_train else 'DIFFER'} ({len(ta)} rows); full: {reached}"
         )
+        for side, run_dir in (("full", full), ("cheap", fast)):
+            wall, evaluate = timing(run_dir)
+            seconds[side][0] += wall
+            seconds[side][1] += evaluate
+            print(f"  {side}: wall {wall:,.1f} s, evaluation {evaluate:,.1f} s ({run_dir})")
         if not equal_cross:
             print(pd.concat({"full": a, "cheap": b}, axis=1).to_string())
+    for side, (wall, evaluate) in seconds.items():
+        print(f"{side}, seeds {args.seeds}: wall {wall:,.1f} s, evaluation {evaluate:,.1f} s")
     print(f"{args.protocol} with {' '.join(cheap)}: {'exact' if same else 'NOT EXACT'}")
     return 0 if same else 1
 
