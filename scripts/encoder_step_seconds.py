@@ -24,7 +24,7 @@ def main(path: str) -> None:
     from seal.learner.replay import MultiTaskReplay
     from seal.learner.sac import Agent
     from seal.protocols import load_protocol
-    from seal.protocols.phase_model import build_adapters
+    from seal.run.phase_model import build_adapters
 
     torch.set_num_threads(1)
     config = load_protocol(path, ["agent.device=cpu"])

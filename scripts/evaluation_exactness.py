@@ -20,7 +20,8 @@ import pandas as pd
 
 from seal import load_run
 from seal.metrics import first_reach
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
+from seal.run.runner import run_seed
 
 CHEAP = ["evaluation.decide_early=true", "evaluation.end_on_success=true"]
 # Rows that evaluation writes to train.csv (the critic probe, the decisions); the rest are

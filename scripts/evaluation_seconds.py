@@ -13,12 +13,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import seal.protocols.phase as phase
-from seal.protocols import load_protocol, run_seed
+import seal.run.loop as phase
+from seal.protocols import load_protocol
+from seal.run.runner import run_seed
 
 epochs = int(sys.argv[1]) if len(sys.argv) > 1 else 5
 times: list[tuple[float, float]] = []
-evaluate = phase.PhaseLoop._evaluate
+evaluate = phase.PhaseLoop.evaluate
 
 
 def timed(self: phase.PhaseLoop) -> None:
@@ -27,7 +28,7 @@ def timed(self: phase.PhaseLoop) -> None:
     times.append((time.perf_counter() - wall, time.process_time() - cpu))
 
 
-phase.PhaseLoop._evaluate = timed  # type: ignore[method-assign]
+phase.PhaseLoop.evaluate = timed  # type: ignore[method-assign]
 config = load_protocol(
     "protocols/quickstart.toml",
     [

@@ -5,7 +5,7 @@
 Builds PROTOCOL's first phase (default protocols/high_fk.toml: MT10 and the ten kitchen tasks,
 1,000,000 transitions per env) into a temporary run directory under DIR (default: the working
 directory's disk), fills its replay to capacity with random transitions, then times, on that
-disk, what a run does at a signal (`seal.protocols.preemption`):
+disk, what a run does at a signal (`seal.run.preemption`):
 
 - the epoch mark the loop keeps at every epoch's start (`PhaseLoop._take_mark`), a per-epoch cost;
 - the save after a finished epoch (`PhaseLoop._save_for_stop`: the epoch checkpoint, replay
@@ -29,9 +29,9 @@ import numpy as np
 import torch
 
 from seal.protocols import load_protocol
-from seal.protocols.phase import PhaseLoop
-from seal.protocols.preemption import Preempted
-from seal.protocols.runner import Run
+from seal.run.loop import PhaseLoop
+from seal.run.preemption import Preempted
+from seal.run.runner import Run
 
 
 def fill(loop: PhaseLoop, seed: int = 0) -> int:

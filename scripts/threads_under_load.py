@@ -90,7 +90,7 @@ def update_rate(protocol: str, overrides: list[str], threads: int, seconds: floa
     from seal.bench.flops import _agent_batches
     from seal.learner import Agent, EnvSpec
     from seal.protocols import load_protocol
-    from seal.protocols.phase_model import build_adapters
+    from seal.run.phase_model import build_adapters
 
     config = load_protocol(protocol, overrides)
     adapters = build_adapters(config)

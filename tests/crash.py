@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from seal.protocols.phase import LoopCallback, PhaseLoop
+from seal.run.loop import LoopCallback, PhaseLoop
 
 
 class CrashAfter(LoopCallback):

@@ -7,7 +7,7 @@ import pytest
 
 from seal.bench.e2e import bench_e2e
 from seal.bench.suite import format_table
-from seal.protocols.phase import LOOP_PARTS
+from seal.run.state import LOOP_PARTS
 
 pytest.importorskip("stable_baselines3")
 

@@ -16,7 +16,8 @@ from seal.experiments import ladder_bench
 from seal.experiments.arms import LADDER_ARMS, arms
 from seal.experiments.ladder import effects_per_seed
 from seal.experiments.records import last_checkpoint
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
+from seal.run.runner import run_seed
 from tests.testbed_tiny import TINY
 
 SEEDS = 2

@@ -29,8 +29,9 @@ import seal.sweep.ray_session as ray_session_module
 from seal.errors import SealError
 from seal.experiments.arms import ARMS, Arm
 from seal.experiments.launcher import check_shared_out, run_all, run_cpus, run_or_reuse
-from seal.protocols import load_protocol, run_seed
-from seal.protocols.preemption import Preempted, SignalStop
+from seal.protocols import load_protocol
+from seal.run.preemption import Preempted, SignalStop
+from seal.run.runner import run_seed
 from seal.sweep.ray_session import RaySession
 from seal.sweep.trials import is_finished, last_preemption, read_evaluations
 from tests.faults.point_protocol import point_protocol
@@ -112,8 +113,8 @@ def test_a_run_reserves_the_cpus_its_threads_resolve_to(monkeypatch: pytest.Monk
     monkeypatch.setattr(seal.device, "usable_cores", lambda: 16)
     wide = ["agent.trunk_hidden=[1024, 1024]", "agent.critic_hidden=[1024, 1024]"]
     big = load_protocol(alone.protocol, [*wide, "training.batch_per_task=4000"])
-    from seal.protocols.phase_model import build_adapters
-    from seal.protocols.resources import choose_update_threads, estimate_resources
+    from seal.run.phase_model import build_adapters
+    from seal.run.resources import choose_update_threads, estimate_resources
 
     estimate = estimate_resources(big, build_adapters(big), "cpu")
     threads = choose_update_threads(big, estimate).threads

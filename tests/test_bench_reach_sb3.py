@@ -36,7 +36,8 @@ TINY = [
 
 def run_seal_side(seed: int, out: Path, overrides: list[str]) -> SideRun:
     """SEAL's side as the bench's Ray task runs it (`run_seed` at one thread), in this process."""
-    from seal.protocols import load_protocol, run_seed
+    from seal.protocols import load_protocol
+    from seal.run.runner import run_seed
 
     config = load_protocol(PROTOCOL, [*SEAL_THREADS, *overrides])
     result = run_seed(config, seed, out)

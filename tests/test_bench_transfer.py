@@ -27,8 +27,8 @@ from seal.experiments.tables import format_table
 from seal.experiments.transfer import arm_mdes, format_result, run_transfer_bench
 from seal.protocols import load_protocol
 from seal.protocols.loader import config_to_dict
-from seal.protocols.phase_model import build_adapters
-from seal.protocols.resources import choose_update_threads, estimate_resources
+from seal.run.phase_model import build_adapters
+from seal.run.resources import choose_update_threads, estimate_resources
 from tests.testbed_tiny import TINY
 
 
@@ -244,7 +244,7 @@ def test_the_bench_on_ray_writes_the_rows_of_plain_runs(tmp_path) -> None:
     as Ray tasks by the launcher, write the metrics.csv rows that `run_seed` writes for the same
     config and seed in this process (the wall-clock column aside)."""
     from seal.experiments.launcher import run_all
-    from seal.protocols import run_seed
+    from seal.run.runner import run_seed
 
     chosen = [a for a in ARMS if a.name in ("alone", "pretrain_source")]
     jobs = [(arm, seed) for arm in chosen for seed in (0, 1)]

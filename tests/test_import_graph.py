@@ -89,6 +89,6 @@ def test_seal_imports_have_no_cycle() -> None:
     graph = {name: _imports(name, path, modules) for name, path in modules.items()}
     # The walk sees every kind of import: module level, inside a function, under TYPE_CHECKING.
     assert "seal.learner.losses" in graph["seal.learner.update"]
-    assert "seal.schedulers.ratio" in graph["seal.protocols.phase"]  # in PhaseLoop.__init__
-    assert "seal.protocols.checkpoint_fields" in graph["seal.protocols.phase"]  # TYPE_CHECKING
+    assert "seal.schedulers.ratio" in graph["seal.run.phase_parts"]  # in build_phase_parts
+    assert "seal.run.checkpoint_fields" in graph["seal.run.phase_parts"]  # TYPE_CHECKING
     assert _cycles(graph) == []

@@ -253,7 +253,7 @@ def test_read_evaluations_and_completion_marker(tmp_path: Path) -> None:
 
 
 def test_seal_run_and_protocols_never_import_ray() -> None:
-    code = "import sys, seal.cli.run_cmd, seal.protocols, seal.protocols.runner, seal.cli.sweep_cmd, seal.cli.main; seal.cli.main.build_parser(); print('ray' in sys.modules)"
+    code = "import sys, seal.cli.run_cmd, seal.protocols, seal.run.runner, seal.cli.sweep_cmd, seal.cli.main; seal.cli.main.build_parser(); print('ray' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
 
@@ -574,8 +574,8 @@ def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
     finished epoch as `seal run` would, sweep.json marks them preempted, the driver exits 143
     with the resume command, and `--resume` finishes them with the rows of uninterrupted runs
     that also checkpointed where they stopped."""
-    from seal.protocols import run_seed
-    from seal.protocols.phase import PhaseLoop
+    from seal.run.loop import PhaseLoop
+    from seal.run.runner import run_seed
     from seal.sweep.grid import sweep
 
     protocol = write_protocol(tmp_path, "stop")

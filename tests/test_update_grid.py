@@ -12,8 +12,9 @@ import pandas as pd
 import pytest
 
 from seal.metrics import first_reach
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
 from seal.reports import report
+from seal.run.runner import run_seed
 
 PROTOCOL = """
 [protocol]

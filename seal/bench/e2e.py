@@ -30,14 +30,16 @@ import numpy as np
 import torch
 
 from seal.bench.sb3 import _require_sb3
-from seal.protocols import load_protocol, run_seed
-from seal.protocols.phase import LOOP_PARTS, LoopCallback
-from seal.protocols.phase_model import build_adapters
+from seal.protocols import load_protocol
+from seal.run.loop import LoopCallback
+from seal.run.phase_model import build_adapters
+from seal.run.runner import run_seed
+from seal.run.state import LOOP_PARTS
 
 if TYPE_CHECKING:
     from seal.envs.base import EnvAdapter
     from seal.protocols.config import ProtocolConfig
-    from seal.protocols.phase import PhaseLoop
+    from seal.run.loop import PhaseLoop
 
 PROTOCOLS = Path(__file__).resolve().parents[2] / "protocols"
 E2E_PROTOCOLS = {

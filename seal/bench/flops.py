@@ -313,7 +313,7 @@ def quickstart_setup(
     when an env's adapter is not installed."""
     from seal.learner import EnvSpec
     from seal.protocols import load_protocol
-    from seal.protocols.phase_model import build_adapters
+    from seal.run.phase_model import build_adapters
 
     config = load_protocol(str(protocol))
     try:

@@ -40,10 +40,11 @@ from typing import Any
 
 from seal.device import usable_cores
 from seal.errors import SealError
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.phase import LOOP_PARTS
-from seal.protocols.phase_model import build_adapters, plan_phases
+from seal.run.phase_model import build_adapters, plan_phases
+from seal.run.runner import run_seed
+from seal.run.state import LOOP_PARTS
 
 PARTS = ("collect", "update", "evaluate", "checkpoint")
 PARALLEL_EFFICIENCY = 0.8

@@ -65,7 +65,7 @@ def _show_seal_warnings() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run one `seal` command and return its exit code."""
     from seal.errors import SealError
-    from seal.protocols.preemption import Preempted
+    from seal.run.preemption import Preempted
 
     _show_seal_warnings()
     parser = build_parser()

@@ -33,9 +33,9 @@ def run_explain(args: argparse.Namespace) -> int:
     config = load_protocol(args.file, args.overrides, args.scale)
     print(dumps_toml(config_to_dict(config)) if args.toml else explain(config), end="")
     if not args.toml:
-        from seal.protocols.phase_model import build_adapters
-        from seal.protocols.resources import choose_update_threads, estimate_resources
         from seal.provenance import resolve_device
+        from seal.run.phase_model import build_adapters
+        from seal.run.resources import choose_update_threads, estimate_resources
 
         device = resolve_device(config.protocol.device)
         estimate = estimate_resources(config, build_adapters(config), device)

@@ -87,8 +87,8 @@ def parse_seeds(text: str) -> list[int]:
 def run(args: argparse.Namespace) -> int:
     """Load (validating before anything is written), run every seed, report, print JSON."""
     from seal.protocols import load_protocol
-    from seal.protocols.preemption import Preempted
-    from seal.protocols.runner import new_group_dir, result_json, resume_run, run_seed
+    from seal.run.preemption import Preempted
+    from seal.run.runner import new_group_dir, result_json, resume_run, run_seed
 
     config = load_protocol(args.file, args.overrides, args.scale)
     command = [Path(sys.argv[0]).name, *sys.argv[1:]]
@@ -125,8 +125,8 @@ def _report(group: Path) -> Path | None:
     """Tables and plots for the group; the update-count table's Markdown file, or None if the
     report failed (a failure here never loses the run)."""
     from seal.errors import SealError
-    from seal.protocols.rundir import DirLock
     from seal.reports import report
+    from seal.run.rundir import DirLock
 
     try:
         with DirLock(group):

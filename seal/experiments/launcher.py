@@ -40,8 +40,8 @@ from seal.errors import SealError
 from seal.experiments.arms import Arm
 from seal.experiments.records import finished_run, last_checkpoint, unfinished_run
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.preemption import Preempted, SignalStop
-from seal.protocols.sweep_tables import Resources
+from seal.run.preemption import Preempted, SignalStop
+from seal.sweep.config_tables import Resources
 from seal.sweep.grid import DEFAULT_GRACE_S
 from seal.sweep.ray_session import (
     RaySession,
@@ -103,8 +103,8 @@ def run_cpus(config: ProtocolConfig, node_cpus: int, whole_node: bool = False) -
     if setting != "auto":
         return max(1, min(int(setting), node_cpus))
     from seal.device import CORES_PER_UPDATE_THREAD
-    from seal.protocols.phase_model import build_adapters
-    from seal.protocols.resources import choose_update_threads, estimate_resources
+    from seal.run.phase_model import build_adapters
+    from seal.run.resources import choose_update_threads, estimate_resources
 
     estimate = estimate_resources(config, build_adapters(config), "cpu")
     threads = choose_update_threads(config, estimate).threads
@@ -394,8 +394,8 @@ def run_all(
     """
     from seal.protocols import load_protocol
     from seal.protocols.loader import config_to_dict, dumps_toml
-    from seal.protocols.rundir import seed_dir
-    from seal.protocols.runner import new_group_dir
+    from seal.run.rundir import seed_dir
+    from seal.run.runner import new_group_dir
 
     resume = resume or {}
     finished: dict[Key, Path] = dict(done or {})

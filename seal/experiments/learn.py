@@ -46,7 +46,8 @@ def learn_protocol(
     """
     import tempfile
 
-    from seal.protocols import load_protocol, run_seed
+    from seal.protocols import load_protocol
+    from seal.run.runner import run_seed
 
     config = load_protocol(LEARN / f"{name}.toml", list(overrides))
     (env,) = config.envs

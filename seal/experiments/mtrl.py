@@ -80,7 +80,7 @@ def update_rates(
     from seal.device import torch_threads
     from seal.learner import Agent, EnvSpec
     from seal.protocols import load_protocol
-    from seal.protocols.phase_model import build_adapters
+    from seal.run.phase_model import build_adapters
 
     agents, batches, flops = {}, {}, {}
     for name in names:

@@ -30,7 +30,7 @@ from typing import Any, TypedDict
 from seal.errors import SealError, UnknownNameError
 from seal.experiments.arms import Arm
 from seal.experiments.launcher import launching, run_failure, seal_run_command
-from seal.protocols.rundir import atomic_write_text
+from seal.run.rundir import atomic_write_text
 
 PROTOCOL = Path(__file__).resolve().parents[2] / "protocols" / "learn" / "reach.toml"
 REACH = Arm("reach", "reach-v3", None, directory=PROTOCOL.parent)
@@ -102,7 +102,7 @@ def run_sb3_side(seed: int, overrides: Sequence[str] = ()) -> SideRun:
     from seal.bench.sb3 import _require_sb3
     from seal.evaluation import evaluate, reaches
     from seal.protocols import load_protocol
-    from seal.protocols.phase_model import (
+    from seal.run.phase_model import (
         PhaseModel,
         build_adapters,
         build_eval_collector,
@@ -172,8 +172,8 @@ def run_reach_sb3_bench(
     and each side's k of n within the budget. Each record is written as it finishes, with the
     overrides it ran under; `reuse` takes only a record of the same overrides."""
     from seal.protocols import load_protocol
-    from seal.protocols.rundir import seed_dir
-    from seal.protocols.runner import new_group_dir
+    from seal.run.rundir import seed_dir
+    from seal.run.runner import new_group_dir
 
     for side in only or ():
         if side not in SIDES:

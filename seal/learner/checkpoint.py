@@ -11,7 +11,7 @@ Checkpoints are files researchers share, so they are data: every reader goes thr
 and none in a run directory's checkpoints/ that leads out of that run directory), uses
 `torch.load(weights_only=True)` (no code runs while loading) and refuses, with one message, a
 file of another format version or not made by seal. What the fields must hold is the caller's
-to check (`seal.protocols.checkpoint_fields` for `seal run`'s).
+to check (`seal.run.checkpoint_fields` for `seal run`'s).
 
 Fields: `seal_checkpoint` (the format version), `agent` (`Agent.state_dict()`), `replay`
 (`MultiTaskReplay.state_dict()` or None) and any fields of the caller (the runner adds its

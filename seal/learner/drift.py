@@ -14,7 +14,7 @@ Euclidean, in float64. The pieces (`seal.pieces.PIECES`) of env e:
 - temperature: e's per-task temperatures, compared as alpha = exp(log alpha), not log alpha: a
   fresh log alpha is log(init_alpha) = 0, where the ratio would be undefined.
 
-`[logging] drift` (`seal.protocols.loggers.DriftLogger`) writes it at every evaluation; W0 stays
+`[logging] drift` (`seal.run.loggers.DriftLogger`) writes it at every evaluation; W0 stays
 on the agent's device and goes into every epoch checkpoint, so a resumed run measures from the
 same start (the mapped start is not made again on resume). A piece whose W0 has norm 0 gets NaN.
 """

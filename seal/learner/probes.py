@@ -29,7 +29,7 @@ average over its own state distribution, which differs between the envs, so a di
 means mixes what the envs visit with how the translators map it.
 
 `cka_from_checkpoints` rebuilds agents from `seal run` checkpoints (the agent state records its
-own specs and config) for a bench to measure the runs post hoc; `seal.protocols.loggers`' alignment
+own specs and config) for a bench to measure the runs post hoc; `seal.run.loggers`' alignment
 logger calls `translator_cka` at every evaluation of a joint testbed run.
 """
 

@@ -1,4 +1,6 @@
-"""Layer 4: protocols. TOML schema, loader, runners and the run directory they write.
+"""Layer 4: protocols: what a protocol says. Its TOML schema (`config`), loader and `explain`,
+its scheduler table (`scheduling`) and what its evaluation options cost (`evaluation_cost`).
+How a run happens (runner, epoch loop, run directory) is `seal.run`'s.
 
 Python API (used by `seal run` and by the Ray sweep):
 
@@ -24,6 +26,7 @@ __all__ = [
 
 
 def __getattr__(name: str):  # noqa: ANN202 - lazy: the runner imports torch and the learner
+    # Deprecated here: import these from seal.run.runner (kept for users' `seal.protocols.run_seed`).
     if name in (
         "RunResult",
         "run_seed",
@@ -31,7 +34,7 @@ def __getattr__(name: str):  # noqa: ANN202 - lazy: the runner imports torch and
         "resume_run",
         "load_policy",
     ):
-        from seal.protocols import runner
+        from seal.run import runner
 
         return getattr(runner, name)
     raise AttributeError(name)

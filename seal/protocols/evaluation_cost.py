@@ -2,23 +2,21 @@
 settled (`evaluation.decide_early`, every `full_every`-th in full), and episodes cut at their
 first success (`evaluation.end_on_success`).
 
-The phase loop (`seal.protocols.phase`) asks `decides_early` once per phase and
-`runs_all_episodes` at each evaluation; `decision_rows` are the train.csv rows that say how many
-episodes each task ran; `explain_lines` is what `seal protocol explain` says of the options. The
+The phase loop (`seal.run.evaluation`) asks `decides_early` once per phase and
+`runs_all_episodes` at each evaluation; the train.csv rows that say how many episodes each task
+ran (keys `EPISODES_KEY`, `DECIDED_KEY`) are `seal.run.eval_rows.decision_rows`; `explain_lines` is what `seal protocol explain` says of the options. The
 decision rule itself is `seal.evaluation.EarlyDecision`, beside `reaches`.
 """
 
 from __future__ import annotations
 
 import sys
-from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 from seal.evaluation import EarlyDecision
 
 if TYPE_CHECKING:
     from seal.protocols.config import ProtocolConfig
-    from seal.protocols.rundir import MetricsRow, TrainRow
 
 EPISODES_KEY = "eval_episodes"
 """train.csv key prefix: `eval_episodes/<task>`, the episodes counted for a task (its success is over them) at an evaluation that may decide early."""
@@ -58,31 +56,6 @@ def runs_all_episodes(count: int, full_every: int, final: bool) -> bool:
     """Whether a phase's `count`-th evaluation (from 1) runs in full: every `full_every`-th, and
     the phase's last epoch's (`final`), so the run's final numbers are full ones."""
     return final or count % full_every == 0
-
-
-def decision_rows(
-    rows: Sequence[MetricsRow], results: Mapping[str, Mapping[str, Mapping[str, float]]]
-) -> list[TrainRow]:
-    """train.csv rows of an evaluation that could decide early: per task `eval_episodes/<task>`
-    and `eval_decided_early/<task>` (none for an evaluation that ran in full by design)."""
-    out: list[TrainRow] = []
-    for row in rows:
-        r = results[row["env"]][row["task"]]
-        if "decided_early" not in r:
-            continue
-        for key, value in ((EPISODES_KEY, r["episodes"]), (DECIDED_KEY, r["decided_early"])):
-            out.append(
-                {
-                    "seed": row["seed"],
-                    "phase": row["phase"],
-                    "epoch": row["epoch"],
-                    "grad_steps": row["grad_steps"],
-                    "env": row["env"],
-                    "key": f"{key}/{row['task']}",
-                    "value": float(value),
-                }
-            )
-    return out
 
 
 def explain_lines(config: ProtocolConfig) -> list[str]:

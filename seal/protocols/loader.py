@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 from seal import typed_config
 from seal.errors import ConfigError, SealError
 from seal.files import read_data_file
-from seal.protocols import scheduling, sweep_tables
+from seal.protocols import scheduling
 from seal.protocols.config import (
     ALL_TABLES,
     SIMPLE_TABLES,
@@ -32,6 +32,7 @@ from seal.protocols.config import (
     ProtocolTable,
     TransferConfig,
 )
+from seal.sweep import config_tables as sweep_tables
 from seal.typed_config import shown_key
 
 if TYPE_CHECKING:

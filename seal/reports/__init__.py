@@ -39,7 +39,6 @@ from seal.metrics import (
     env_totals,
     first_reach,
 )
-from seal.protocols.rundir import METRICS_COLUMNS, TRAIN_COLUMNS  # defined once, by the writer
 from seal.reports.by_task import write_by_task
 from seal.reports.changes import _with_uncertainty, change_rows, few_seeds, pairing
 from seal.reports.groups import (
@@ -76,6 +75,7 @@ from seal.reports.tables import (
     changes_display,
     write_document,
 )
+from seal.run.rundir import METRICS_COLUMNS, TRAIN_COLUMNS  # defined once, by the writer
 from seal.stats import MIN_SEEDS_RESOLVED
 
 

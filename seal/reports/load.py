@@ -25,7 +25,7 @@ from seal.files import check_inside, check_regular_file
 from seal.metrics import REQUIRED_METRICS_COLUMNS
 from seal.protocols.evaluation_cost import DECIDED_KEY
 from seal.protocols.loader import read_toml
-from seal.protocols.rundir import (  # defined once, by the writer
+from seal.run.rundir import (  # defined once, by the writer
     CONFIG_LIMIT,
     TRAIN_COLUMNS,
     read_provenance,
@@ -48,7 +48,7 @@ class RunData:
     path: Path
     """The run directory (`.../<protocol>/<group-id>/seed-<n>`)."""
     metrics: pd.DataFrame
-    """metrics.csv: one row per evaluation and task (columns `seal.protocols.rundir.METRICS_COLUMNS`)."""
+    """metrics.csv: one row per evaluation and task (columns `seal.run.rundir.METRICS_COLUMNS`)."""
     train: pd.DataFrame
     """train.csv: seed, phase, epoch, grad_steps, env, key, value (empty if the file is absent)."""
     config: dict[str, Any]

@@ -1,7 +1,7 @@
 """Scale-out on Ray: every (protocol, seed) as its own Ray task, and random search with Ray Tune.
 
 `seal sweep FILE... [--seeds 0-4]` sends each (protocol, seed) pair to Ray as one task that calls
-`seal.protocols.run_seed`, so every trial writes exactly the run directory `seal run` writes, all
+`seal.run.runner.run_seed`, so every trial writes exactly the run directory `seal run` writes, all
 seeds of a protocol under one group. `seal sweep FILE --search` gives Ray Tune the protocol's
 `[search]` table as its param_space: Tune draws the configs (a searcher seeded by [search].seed,
 so the same table always tries the same configs) and runs them (optionally stopping weak ones
@@ -29,5 +29,5 @@ Modules: `grid` (the sweep of (protocol, seed) pairs), `search` (the Tune search
 (its param space and samples), `trials` (one trial: its record, running it, reading its run
 directory), `manifest` (the sweep directory: sweep.json, saved configs, `SweepResult`), `tables`
 (ranking and the trials tables) and `ray_session` (the Ray connection and [resources]). The
-[sweep] and [search] config tables are `seal.protocols.sweep_tables`.
+[sweep] and [search] config tables are `seal.sweep.config_tables`.
 """

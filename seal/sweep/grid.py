@@ -6,7 +6,7 @@ trials table and the aggregated `seal report` tables of the finished runs.
 
 A SIGTERM or SIGINT to the driver cancels the trials gently (`ray.cancel(ref, force=False)`,
 which runs the trial's SIGINT handler), so each saves its last finished epoch as `seal run`
-does (`seal.protocols.preemption`); the driver waits up to the grace period, marks them
+does (`seal.run.preemption`); the driver waits up to the grace period, marks them
 preempted in sweep.json and raises `Preempted` with the `seal sweep --resume` command.
 """
 
@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING, Any
 from seal.errors import SealError
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_to_dict, dumps_toml, load_protocol
-from seal.protocols.preemption import Preempted, SignalStop
-from seal.protocols.rundir import new_group_id, seed_dir
+from seal.run.preemption import Preempted, SignalStop
+from seal.run.rundir import new_group_id, seed_dir
 from seal.sweep.manifest import (
     SweepResult,
     _command,
@@ -79,7 +79,7 @@ def _new_sweep(
     command: Sequence[str],
 ) -> tuple[Path, dict[str, Any], list[TrialRecord], dict[str, ProtocolConfig]]:
     """(sweep directory, manifest, trials, configs by name) of a new sweep, its groups created."""
-    from seal.protocols.runner import new_group_dir
+    from seal.run.runner import new_group_dir
 
     loaded = _load_configs(paths, overrides, scale)
     groups = {c.name: new_group_dir(c, out).resolve() for c in loaded}

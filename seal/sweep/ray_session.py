@@ -12,9 +12,9 @@ from types import ModuleType
 from typing import Any, ClassVar
 
 from seal.errors import SealError
-from seal.protocols import sweep_tables
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.sweep_tables import Resources
+from seal.sweep import config_tables as sweep_tables
+from seal.sweep.config_tables import Resources
 
 
 def parse_resources(config: ProtocolConfig) -> Resources:

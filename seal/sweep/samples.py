@@ -14,10 +14,10 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 from seal.errors import ConfigError, SealError
-from seal.protocols import sweep_tables
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import apply_overrides, config_from_dict, config_to_dict, toml_value
-from seal.protocols.sweep_tables import SEARCH_OPTIONS, Distribution, SearchSpec
+from seal.sweep import config_tables as sweep_tables
+from seal.sweep.config_tables import SEARCH_OPTIONS, Distribution, SearchSpec
 
 if TYPE_CHECKING:  # Ray is imported only where it is used (see the package docstring)
     from ray.tune.search.basic_variant import BasicVariantGenerator

@@ -18,9 +18,9 @@ from typing import TYPE_CHECKING, Any
 from seal.errors import SealError
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_to_dict, dumps_toml, load_protocol
-from seal.protocols.phase import LoopCallback, PhaseLoop
-from seal.protocols.rundir import atomic_write_text, new_group_id, seed_dir
-from seal.protocols.sweep_tables import Resources, SearchSpec
+from seal.run.loop import LoopCallback, PhaseLoop
+from seal.run.rundir import atomic_write_text, new_group_id, seed_dir
+from seal.sweep.config_tables import Resources, SearchSpec
 from seal.sweep.manifest import (
     SweepResult,
     _command,
@@ -93,7 +93,7 @@ def search_trainable(tune_config: Mapping[str, Any], plan: SearchPlan) -> None:
     """
     from ray import tune
 
-    from seal.protocols import run_seed
+    from seal.run.runner import run_seed
 
     index = trial_index(tune.get_context().get_trial_id())
     sample, run_dir = plain_sample(tune_config), plan.run_dir(index)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from seal.errors import SealError
 from seal.protocols.loader import toml_value
-from seal.protocols.rundir import atomic_write_text
+from seal.run.rundir import atomic_write_text
 from seal.sweep.trials import TrialRecord
 
 

@@ -1,6 +1,6 @@
 """One trial of a sweep or search: its record, running it in this process, and reading its run directory.
 
-A trial is one run directory (`seal.protocols.run_seed`'s). `execute_trial` is what a sweep's Ray
+A trial is one run directory (`seal.run.runner.run_seed`'s). `execute_trial` is what a sweep's Ray
 task executes: it runs the trial (keeping a finished run, continuing a started one), never raises
 for a failing run (the error goes into the `TrialRecord` and error.txt), and re-reads the run's
 last evaluation from its metrics.csv (`read_evaluations`).
@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.rundir import atomic_write_text
+from seal.run.rundir import atomic_write_text
 
 Status = Literal["finished", "failed", "stopped", "pending", "preempted"]
 
@@ -148,8 +148,8 @@ def execute_trial(
     machine start no more intra-op threads than the cores Ray reserved for them.
     Never raises for a failing run: the error is stored in the record and in error.txt.
     """
-    from seal.protocols import run_seed
-    from seal.protocols.preemption import Preempted
+    from seal.run.preemption import Preempted
+    from seal.run.runner import run_seed
 
     run_dir = Path(record.run_dir)
     started = time.monotonic()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 
-import seal.protocols.phase as phase
+import seal.run.loop as phase
 
 
 def hold_in_the_last_epoch() -> None:

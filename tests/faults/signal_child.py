@@ -30,7 +30,8 @@ from pathlib import Path
 from holds import hold_in_the_last_epoch  # this folder, on sys.path for a script
 
 import seal.learner.checkpoint as checkpoint
-import seal.protocols.phase as phase
+import seal.run.evaluation as evaluation
+import seal.run.loop as phase
 from seal.cli.main import main
 
 
@@ -80,7 +81,7 @@ def _at_epoch_end(marker: Path, nth: int, seconds: float) -> None:
 
 
 def _paced(seconds: float) -> None:
-    real_evaluate, real_train = phase.evaluate, phase.PhaseLoop._train
+    real_evaluate, real_train = evaluation.evaluate, phase.PhaseLoop._train
 
     def evaluate(*args: object, **kwargs: object) -> object:
         time.sleep(seconds)
@@ -90,12 +91,12 @@ def _paced(seconds: float) -> None:
         time.sleep(seconds)
         real_train(loop, *args)  # type: ignore[arg-type]
 
-    phase.evaluate = evaluate  # type: ignore[assignment]
+    evaluation.evaluate = evaluate  # type: ignore[assignment]
     phase.PhaseLoop._train = train  # type: ignore[method-assign]
 
 
 def _in_evaluation(marker: Path, nth: int, seconds: float) -> None:
-    real_evaluate, seen = phase.evaluate, 0
+    real_evaluate, seen = evaluation.evaluate, 0
 
     def evaluate(*args: object, **kwargs: object) -> object:
         nonlocal seen
@@ -104,7 +105,7 @@ def _in_evaluation(marker: Path, nth: int, seconds: float) -> None:
             _hold(marker, seconds, f"evaluation {nth}")
         return real_evaluate(*args, **kwargs)  # type: ignore[arg-type]
 
-    phase.evaluate = evaluate  # type: ignore[assignment]
+    evaluation.evaluate = evaluate  # type: ignore[assignment]
 
 
 def _in_checkpoint_write(marker: Path, nth: int, seconds: float, after_signal: bool) -> None:

@@ -33,7 +33,8 @@ import torch
 import seal
 from seal.cli.main import main
 from seal.errors import SealError
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
+from seal.run.runner import run_seed
 from tests.faults.point_protocol import point_protocol
 
 EPOCHS = 4

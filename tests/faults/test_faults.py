@@ -24,8 +24,9 @@ import torch
 
 from seal.cli.main import main
 from seal.learner.checkpoint import read_checkpoint
-from seal.protocols import load_protocol, run_seed
-from seal.protocols.rundir import DirLock
+from seal.protocols import load_protocol
+from seal.run.rundir import DirLock
+from seal.run.runner import run_seed
 from tests.faults.point_protocol import point_protocol
 
 # The children here are whole seal runs; on a loaded machine one takes minutes. Every wait is for an
@@ -179,7 +180,7 @@ def test_disk_full_during_a_csv_append_is_one_line(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    from seal.protocols import rundir
+    from seal.run import rundir
 
     real_fsync, calls = os.fsync, {"metrics": 0}
 
@@ -210,7 +211,7 @@ def test_disk_full_while_creating_the_run_directory_is_one_line_and_leaves_nothi
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    from seal.protocols import rundir
+    from seal.run import rundir
 
     def full_disk(text_path: Path, text: str) -> None:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(text_path))

@@ -1,7 +1,7 @@
 """SIGTERM and SIGINT on `point`: a run stops at a safe point with the checkpoint of its last
 finished epoch, exits 143 or 130, and `--resume` gives the rows of an uninterrupted run.
 
-Every checkpoint re-seeds the training env instances from its epoch (`seal.protocols.runner`),
+Every checkpoint re-seeds the training env instances from its epoch (`seal.run.runner`),
 so a run stopped with a checkpoint at epoch e is compared with an uninterrupted run of the same
 seed that also checkpointed at epoch e (`references`): metrics.csv (wall-clock column aside)
 and train.csv equal, one row per (epoch, env, task).
@@ -24,9 +24,10 @@ import pytest
 
 from seal.cli.main import main
 from seal.learner.checkpoint import read_checkpoint
-from seal.protocols import load_protocol, run_seed
-from seal.protocols.phase import PhaseLoop
-from seal.protocols.rundir import RunDir
+from seal.protocols import load_protocol
+from seal.run.loop import PhaseLoop
+from seal.run.rundir import RunDir
+from seal.run.runner import run_seed
 from tests.faults.point_protocol import point_protocol
 
 # The children here are whole seal runs; on a loaded machine one takes minutes. Every wait is for an

@@ -16,8 +16,9 @@ import torch
 from seal.cli.main import main
 from seal.learner import checkpoint
 from seal.learner.checkpoint import atomic_save, read_checkpoint
-from seal.protocols import load_protocol, run_seed
-from seal.protocols.rundir import DirLock
+from seal.protocols import load_protocol
+from seal.run.rundir import DirLock
+from seal.run.runner import run_seed
 from tests.faults.point_protocol import point_protocol
 
 PROTOCOL = point_protocol("disk", 6, keep_last=3, train_interval=None)

@@ -100,7 +100,7 @@ def test_bronet_needs_one_width_and_says_which_key() -> None:
 
 def test_memory_estimate_and_flop_count_learn_the_block() -> None:
     from seal.bench.flops import agent_update_shapes
-    from seal.protocols.resources import _parameter_counts, _widths
+    from seal.run.resources import _parameter_counts, _widths
 
     config = AgentConfig(hidden=(64, 64), critic_block="bronet", device="cpu")
     _, critic, _ = _parameter_counts(config, [SPEC])

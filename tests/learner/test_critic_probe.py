@@ -59,7 +59,7 @@ def test_ratio_is_q_over_earned_and_nan_without_positive_earnings() -> None:
 
 
 def test_critic_rows_name_each_task_and_leave_out_a_ratio_without_meaning() -> None:
-    from seal.protocols.phase import critic_rows
+    from seal.run.eval_rows import critic_rows
 
     base = {"seed": 0, "phase": "train", "epoch": 10, "grad_steps": 300, "env": "fk"}
     rows = [{**base, "task": "microwave"}, {**base, "task": "kettle"}]

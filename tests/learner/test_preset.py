@@ -173,10 +173,9 @@ def test_a_preset_run_saves_its_keys_and_resumes_to_the_same_rows(tmp_path) -> N
 
     import pandas as pd
 
-    from seal.protocols import run_seed
     from seal.protocols.loader import config_from_dict
-    from seal.protocols.phase import LoopCallback, PhaseLoop
-    from seal.protocols.runner import load_policy
+    from seal.run.loop import LoopCallback, PhaseLoop
+    from seal.run.runner import load_policy, run_seed
     from tests.protocols.test_runner import JOINT_ENVS, protocol
 
     small = [f"agent.{k}={list(v) if isinstance(v, tuple) else v}" for k, v in SMALL.items()]

@@ -17,7 +17,8 @@ from seal.learner import AgentConfig, EnvSpec
 from seal.learner.collection import Collector
 from seal.learner.replay import MultiTaskReplay
 from seal.learner.sac import Agent
-from seal.protocols import load_protocol, resume_run, run_seed
+from seal.protocols import load_protocol
+from seal.run.runner import resume_run, run_seed
 from tests.crash import CrashAfter
 
 SMALL: dict[str, Any] = dict(

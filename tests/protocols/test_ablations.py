@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from seal.learner.checkpoint import read_checkpoint
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
+from seal.run.runner import run_seed
 
 PROTOCOLS = sorted((Path(__file__).resolve().parents[2] / "protocols").glob("*.toml"))
 SWITCHES = ("one_hot", "multi_head_policy", "multi_head_critic")

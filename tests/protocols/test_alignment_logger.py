@@ -8,9 +8,10 @@ import pandas as pd
 import pytest
 
 from seal.learner.probes import cka_from_checkpoints
-from seal.protocols import load_protocol, run_seed
-from seal.protocols import loggers as loggers_module
-from seal.protocols.loggers import ALIGNMENT_SEED, ALIGNMENT_STATES, alignment_envs
+from seal.protocols import load_protocol
+from seal.run import loggers as loggers_module
+from seal.run.loggers import ALIGNMENT_SEED, ALIGNMENT_STATES, alignment_envs
+from seal.run.runner import run_seed
 
 TESTBED = Path(__file__).resolve().parents[2] / "protocols" / "testbed"
 TINY = [

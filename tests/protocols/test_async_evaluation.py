@@ -9,8 +9,9 @@ import pytest
 import torch
 
 from seal.learner.checkpoint import read_checkpoint
-from seal.protocols import load_protocol, resume_run, run_seed
-from seal.protocols.workers import EvaluationWorker
+from seal.protocols import load_protocol
+from seal.run.runner import resume_run, run_seed
+from seal.run.workers import EvaluationWorker
 from tests.crash import CrashAfter
 
 # Evaluations every 2 epochs and checkpoints every 3: an evaluation is often in flight at a

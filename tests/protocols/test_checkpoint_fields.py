@@ -16,13 +16,14 @@ import pytest
 
 from seal.errors import SealError
 from seal.learner.checkpoint import read_checkpoint
-from seal.protocols import load_protocol, run_seed
-from seal.protocols.checkpoint_fields import (
+from seal.protocols import load_protocol
+from seal.run.checkpoint_fields import (
     PHASE_NAMES,
     check_epoch_checkpoint,
     check_run_checkpoint,
 )
-from seal.protocols.phase_model import plan_phases
+from seal.run.phase_model import plan_phases
+from seal.run.runner import run_seed
 from tests.protocols.test_runner import BASELINE_ENVS, protocol
 
 

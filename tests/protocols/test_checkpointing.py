@@ -6,11 +6,13 @@ import dataclasses
 from pathlib import Path
 
 from seal.learner.checkpoint import read_checkpoint
-from seal.protocols import load_protocol, run_seed
-from seal.protocols.checkpoint_fields import PhaseStateFields
+from seal.protocols import load_protocol
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.phase import LoopCallback, PhaseLoop, PhaseState
-from seal.protocols.workers import PendingEvaluation, PendingFields
+from seal.run.checkpoint_fields import PhaseStateFields
+from seal.run.loop import LoopCallback, PhaseLoop
+from seal.run.runner import run_seed
+from seal.run.state import PhaseState
+from seal.run.workers import PendingEvaluation, PendingFields
 from tests.protocols.test_runner import BASELINE_ENVS, protocol
 
 

@@ -14,9 +14,10 @@ import torch
 from seal.evaluation import reaches
 from seal.learner.checkpoint import read_checkpoint
 from seal.metrics import first_reach
-from seal.protocols import load_protocol, resume_run, run_seed
+from seal.protocols import load_protocol
 from seal.protocols.evaluation_cost import early_decisions_off, explain_lines
 from seal.reports.load import decided_early
+from seal.run.runner import resume_run, run_seed
 from tests.crash import CrashAfter
 
 THRESHOLD = 0.7

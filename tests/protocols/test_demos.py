@@ -12,7 +12,8 @@ import torch
 from seal.cli.main import main
 from seal.envs import make_adapter
 from seal.learner.checkpoint import read_checkpoint
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
+from seal.run.runner import run_seed
 
 # reach-v3 with 20-step episodes: 2 demonstration episodes, then 1 epoch of random warm-up.
 REACH = """
@@ -129,7 +130,7 @@ def test_stop_when_reached_ends_the_phase_at_the_first_evaluation_where_all_task
     assert (run / "checkpoints" / f"ckpt-{last:07d}.pt").is_file()
     if stop:
         # Resuming a stopped run trains no further: the stop is derived from the saved state.
-        from seal.protocols.runner import resume_run
+        from seal.run.runner import resume_run
 
         resume_run(run)
         assert int(pd.read_csv(run / "metrics.csv")["epoch"].max()) == 2

@@ -12,8 +12,9 @@ from seal.learner.checkpoint import read_checkpoint
 from seal.learner.drift import relative_drift
 from seal.learner.probes import agent_from_state
 from seal.pieces import PIECES
-from seal.protocols import load_protocol, run_seed
-from seal.protocols.phase import LoopCallback, PhaseLoop
+from seal.protocols import load_protocol
+from seal.run.loop import LoopCallback, PhaseLoop
+from seal.run.runner import run_seed
 
 TESTBED = Path(__file__).resolve().parents[2] / "protocols" / "testbed"
 # point_view alone (alone.toml has logging.drift on): 4 tasks x 5 steps = 20 env steps an

@@ -10,7 +10,7 @@ import pytest
 
 from seal.errors import ConfigError
 from seal.protocols import config_to_dict, dumps_toml, load_protocol
-from seal.protocols.phase_model import build_adapters
+from seal.run.phase_model import build_adapters
 
 KITCHEN = """
 [protocol]

@@ -12,7 +12,8 @@ import pandas as pd
 import pytest
 
 from seal.errors import SealError
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
+from seal.run.runner import run_seed
 from tests.protocols.test_runner import BASELINE_ENVS, protocol
 
 

@@ -20,7 +20,8 @@ from seal.experiments.arms import TESTBED
 from seal.experiments.records import last_checkpoint
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.probes import agent_from_state
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
+from seal.run.runner import run_seed
 from tests.testbed_tiny import SMALL as TINY
 
 

@@ -12,7 +12,8 @@ import pytest
 import torch
 
 from seal.learner.checkpoint import read_checkpoint
-from seal.protocols import load_protocol, resume_run, run_seed
+from seal.protocols import load_protocol
+from seal.run.runner import resume_run, run_seed
 from tests.crash import CrashAfter
 
 PROTOCOL = """

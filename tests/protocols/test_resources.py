@@ -10,9 +10,9 @@ import pytest
 from seal.cli.main import main
 from seal.learner.sac import Agent
 from seal.protocols import load_protocol
-from seal.protocols import resources as resources_module
-from seal.protocols.phase_model import PhaseModel, build_adapters, plan_phases
-from seal.protocols.resources import estimate_resources
+from seal.run import resources as resources_module
+from seal.run.phase_model import PhaseModel, build_adapters, plan_phases
+from seal.run.resources import estimate_resources
 
 POINT = Path(__file__).parents[2] / "protocols" / "learn" / "point.toml"
 TWO_ENVS = """

@@ -14,7 +14,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
+from seal.run.runner import run_seed
 
 PROTOCOL = """
 [protocol]

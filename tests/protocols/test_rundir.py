@@ -9,7 +9,7 @@ import pytest
 
 from seal.errors import SealError
 from seal.protocols.loader import dumps_toml
-from seal.protocols.rundir import CsvLog, RunDir, new_group_id, parse_seed_dir
+from seal.run.rundir import CsvLog, RunDir, new_group_id, parse_seed_dir
 
 
 def test_csv_rows_count_and_truncate_drop_a_torn_last_line(tmp_path: Path) -> None:
@@ -59,7 +59,7 @@ def test_dumps_toml_round_trips_protocol_values() -> None:
 
 
 def test_row_types_name_the_csv_columns() -> None:
-    from seal.protocols.rundir import METRICS_COLUMNS, TRAIN_COLUMNS, MetricsRow, TrainRow
+    from seal.run.rundir import METRICS_COLUMNS, TRAIN_COLUMNS, MetricsRow, TrainRow
 
     assert tuple(MetricsRow.__annotations__) == METRICS_COLUMNS
     assert tuple(TrainRow.__annotations__) == TRAIN_COLUMNS

@@ -9,8 +9,9 @@ import pandas as pd
 import pytest
 
 from seal.cli.main import main
-from seal.protocols import load_protocol, run_seed
-from seal.protocols.rundir import METRICS_COLUMNS, TRAIN_COLUMNS
+from seal.protocols import load_protocol
+from seal.run.rundir import METRICS_COLUMNS, TRAIN_COLUMNS
+from seal.run.runner import run_seed
 
 HERE = Path(__file__).resolve().parent
 

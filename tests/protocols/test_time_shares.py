@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from seal.protocols import load_protocol, run_seed
-from seal.protocols.phase import LOOP_PARTS
+from seal.protocols import load_protocol
+from seal.run.runner import run_seed
+from seal.run.state import LOOP_PARTS
 
 PROTOCOL = """
 [protocol]

@@ -9,7 +9,8 @@ import torch
 
 from seal.errors import ConfigError
 from seal.learner.checkpoint import read_checkpoint
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
+from seal.run.runner import run_seed
 
 BODY = """
 [protocol]

@@ -8,8 +8,9 @@ import matplotlib.pyplot as plt
 import pandas as pd
 from png_colours import colours_drawn
 
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
 from seal.reports import report
+from seal.run.runner import run_seed
 from seal.schedulers.plots import STATUS_COLOURS
 
 BODY = """

@@ -143,7 +143,8 @@ def test_the_runner_applies_every_reset_the_scheduler_asks_for(
     # plans of epochs 2, 4 and 6 (after 40, 80, 120 steps) within 8 epochs. The spy calls the
     # real reset, and records the critic's first weight just before and after it.
     from seal.learner.checkpoint import read_checkpoint
-    from seal.protocols import load_protocol, run_seed
+    from seal.protocols import load_protocol
+    from seal.run.runner import run_seed
 
     calls: list[tuple[torch.Tensor, torch.Tensor]] = []
     real = Agent.reset_parameters

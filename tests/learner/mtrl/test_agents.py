@@ -14,7 +14,8 @@ from seal.learner import AgentConfig, EnvSpec
 from seal.learner.checkpoint import read_checkpoint, save_checkpoint
 from seal.learner.replay import MultiTaskReplay
 from seal.learner.sac import Agent
-from seal.protocols import load_protocol, run_seed
+from seal.protocols import load_protocol
+from seal.run.runner import run_seed
 
 SPEC = EnvSpec("mw", 5, 2, 3)
 TINY = {"soft_width": 8, "soft_embedding": 8, "care_embedding": 8, "care_encoder_hidden": (8,)}

@@ -1,7 +1,7 @@
 """What a rollback restores: the start of the epoch under way, which the loop keeps in memory.
 
-While a run handles SIGTERM and SIGINT (`checkpoint.on_signal`, `seal.protocols.preemption`),
-the phase loop (`seal.protocols.phase.PhaseLoop`) takes an `EpochMark` at every epoch's start.
+While a run handles SIGTERM and SIGINT (`checkpoint.on_signal`, `seal.run.preemption`),
+the phase loop (`seal.run.loop.PhaseLoop`) takes an `EpochMark` at every epoch's start.
 When a signal rolls the epoch back, the loop restores its agent, scheduler, counters, RNG states
 and CSV rows from the mark and saves the replay as a `RolledBackReplay`: the checkpoint it
 writes is the one a checkpoint at the epoch's start would have been. The replay itself is not
@@ -20,8 +20,8 @@ import torch
 if TYPE_CHECKING:
     from seal.learner.replay import MultiTaskReplay, ReplayState
     from seal.learner.sac import AgentState
-    from seal.protocols.checkpoint_fields import PhaseStateFields
-    from seal.protocols.workers import PendingEvaluation
+    from seal.run.checkpoint_fields import PhaseStateFields
+    from seal.run.workers import PendingEvaluation
 
 
 @dataclass

@@ -11,7 +11,7 @@
                            its results come in (so among the training rows where timing puts them);
                            with [logging] drift, each env's drift/<piece> (seal.learner.drift)
         scheduler.csv      the scheduler's timeline, when it has one
-        tb/<phase>/        TensorBoard events, one run per phase ([logging] tensorboard; seal.protocols.loggers)
+        tb/<phase>/        TensorBoard events, one run per phase ([logging] tensorboard; seal.run.loggers)
         wandb/             Weights & Biases files and run_id ([logging] wandb)
         checkpoints/       ckpt-<epoch>.pt (last K, phase-prefixed for finetune) and best.pt
         .seal.lock         the writer's lock file (`DirLock`): pid and command of the last writer

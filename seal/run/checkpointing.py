@@ -10,13 +10,13 @@ The `PhaseLoop` decides when a checkpoint is due and the `Checkpointer` writes i
   loggers flush, so a resume purges exactly what comes after the checkpoint), then
   `write_checkpoint`: ckpt-<epoch>.pt (ckpt-<phase>-<epoch>.pt) with the agent, the replay and
   the fields below, keeping the last `checkpoint.keep_last`; then the loop re-seeds its env
-  instances (see `seal.protocols.runner`). All of it counts as the loop's "checkpoint" time;
+  instances (see `seal.run.runner`). All of it counts as the loop's "checkpoint" time;
 - on SIGTERM or SIGINT, the loop calls for the checkpoint of the last finished epoch
-  (`seal.protocols.preemption`); after a rollback it holds the epoch start's agent, counters and
+  (`seal.run.preemption`); after a rollback it holds the epoch start's agent, counters and
   RNG states, and the replay as it was then (`PhaseLoop.checkpoint_replay`).
 
 The file format is `seal.learner.checkpoint`'s: an atomic, data-only `torch.save`; the fields
-are the TypedDicts of `seal.protocols.checkpoint_fields`.
+are the TypedDicts of `seal.run.checkpoint_fields`.
 """
 
 from __future__ import annotations
@@ -27,12 +27,13 @@ from typing import TYPE_CHECKING
 import torch
 
 from seal.learner.checkpoint import save_checkpoint
-from seal.protocols.checkpoint_fields import BestFields, CheckpointFields, EpochFields
 from seal.protocols.loader import config_to_dict, dumps_toml
-from seal.protocols.phase import LoopCallback, PhaseLoop, PhaseOwner
+from seal.run.checkpoint_fields import BestFields, CheckpointFields, EpochFields
+from seal.run.loop import LoopCallback, PhaseLoop
+from seal.run.parts import PhaseOwner
 
 if TYPE_CHECKING:
-    from seal.protocols.rundir import RunDir
+    from seal.run.rundir import RunDir
 
 
 class Checkpointer(LoopCallback):

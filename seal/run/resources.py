@@ -34,7 +34,7 @@ from seal.learner.networks import critic_layers
 from seal.learner.replay import available_memory_bytes, replay_bytes
 from seal.learner.sac import Agent
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.phase_model import Phase, PhaseModel, build_alignment, plan_phases
+from seal.run.phase_model import Phase, PhaseModel, build_alignment, plan_phases
 
 FLOAT = 4
 """Bytes of a float32: the dtype of every network, optimiser state, activation and replay field."""

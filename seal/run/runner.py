@@ -1,12 +1,12 @@
-"""Protocol runners: the three kinds, checkpoints and resume (the epoch loop: `seal.protocols.phase`).
+"""Protocol runners: the three kinds, checkpoints and resume (the epoch loop: `seal.run.loop`).
 
-One seed of a protocol is one `Run` writing one run directory (`seal.protocols.rundir`). A run
+One seed of a protocol is one `Run` writing one run directory (`seal.run.rundir`). A run
 has one or more phases: baseline and joint have the phase "train"; finetune has "pretrain" (on
 the source env) then "finetune" (on the target env, starting from the best pre-trained
 checkpoint with the policy's last layer re-initialised, SEAL Appendix D). A baseline or joint
 run with a [transfer] table starts its "train" phase the same way from any `seal run` checkpoint
 (issue 5: MT1 -> MT3, MT1 -> MT10), with the learning rates x transfer.lr_factor; with
-transfer.map, one env also starts from another env of the checkpoint (`seal.protocols.mapped_start`).
+transfer.map, one env also starts from another env of the checkpoint (`seal.run.mapped_start`).
 
 The epoch (garage MTSAC convention, issue 4's table)::
 
@@ -16,7 +16,7 @@ The epoch (garage MTSAC convention, issue 4's table)::
     log losses (every logging.train_interval), evaluate (every evaluation.interval),
     checkpoint (every checkpoint.interval)
 
-Exact resume: a checkpoint (written by the `Checkpointer` callback, `seal.protocols.checkpointing`)
+Exact resume: a checkpoint (written by the `Checkpointer` callback, `seal.run.checkpointing`)
 holds the agent, the replay, the scheduler, the counters and the RNG states, and the CSV row
 counts. Env instances continue their own RNG streams from episode to episode, which a checkpoint
 cannot capture, so the collector's env instances are rebuilt with seeds derived from (seed,
@@ -32,12 +32,12 @@ reason and in provenance.json's "resumes"; none intact is a one-line refusal tha
 
 On SIGTERM or SIGINT (`checkpoint.on_signal`) a run stops at a safe point with the checkpoint of
 its last finished epoch, records the stop in provenance.json's "preemptions" and raises
-`seal.protocols.preemption.Preempted`, whose line ends with the --resume command. A checkpoint
+`seal.run.preemption.Preempted`, whose line ends with the --resume command. A checkpoint
 written at a signal re-seeds the collectors from its epoch like any other, so the resumed run
 repeats what an uninterrupted run that also checkpointed at that epoch does.
 
-Before anything is created, a run checks its estimated memory (`seal.protocols.resources`) and
-takes its directory's lock (`seal.protocols.rundir.DirLock`), which it holds until it ends; a
+Before anything is created, a run checks its estimated memory (`seal.run.resources`) and
+takes its directory's lock (`seal.run.rundir.DirLock`), which it holds until it ends; a
 full disk (ENOSPC, EDQUOT) while it writes stops it with one line naming the file.
 """
 
@@ -65,14 +65,6 @@ from seal.learner.checkpoint import read_checkpoint
 from seal.learner.sac import Agent, AgentState
 from seal.learner.transfer import transfer_from
 from seal.protocols import scheduling
-from seal.protocols.checkpoint_fields import (
-    EpochCheckpoint,
-    RunCheckpoint,
-    check_epoch_checkpoint,
-    check_run_checkpoint,
-    saved_config_table,
-)
-from seal.protocols.checkpointing import Checkpointer
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import (
     config_from_dict,
@@ -81,10 +73,18 @@ from seal.protocols.loader import (
     read_toml,
     upgrade_saved,
 )
-from seal.protocols.loggers import ScalarLogger, open_loggers
-from seal.protocols.mapped_start import mapped_start
-from seal.protocols.phase import LOOP_PARTS, LoopCallback, PhaseLoop, PhaseState, ProgressBar
-from seal.protocols.phase_model import (
+from seal.run.checkpoint_fields import (
+    EpochCheckpoint,
+    RunCheckpoint,
+    check_epoch_checkpoint,
+    check_run_checkpoint,
+    saved_config_table,
+)
+from seal.run.checkpointing import Checkpointer
+from seal.run.loggers import ScalarLogger, open_loggers
+from seal.run.loop import LoopCallback, PhaseLoop, ProgressBar
+from seal.run.mapped_start import mapped_start
+from seal.run.phase_model import (
     Phase,
     PhaseModel,
     build_adapters,
@@ -92,9 +92,9 @@ from seal.protocols.phase_model import (
     plan_phases,
     run_agent_config,
 )
-from seal.protocols.preemption import Preempted, SignalStop
-from seal.protocols.resources import check_resources, choose_update_threads
-from seal.protocols.rundir import (
+from seal.run.preemption import Preempted, SignalStop
+from seal.run.resources import check_resources, choose_update_threads
+from seal.run.rundir import (
     CONFIG_LIMIT,
     DirLock,
     RunDir,
@@ -102,6 +102,7 @@ from seal.protocols.rundir import (
     parse_seed_dir,
     seed_dir,
 )
+from seal.run.state import LOOP_PARTS, PhaseState
 from seal.seeding import derive_seed
 
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
@@ -114,7 +115,7 @@ class PhaseTiming(TypedDict):
     """Where one phase's wall time went (`RunResult.timing`, `seal bench --protocol`)."""
 
     seconds: dict[str, float]
-    """Part -> wall seconds: `seal.protocols.phase.LOOP_PARTS`, demos, evaluate_worker_cpu."""
+    """Part -> wall seconds: `seal.run.state.LOOP_PARTS`, demos, evaluate_worker_cpu."""
     calls: dict[str, int]
     """Part -> how many times it ran (update: gradient steps; evaluate: evaluations)."""
     epochs: int
@@ -283,11 +284,11 @@ class Run:
             raise
         self.results: dict[str, PhaseState] = {}
         self.loggers: list[ScalarLogger] = []
-        """The run's TensorBoard and wandb loggers while it runs (`seal.protocols.loggers`)."""
+        """The run's TensorBoard and wandb loggers while it runs (`seal.run.loggers`)."""
         self.checkpointer = Checkpointer(self)
-        """Writes best.pt and the epoch checkpoints (`seal.protocols.checkpointing`)."""
+        """Writes best.pt and the epoch checkpoints (`seal.run.checkpointing`)."""
         self.stop = SignalStop(config.checkpoint.signal_budget_s)
-        """SIGTERM and SIGINT while `run()` runs, with checkpoint.on_signal (`seal.protocols.preemption`)."""
+        """SIGTERM and SIGINT while `run()` runs, with checkpoint.on_signal (`seal.run.preemption`)."""
 
     def _open_rundir(
         self, config: ProtocolConfig, path: Path, resume: bool, command: list[str] | None

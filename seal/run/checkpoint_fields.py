@@ -1,9 +1,9 @@
 """What a `seal run` checkpoint holds: the fields it adds to `seal.learner.checkpoint`'s own.
 
 An epoch checkpoint (ckpt-*.pt, `EpochCheckpoint`) is the point a resume continues from; best.pt
-(`BestCheckpoint`) is a policy. The `Checkpointer` (`seal.protocols.checkpointing`) writes them,
-the loop (`seal.protocols.phase`) restores from an epoch checkpoint, and the run
-(`seal.protocols.runner`) reads both; this module imports none of them.
+(`BestCheckpoint`) is a policy. The `Checkpointer` (`seal.run.checkpointing`) writes them,
+the loop (`seal.run.loop`) restores from an epoch checkpoint, and the run
+(`seal.run.runner`) reads both; this module imports none of them.
 
 A checkpoint is a file from elsewhere, so its fields are checked before anything uses them:
 `check_run_checkpoint` (`seal eval`, `[transfer]`) and `check_epoch_checkpoint` (`--resume`)
@@ -30,7 +30,7 @@ from seal.errors import SealError
 if TYPE_CHECKING:
     from seal.learner.replay import ReplayState
     from seal.learner.sac import AgentState
-    from seal.protocols.workers import PendingFields
+    from seal.run.workers import PendingFields
 
 
 class PhaseStateFields(TypedDict):
@@ -127,7 +127,7 @@ RunCheckpoint = EpochCheckpoint | BestCheckpoint
 
 
 PHASE_NAMES = ("train", "pretrain", "finetune")
-"""Every phase name a run has (`seal.protocols.phase_model.plan_phases`; a test holds them equal)."""
+"""Every phase name a run has (`seal.run.phase_model.plan_phases`; a test holds them equal)."""
 
 _CLOSED: tuple[type, ...] = (PhaseStateFields,)
 """TypedDicts whose readers take no other key: a phase's counters become `PhaseState(**fields)`."""
@@ -146,8 +146,8 @@ def _type_names() -> dict[str, object]:
     """The names the TypedDicts' annotations use under TYPE_CHECKING, for `get_type_hints`."""
     from seal.learner.replay import ReplayState
     from seal.learner.sac import AgentState
-    from seal.protocols.rundir import MetricsRow
-    from seal.protocols.workers import PendingFields
+    from seal.run.rundir import MetricsRow
+    from seal.run.workers import PendingFields
 
     return {
         "AgentState": AgentState,

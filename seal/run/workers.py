@@ -4,7 +4,7 @@ Both are spawned per phase (`PolicyWorker`): each builds its own adapters, agent
 instances, so nothing of the training process's torch or CUDA state is inherited, answers one
 request at a time in order, and dies with the process that started it.
 
-Evaluation off the critical path (`evaluation.mode = "async"`, `EvaluationWorker`). At each evaluation the loop (`seal.protocols.phase.PhaseLoop`) takes a snapshot of the agent (its
+Evaluation off the critical path (`evaluation.mode = "async"`, `EvaluationWorker`). At each evaluation the loop (`seal.run.loop.PhaseLoop`) takes a snapshot of the agent (its
 whole `state_dict`, copied to the CPU) and the metrics rows as they stand then (epoch, gradient
 steps, env steps, consumed updates, batch: `PendingEvaluation`), hands the snapshot to the
 `EvaluationWorker` and goes on training. The worker evaluates it as a synchronous evaluation
@@ -19,7 +19,7 @@ evaluations still pending (`PendingEvaluation.fields`) and its CSV row counts ex
 so a run killed during an evaluation re-runs it on resume and loses nothing.
 
 A SIGTERM or SIGINT sent to the whole process group (a terminal's Ctrl-C, Slurm) is ignored by
-the workers: the run decides (`seal.protocols.preemption`) and closes them, abandoning a request
+the workers: the run decides (`seal.run.preemption`) and closes them, abandoning a request
 in flight; they die with the run if it is killed.
 
 Collection beside the updates (`training.overlap`, `ActorWorker`): while the loop runs epoch k's
@@ -50,7 +50,7 @@ import torch
 from seal.errors import SealError, SealWarning
 from seal.learner.collection import exit_with_parent
 from seal.learner.sac import Agent, AgentState
-from seal.protocols.phase_model import (
+from seal.run.phase_model import (
     ACTING_THREADS,
     Phase,
     PhaseModel,
@@ -59,13 +59,13 @@ from seal.protocols.phase_model import (
     build_eval_collector,
     run_agent_config,
 )
-from seal.protocols.preemption import ignore_signals
+from seal.run.preemption import ignore_signals
 from seal.seeding import derive_seed
 
 if TYPE_CHECKING:
     from seal.learner.collection import Collector, EpisodeStats
     from seal.protocols.config import ProtocolConfig
-    from seal.protocols.rundir import MetricsRow
+    from seal.run.rundir import MetricsRow
 
 Results = dict[str, dict[str, dict[str, float]]]
 """`seal.evaluation.evaluate`'s result: {env: {task: {"success", "return"}}}."""

@@ -4,8 +4,8 @@
 meets its envs (specs, names, the pad-and-fine-tune alignment's obs and id transforms);
 `build_adapters`, `build_alignment` and `run_agent_config` build what a run, a worker process
 and `seal protocol explain` each build for themselves; `seal.seeding.derive_seed` gives every stream of a run
-its seed. The loop (`seal.protocols.phase`), its worker processes (`seal.protocols.workers`), the
-memory estimate (`seal.protocols.resources`) and the run (`seal.protocols.runner`) all stand on
+its seed. The loop (`seal.run.loop`), its worker processes (`seal.run.workers`), the
+memory estimate (`seal.run.resources`) and the run (`seal.run.runner`) all stand on
 this module, which imports none of them.
 """
 

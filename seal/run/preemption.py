@@ -2,7 +2,7 @@
 
 Clusters stop jobs politely: Slurm, Kubernetes and Ray send SIGTERM, wait a grace period, then
 kill; a user presses Ctrl-C (SIGINT). While a run holds the handlers (`SignalStop.handling`), the
-first signal is recorded and the phase loop (`seal.protocols.phase.PhaseLoop`) stops at a safe
+first signal is recorded and the phase loop (`seal.run.loop.PhaseLoop`) stops at a safe
 point with a checkpoint of the last finished epoch:
 
 - between epochs, or while an epoch checkpoint is being written: after that epoch (its
@@ -11,7 +11,7 @@ point with a checkpoint of the last finished epoch:
   (the longest recent epoch minus what this one has taken) fits `checkpoint.signal_budget_s`,
   and rolls back to the epoch's start otherwise, or as soon as the budget runs out
   (`RollBack`, raised from the handler). The loop keeps what a rollback needs of every epoch
-  start in memory (`seal.protocols.rollback.EpochMark`).
+  start in memory (`seal.run.rollback.EpochMark`).
 
 Callbacks and CSV writes inside an epoch run `protected`: a rollback decided meanwhile is raised
 when they return, so no logger is left half way. The save is the ordinary atomic checkpoint
@@ -23,7 +23,7 @@ signal's number, what a shell reports for a process the signal killed).
 
 Worker processes forked by the run (collection backends) inherit the handler, which does nothing
 in them: the run stops them. The spawned evaluation and actor workers ignore both signals
-(`seal.protocols.workers`). Handlers can only be installed from the main thread; elsewhere
+(`seal.run.workers`). Handlers can only be installed from the main thread; elsewhere
 (e.g. a Ray Tune function trainable's thread) a run keeps the process's own handling, and a
 signal the process was started ignoring stays ignored. A sweep's gentle `ray.cancel` reaches a
 trial as a SIGINT (Ray's `_thread.interrupt_main`), so the trial stops as on Ctrl-C.

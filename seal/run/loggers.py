@@ -1,6 +1,6 @@
 """Loop callbacks that mirror a run's scalars to TensorBoard and to Weights & Biases.
 
-The CSV files of the run directory (`seal.protocols.rundir`) are the record; these loggers only
+The CSV files of the run directory (`seal.run.rundir`) are the record; these loggers only
 mirror what the phase loop writes to them, at the same steps (the phase's gradient steps):
 
     eval/<env>/<task>/success, eval/<env>/<task>/return    every evaluation (metrics.csv)
@@ -30,15 +30,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from seal.errors import SealError
-from seal.protocols.phase import LoopCallback
-from seal.protocols.rundir import atomic_write_text
+from seal.run.loop import LoopCallback
+from seal.run.rundir import atomic_write_text
 
 if TYPE_CHECKING:
     from torch.utils.tensorboard import SummaryWriter
 
     from seal.protocols.config import ProtocolConfig
-    from seal.protocols.phase import PhaseLoop
-    from seal.protocols.rundir import TrainRow
+    from seal.run.loop import PhaseLoop
+    from seal.run.rundir import TrainRow
 
 WANDB_EXTRA_HINT = 'pip install -e ".[wandb]"'
 """How to install the optional wandb extra (named in the error when it is missing)."""
