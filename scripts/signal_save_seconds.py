@@ -7,10 +7,10 @@ Builds PROTOCOL's first phase (default protocols/high_fk.toml: MT10 and the ten 
 directory's disk), fills its replay to capacity with random transitions, then times, on that
 disk, what a run does at a signal (`seal.run.preemption`):
 
-- the epoch mark the loop keeps at every epoch's start (`PhaseLoop._take_mark`), a per-epoch cost;
-- the save after a finished epoch (`PhaseLoop._save_for_stop`: the epoch checkpoint, replay
+- the epoch mark the loop keeps at every epoch's start (`Stopping.take_mark`, seal.run.stopping), a per-epoch cost;
+- the save after a finished epoch (`Stopping.save_for_stop`: the epoch checkpoint, replay
   included, written atomically and fsynced);
-- the save after a rollback (`PhaseLoop._roll_back`: the same, from the epoch start's mark).
+- the save after a rollback (`Stopping.roll_back`: the same, from the epoch start's mark).
 
 Prints each figure, the checkpoint's size, and the grace period to request: twice
 checkpoint.signal_budget_s plus the slowest save (a 2x margin).
@@ -31,7 +31,8 @@ import torch
 from seal.protocols import load_protocol
 from seal.run.loop import PhaseLoop
 from seal.run.preemption import Preempted
-from seal.run.runner import Run
+from seal.run.runner import build
+from seal.run.setup import check_resources, plan_run
 
 
 def fill(loop: PhaseLoop, seed: int = 0) -> int:
@@ -58,8 +59,10 @@ def main() -> None:
     sets = ["protocol.device=cpu", "logging.tensorboard=false", *args.overrides]
     config = load_protocol(args.protocol, sets)
     with tempfile.TemporaryDirectory(dir=args.dir, prefix=".signal-save-") as tmp:
-        run = Run(config, 0, Path(tmp) / "g" / "seed-0")
+        plan = plan_run(config, 0)
+        run = build(plan, check_resources(plan), Path(tmp) / "g" / "seed-0")
         loop = PhaseLoop(run, run.phases[0], None, [run.checkpointer], run.stop)
+        stopping = loop.stopping
         nbytes = fill(loop)
         print(f"{args.protocol}: replay {nbytes / 1e9:.2f} GB filled to capacity (", end="")
         print(
@@ -71,21 +74,21 @@ def main() -> None:
         marks, finished, rolled, sizes = [], [], [], []
         for i in range(args.repeats):
             loop.stop.signum = 15  # as the handler records a SIGTERM
-            loop.state.epoch, loop.saved_epoch = 2 * i + 1, None
+            loop.state.epoch, stopping.saved_epoch = 2 * i + 1, None
             since = time.perf_counter()
-            loop._mark = loop._take_mark()
+            stopping.mark = stopping.take_mark()
             marks.append(time.perf_counter() - since)
             since = time.perf_counter()
-            loop._save_for_stop()
+            stopping.save_for_stop()
             finished.append(time.perf_counter() - since)
             sizes.append(run.rundir.latest_checkpoint().stat().st_size)  # type: ignore[union-attr]
             loop.state.epoch += 1  # the epoch under way, rolled back to the mark
-            loop.stop.rollback_reason, loop.saved_epoch = "measured", None
+            loop.stop.rollback_reason, stopping.saved_epoch = "measured", None
             since = time.perf_counter()
             with contextlib.suppress(Preempted):  # what a rollback ends with
-                loop._roll_back()
+                stopping.roll_back()
             rolled.append(time.perf_counter() - since)
-            loop._rolled_back = None
+            stopping.rolled_back = None
             loop.stop.signum = None
         run.lock.release()
     budget = config.checkpoint.signal_budget_s

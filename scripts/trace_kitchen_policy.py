@@ -25,7 +25,7 @@ import numpy as np
 
 from seal.envs import EnvAdapter, make_adapter
 from seal.evaluation import AgentPolicy
-from seal.run.runner import load_policy
+from seal.run.setup import load_policy
 
 ARM_JOINTS = 7
 """The Franka's arm joints (robot:panda0_joint1-7) are the model's first seven."""

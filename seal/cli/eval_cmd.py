@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     """Load the checkpoint, evaluate, print a table or JSON, optionally record videos."""
     from seal.errors import SealError
     from seal.evaluation import evaluate, mean_success, record_videos, rendering_problem
-    from seal.run.runner import load_policy
+    from seal.run.setup import load_policy
 
     if args.episodes is not None and args.episodes < 1:
         raise SealError(f"--episodes {args.episodes}: must be >= 1")

@@ -69,7 +69,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Build the report and print where it went (or one JSON line)."""
     from seal.reports import report
-    from seal.run.rundir import DirLock
+    from seal.run.dirlock import DirLock
 
     # One writer per directory: lock the run or group the tables and plots go into. A comparison
     # of several without --out takes no lock: its directory is made new and unique, so no

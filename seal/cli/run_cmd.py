@@ -88,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     """Load (validating before anything is written), run every seed, report, print JSON."""
     from seal.protocols import load_protocol
     from seal.run.preemption import Preempted
-    from seal.run.runner import new_group_dir, result_json, resume_run, run_seed
+    from seal.run.results import result_json
+    from seal.run.runner import new_group_dir, resume_run, run_seed
 
     config = load_protocol(args.file, args.overrides, args.scale)
     command = [Path(sys.argv[0]).name, *sys.argv[1:]]
@@ -126,7 +127,7 @@ def _report(group: Path) -> Path | None:
     report failed (a failure here never loses the run)."""
     from seal.errors import SealError
     from seal.reports import report
-    from seal.run.rundir import DirLock
+    from seal.run.dirlock import DirLock
 
     try:
         with DirLock(group):

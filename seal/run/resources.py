@@ -115,14 +115,18 @@ class ResourceEstimate:
 
 
 def estimate_resources(
-    config: ProtocolConfig, adapters: Mapping[str, EnvAdapter], device: str
+    config: ProtocolConfig,
+    adapters: Mapping[str, EnvAdapter],
+    device: str,
+    models: Sequence[tuple[Phase, PhaseModel]] | None = None,
 ) -> ResourceEstimate:
-    """The run's estimated memory on `device` (see the module docstring); allocates nothing."""
-    alignment = build_alignment(config, adapters) if config.kind == "finetune" else None
-    phases = [
-        _phase_estimate(config, phase, PhaseModel(config, phase, adapters, alignment))
-        for phase in plan_phases(config)
-    ]
+    """The run's estimated memory on `device` (see the module docstring); allocates nothing.
+
+    `models`: each phase with its model, as the run planned them (default: planned here)."""
+    if models is None:
+        alignment = build_alignment(config, adapters) if config.kind == "finetune" else None
+        models = [(p, PhaseModel(config, p, adapters, alignment)) for p in plan_phases(config)]
+    phases = [_phase_estimate(config, phase, model) for phase, model in models]
     peak = max(phases, key=lambda p: p.total)
     return ResourceEstimate(peak, device, _available(device), tuple(phases))
 
@@ -137,17 +141,22 @@ def choose_update_threads(
 
 
 def check_resources(
-    config: ProtocolConfig, adapters: Mapping[str, EnvAdapter], device: str
-) -> ResourceEstimate:
-    """The estimate; ConfigError naming the largest part's key if it exceeds what is available."""
-    estimate = estimate_resources(config, adapters, device)
+    config: ProtocolConfig,
+    adapters: Mapping[str, EnvAdapter],
+    device: str,
+    models: Sequence[tuple[Phase, PhaseModel]] | None = None,
+    cores: int | None = None,
+) -> ThreadChoice:
+    """The update threads for the run (`choose_update_threads`); ConfigError naming the largest
+    part's key if the estimate exceeds what is available."""
+    estimate = estimate_resources(config, adapters, device, models)
     if estimate.available is not None and estimate.peak.total > estimate.available:
         key = estimate.key(config)
         raise ConfigError(
             f"{config.path}: {key} = {_value_of(config, key)}: the run needs an estimated "
             f"{estimate.describe()}; lower {key}"
         )
-    return estimate
+    return choose_update_threads(config, estimate, cores)
 
 
 # ---------------------------------------------------------------- parts

@@ -1,5 +1,8 @@
 """Protocol runners: the three kinds, checkpoints and resume (the epoch loop: `seal.run.loop`).
 
+A seed's run is set up as a pipeline (`seal.run.setup`): `run_seed` plans the run (`plan_run`),
+checks its resources (`check_resources`), builds it (`build`: the `Run`) and runs it.
+
 One seed of a protocol is one `Run` writing one run directory (`seal.run.rundir`). A run
 has one or more phases: baseline and joint have the phase "train"; finetune has "pretrain" (on
 the source env) then "finetune" (on the target env, starting from the best pre-trained
@@ -22,13 +25,11 @@ counts. Env instances continue their own RNG streams from episode to episode, wh
 cannot capture, so the collector's env instances are rebuilt with seeds derived from (seed,
 phase, epoch) right after every checkpoint, in uninterrupted and in resumed runs alike: a resumed
 run then replays exactly what the uninterrupted run did.
-Evaluation runs on env instances of its own, several per task (`PhaseLoop._eval_collector`),
+Evaluation runs on env instances of its own, several per task (`seal.run.evaluation`),
 built once per phase: each evaluation episode resets with a seed derived from (phase, grad
 steps, episode), so they need no rebuilding at checkpoints.
 
-A resume starts from the newest intact checkpoint: one that does not read as a seal checkpoint
-(torn, zero bytes) or whose CSV rows are no longer all there is skipped, named on stderr with the
-reason and in provenance.json's "resumes"; none intact is a one-line refusal that changes nothing.
+A resume starts from the newest intact checkpoint (`seal.run.resume`).
 
 On SIGTERM or SIGINT (`checkpoint.on_signal`) a run stops at a safe point with the checkpoint of
 its last finished epoch, records the stop in provenance.json's "preemptions" and raises
@@ -37,239 +38,106 @@ written at a signal re-seeds the collectors from its epoch like any other, so th
 repeats what an uninterrupted run that also checkpointed at that epoch does.
 
 Before anything is created, a run checks its estimated memory (`seal.run.resources`) and
-takes its directory's lock (`seal.run.rundir.DirLock`), which it holds until it ends; a
+takes its directory's lock (`seal.run.dirlock.DirLock`), which it holds until it ends; a
 full disk (ENOSPC, EDQUOT) while it writes stops it with one line naming the file.
 """
 
 from __future__ import annotations
 
 import contextlib
-import copy
 import errno
-import json
-import math
 import shutil
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypedDict
-
-import torch
 
 from seal import provenance
-from seal.device import apply_matmul_precision
+from seal.device import ThreadChoice
 from seal.errors import ConfigError, SealError
 from seal.learner.checkpoint import read_checkpoint
-from seal.learner.sac import Agent, AgentState
+from seal.learner.sac import Agent
 from seal.learner.transfer import transfer_from
-from seal.protocols import scheduling
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.loader import (
-    config_from_dict,
-    config_to_dict,
-    dumps_toml,
-    read_toml,
-    upgrade_saved,
-)
-from seal.run.checkpoint_fields import (
-    EpochCheckpoint,
-    RunCheckpoint,
-    check_epoch_checkpoint,
-    check_run_checkpoint,
-    saved_config_table,
-)
+from seal.protocols.loader import config_to_dict, dumps_toml
+from seal.run.checkpoint_fields import EpochCheckpoint, check_run_checkpoint
 from seal.run.checkpointing import Checkpointer
+from seal.run.dirlock import DirLock
 from seal.run.loggers import ScalarLogger, open_loggers
 from seal.run.loop import LoopCallback, PhaseLoop, ProgressBar
 from seal.run.mapped_start import mapped_start
-from seal.run.phase_model import (
-    Phase,
-    PhaseModel,
-    build_adapters,
-    build_alignment,
-    plan_phases,
-    run_agent_config,
-)
+from seal.run.phase_model import Phase, PhaseModel
 from seal.run.preemption import Preempted, SignalStop
-from seal.run.resources import check_resources, choose_update_threads
-from seal.run.rundir import (
-    CONFIG_LIMIT,
-    DirLock,
-    RunDir,
-    new_group_id,
-    parse_seed_dir,
-    seed_dir,
+from seal.run.results import RunResult, run_result, time_line, time_shares
+from seal.run.resume import resume_point
+from seal.run.rundir import RunDir, new_group_id, parse_seed_dir, seed_dir
+from seal.run.setup import (
+    RunPlan,
+    check_resources,
+    load_policy,
+    plan_run,
+    saved_config,
+    transfer_source,
 )
-from seal.run.state import LOOP_PARTS, PhaseState
+from seal.run.state import PhaseState
 from seal.seeding import derive_seed
+
+__all__ = ["Run", "RunResult", "build", "load_policy", "new_group_dir", "resume_run", "run_seed"]
 
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 """OSError numbers a run reports in one line: the user frees space and resumes."""
 
-# ---------------------------------------------------------------- results and phases
-
-
-class PhaseTiming(TypedDict):
-    """Where one phase's wall time went (`RunResult.timing`, `seal bench --protocol`)."""
-
-    seconds: dict[str, float]
-    """Part -> wall seconds: `seal.run.state.LOOP_PARTS`, demos, evaluate_worker_cpu."""
-    calls: dict[str, int]
-    """Part -> how many times it ran (update: gradient steps; evaluate: evaluations)."""
-    epochs: int
-    grad_steps: int
-
-
-class TimeShares(TypedDict):
-    """Where a run's wall time went (`time_shares`; provenance.json's "time_shares", `RunResult`).
-
-    loop_s is the phases' epoch loops (across resumes); parts_s splits it into `LOOP_PARTS`
-    and other_s is the rest (planning, the epoch's bookkeeping, a signal's rollback marks).
-    startup_s is this process's wall outside the loops: building the run and each phase (agent,
-    replay, demonstrations), then closing the phase's env instances and workers.
-    """
-
-    wall_s: float
-    startup_s: float
-    loop_s: float
-    parts_s: dict[str, float]
-    other_s: float
-    evaluate_worker_cpu_s: float
-    """evaluation.mode = "async": the evaluation worker's CPU seconds (parts_s's evaluate is then
-    the loop's waiting on it); 0 for synchronous evaluation."""
-
-
-def time_shares(states: Sequence[PhaseState], startup_s: float) -> TimeShares:
-    """The phases' loop time by part (`PhaseState.seconds`), other and `startup_s` beside it."""
-    loop_s = sum(s.wall_s for s in states)
-    parts = {p: sum(s.seconds.get(p, 0.0) for s in states) for p in LOOP_PARTS}
-    return {
-        "wall_s": startup_s + loop_s,
-        "startup_s": startup_s,
-        "loop_s": loop_s,
-        "parts_s": parts,
-        "other_s": loop_s - sum(parts.values()),
-        "evaluate_worker_cpu_s": sum(s.seconds.get("evaluate_worker_cpu", 0.0) for s in states),
-    }
-
-
-def time_line(shares: TimeShares) -> str:
-    """`shares` in one line: start-up, then the loop's wall by part with its percentage."""
-    loop = shares["loop_s"]
-
-    def part(name: str, seconds: float) -> str:
-        return f"{name} {seconds:.1f} s ({100 * seconds / loop if loop else 0.0:.0f}%)"
-
-    parts = dict(shares["parts_s"])
-    cpu = shares["evaluate_worker_cpu_s"]
-    if cpu:
-        parts["evaluate (waiting)"] = parts.pop("evaluate")
-    text = (
-        f"time: wall {shares['wall_s']:.1f} s = start-up {shares['startup_s']:.1f} s + loop "
-        f"{loop:.1f} s: "
-        + ", ".join(part(n, s) for n, s in [*parts.items(), ("other", shares["other_s"])])
-    )
-    if cpu:
-        text += f"; evaluation worker CPU {cpu:.1f} s"
-    return text
-
-
-@dataclass(frozen=True)
-class RunResult:
-    """What one seed's run produced: its directory and the headline numbers (also `seal run --json`)."""
-
-    run_dir: Path
-    update_counts: dict[str, dict[str, float | None]]
-    """env -> task -> millions of that task's transitions consumed by updates when it first reached the threshold (None, JSON null: never; 0 would be a task reached before any update)."""
-    final_success: dict[str, dict[str, float]]
-    """env -> task -> success rate at the last evaluation of the phase that trained on env."""
-    timing: dict[str, PhaseTiming] = field(default_factory=dict)
-    """phase -> {"seconds", "calls"} of its collect/update/evaluate/checkpoint parts, "epochs", "grad_steps" (`seal bench --protocol`)."""
-    threads: str = ""
-    """The updates' intra-op threads and what chose them (`seal.device.ThreadChoice.describe`)."""
-    time_shares: TimeShares | None = None
-    """Where the run's wall time went (`time_shares`)."""
-
-
-# ---------------------------------------------------------------- checkpoint files
-
-
-def transfer_source(config: ProtocolConfig) -> AgentState | None:
-    """The agent state named by [transfer] checkpoint (None without [transfer]).
-
-    ConfigError naming `transfer.checkpoint` and the path if it is empty, missing or not a
-    `seal run` checkpoint.
-    """
-    transfer = config.transfer
-    if transfer is None:
-        return None
-    where = f"{config.path}: transfer.checkpoint"
-    if not transfer.checkpoint:
-        raise ConfigError(
-            f"{where} is empty; give a checkpoint written by `seal run`, e.g. "
-            "--set transfer.checkpoint=reports/<protocol>/<group>/seed-0/checkpoints/best.pt"
-        )
-    try:
-        data = check_run_checkpoint(read_checkpoint(transfer.checkpoint), transfer.checkpoint)
-    except SealError as exc:
-        raise ConfigError(f"{where} = {transfer.checkpoint!r}: {exc}") from None
-    return data["agent"]
-
 
 class Run:
-    """One seed of one protocol: owns the run directory, phases, checkpoints and resume."""
+    """One seed of one protocol: owns the run directory, phases, checkpoints and resume (`build`)."""
 
     def __init__(
         self,
-        config: ProtocolConfig,
-        seed: int,
+        plan: RunPlan,
+        threads: ThreadChoice,
         path: Path,
         *,
         quiet: bool = True,
         resume: bool = False,
         command: list[str] | None = None,
         callbacks: Sequence[LoopCallback] = (),
-        cores: int | None = None,
     ) -> None:
-        self.created = time.perf_counter()
+        self.created = plan.started
         self.loop_s = 0.0
         """This process's wall in the phases' epoch loops (the rest of its wall is start-up)."""
-        self.config = config
+        self.plan, self.config, self.seed, self.quiet = plan, plan.config, plan.seed, quiet
         self.callbacks = tuple(callbacks)
         """Called by every phase's loop, after the progress bar (e.g. a sweep's Ray Tune reporter)."""
-        self.seed = int(seed)
-        self.quiet = quiet
-        self.phases = plan_phases(config)
-        self.device = provenance.resolve_device(config.protocol.device)
-        self.adapters = build_adapters(config)
-        self.alignment = (
-            build_alignment(config, self.adapters) if config.kind == "finetune" else None
-        )
-        self.agent_cfg = run_agent_config(config, self.device)
-        # Sizes the machine cannot hold fail here, in one line, before anything is allocated or written.
-        estimate = check_resources(config, self.adapters, self.device)
-        self.threads = choose_update_threads(config, estimate, cores)
+        self.phases, self.device, self.adapters = plan.phases, plan.device, plan.adapters
+        self.alignment, self.agent_cfg = plan.alignment, plan.agent_cfg
+        self.threads = threads
         """The updates' intra-op threads and the inputs of the rule that chose them."""
-        if self.threads.threads:
-            torch.set_num_threads(self.threads.threads)
-        apply_matmul_precision(torch.device(self.device), config.protocol.matmul_precision)
         # [transfer]: read the source checkpoint now, so a bad path fails before anything is written
         # (a resumed run restores its own agent and does not need the source any more).
-        self.transfer_state = None if resume else transfer_source(config)
+        self.transfer_state = None if resume else transfer_source(self.config)
         # [transfer] map: which env starts from which, checked against the checkpoint now too.
         if self.transfer_state is not None:
-            mapped_start(config, self.adapters, self.transfer_state)
+            mapped_start(self.config, self.adapters, self.transfer_state)
+        self._open(path, resume, command)
+        self.results: dict[str, PhaseState] = {}
+        self.loggers: list[ScalarLogger] = []
+        """The run's TensorBoard and wandb loggers while it runs (`seal.run.loggers`)."""
+        self.checkpointer = Checkpointer(self)
+        """Writes best.pt and the epoch checkpoints (`seal.run.checkpointing`)."""
+        self.stop = SignalStop(self.config.checkpoint.signal_budget_s)
+        """SIGTERM and SIGINT while `run()` runs, with checkpoint.on_signal (`seal.run.preemption`)."""
+
+    def _open(self, path: Path, resume: bool, command: list[str] | None) -> None:
+        """Take the directory's lock (held to the end of `run()`: one writer per run directory)
+        and open or create it; a failure leaves no half-made run directory."""
         self.lock = DirLock(path)
-        """Held from here to the end of `run()`: one writer per run directory."""
         if resume:
             RunDir.open(path)  # not a run directory: refuse before creating a lock file in it
         missing = [p for p in (Path(path), *Path(path).parents) if not p.exists()]
         created = missing[-1] if missing else None  # the top folder this run makes
         self.lock.acquire(command)
         try:
-            self._open_rundir(config, path, resume, command)
+            self._open_rundir(self.config, path, resume, command)
         except OSError as exc:
             self.lock.release()
             if created is not None:
@@ -282,13 +150,6 @@ class Run:
         except BaseException:
             self.lock.release()
             raise
-        self.results: dict[str, PhaseState] = {}
-        self.loggers: list[ScalarLogger] = []
-        """The run's TensorBoard and wandb loggers while it runs (`seal.run.loggers`)."""
-        self.checkpointer = Checkpointer(self)
-        """Writes best.pt and the epoch checkpoints (`seal.run.checkpointing`)."""
-        self.stop = SignalStop(config.checkpoint.signal_budget_s)
-        """SIGTERM and SIGINT while `run()` runs, with checkpoint.on_signal (`seal.run.preemption`)."""
 
     def _open_rundir(
         self, config: ProtocolConfig, path: Path, resume: bool, command: list[str] | None
@@ -331,7 +192,8 @@ class Run:
             self.lock.release()
 
     def _run(self) -> RunResult:
-        resume_payload = self._resume_point()
+        resume_payload, finished = resume_point(self.plan, self.rundir, self.checkpointer)
+        self.results.update(finished)
         start_phase = 0 if resume_payload is None else int(resume_payload["runner"]["phase_index"])
         purge = None
         if resume_payload is not None:
@@ -365,7 +227,14 @@ class Run:
             raise Preempted(
                 self.stop.signum or 0, f"{self.stop.note}; the run is complete", resumable=False
             )
-        return self._result(shares)
+        return run_result(
+            self.rundir.path,
+            self.phases,
+            self.results,
+            self.adapters,
+            self.threads.describe(),
+            shares,
+        )
 
     def _preempted(self, stop: Preempted) -> Preempted:
         """The stop recorded in provenance.json, its line ending with how to resume."""
@@ -382,101 +251,6 @@ class Run:
             )
         return Preempted(stop.signum, line, resumable=stop.resumable, what=stop.line)
 
-    def _resume_point(self) -> EpochCheckpoint | None:
-        """The latest epoch checkpoint, with the CSVs cut back to it and the resume recorded; None: start over."""
-        self.checkpointer.clear_torn()
-        latest = self.rundir.latest_checkpoint()
-        if latest is None:
-            if (self.rundir.path / "metrics.csv").exists():
-                # Killed before the first checkpoint: start over cleanly.
-                self.rundir.truncate_to({})
-            return None
-        payload, latest, skipped = self._newest_intact()
-        resumes = self.rundir.read_provenance().get("resumes", [])
-        record = {"time": provenance.utc_now(), "from": latest.name}
-        if skipped:
-            record["skipped"] = skipped
-        self.rundir.update_provenance(resumes=[*resumes, record])
-        for name, state in payload["runner"].get("finished_phases", {}).items():
-            self.results[name] = PhaseState(**state)
-        return payload
-
-    def _newest_intact(self) -> tuple[EpochCheckpoint, Path, list[dict[str, str]]]:
-        """The newest checkpoint that reads and whose CSV rows are all there, with the CSVs cut
-        back to it, and the newer ones it skipped (each named on stderr with the reason).
-
-        A skipped file stays: the resumed run writes a checkpoint of the same name when it gets
-        there again, and until then it is older than every new one, so `prune` drops it first.
-        SealError if no checkpoint is intact.
-        """
-        skipped: list[dict[str, str]] = []
-        phases = [p.name for p in self.phases]
-        for path in reversed(self.rundir.epoch_checkpoints()):
-            try:
-                payload = check_epoch_checkpoint(read_checkpoint(path), path, phases, self.seed)
-                self._check_scheduler_state(payload, path)
-                self.rundir.truncate_to(payload["runner"]["rows"])
-            except SealError as exc:
-                skipped.append({"file": path.name, "why": str(exc)})
-                continue
-            for skip in skipped:
-                print(
-                    f"seal run --resume: skipping {self.rundir.checkpoints / skip['file']}: {skip['why']}",
-                    file=sys.stderr,
-                )
-            if skipped:
-                print(f"seal run --resume: resuming from {path}", file=sys.stderr)
-            return payload, path, skipped
-        why = "; ".join(s["why"] for s in skipped)
-        raise SealError(
-            f"--resume {self.rundir.path}: no intact checkpoint to resume from ({why}); "
-            f"delete {self.rundir.checkpoints} to start the run over"
-        )
-
-    def _check_scheduler_state(self, payload: EpochCheckpoint, path: Path) -> None:
-        """SealError if the checkpoint's scheduler state does not load into a fresh scheduler of
-        its phase: its keys are each scheduler's own, which the checkpoint's TypedDicts leave
-        untyped, so it is loaded into a throwaway one here, before the resume changes anything."""
-        phase = self.phases[payload["runner"]["phase_index"]]
-        model = PhaseModel(self.config, phase, self.adapters, self.alignment)
-        scheduler = scheduling.build(
-            self.config.scheduler,
-            model.env_tasks,
-            {e: self.config.envs[e].adapter for e in phase.envs},
-            self.config.path,
-            episode_lengths={e: self.adapters[e].episode_length for e in phase.envs},
-        )
-        try:
-            scheduler.load_state_dict(copy.deepcopy(payload["scheduler"]))
-        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
-            raise SealError(
-                f"checkpoint {path}: field scheduler does not fit this run's {scheduler.kind or type(scheduler).__name__!r} "
-                f"scheduler ({type(exc).__name__}: {str(exc)[:100]})"
-            ) from None
-
-    def _result(self, shares: TimeShares) -> RunResult:
-        """The headline numbers and the per-part timing of the finished phases."""
-        counts: dict[str, dict[str, float | None]] = {}
-        final: dict[str, dict[str, float]] = {}
-        for phase in self.phases:
-            state = self.results[phase.name]
-            for env in phase.envs:
-                tasks = self.adapters[env].tasks
-                reached = state.reached.get(env, {})
-                counts[env] = {t: float(reached[t]) if t in reached else None for t in tasks}
-                final[env] = {t: float(state.last_success.get(env, {}).get(t, 0.0)) for t in tasks}
-        timing: dict[str, PhaseTiming] = {
-            name: {
-                "seconds": dict(state.seconds),
-                "calls": dict(state.calls),
-                "epochs": state.epoch,
-                "grad_steps": state.grad_steps,
-            }
-            for name, state in self.results.items()
-        }
-        return RunResult(self.rundir.path, counts, final, timing, self.threads.describe(), shares)
-
-    # ------------------------------------------------------------ building blocks
     def initial_agent(self, phase: Phase, model: PhaseModel, resuming: bool = False) -> Agent:
         """The phase's agent before its first update: transferred ([transfer]) or fine-tuned from pre-training's best."""
         agent = Agent(model.specs, self.agent_cfg, derive_seed(self.seed, "agent", phase.index))
@@ -520,7 +294,7 @@ class Run:
             *self.callbacks,
             self.checkpointer,
         ]
-        loop = PhaseLoop(self, phase, payload, callbacks, self.stop)
+        loop = PhaseLoop(self, phase, payload, callbacks, self.stop, self.plan.models[phase.name])
         wall_before = loop.state.wall_s
         try:
             return loop.run()
@@ -529,6 +303,24 @@ class Run:
 
 
 # ---------------------------------------------------------------- public API
+
+
+def build(
+    plan: RunPlan,
+    threads: ThreadChoice,
+    path: Path,
+    *,
+    quiet: bool = True,
+    resume: bool = False,
+    command: list[str] | None = None,
+    callbacks: Sequence[LoopCallback] = (),
+) -> Run:
+    """The planned run, ready to `run()`: its transfer source read and checked, its directory
+    locked and opened (`resume`) or created. Each phase's agent, replay and workers are built
+    when its loop starts (`seal.run.phase_parts`)."""
+    return Run(
+        plan, threads, path, quiet=quiet, resume=resume, command=command, callbacks=callbacks
+    )
 
 
 def new_group_dir(config: ProtocolConfig, out: str | Path = "reports") -> Path:
@@ -555,22 +347,14 @@ def run_seed(
     can call this again for every trial after an interruption.
     """
     path = seed_dir(Path(group_dir), seed)
-    if resume and (path / "config.toml").is_file():
-        saved = _saved_config(path)
-        run = Run(
-            saved,
-            seed,
-            path,
-            quiet=quiet,
-            resume=True,
-            command=command,
-            callbacks=callbacks,
-            cores=cores,
-        )
-    else:
-        run = Run(
-            config, seed, path, quiet=quiet, command=command, callbacks=callbacks, cores=cores
-        )
+    resume = resume and (path / "config.toml").is_file()
+    if resume:
+        config = saved_config(path)  # the run directory's own config
+    plan = plan_run(config, seed)  # phases, adapters, alignment, each phase's model
+    threads = check_resources(plan, cores)  # refused here, before anything is allocated
+    run = build(
+        plan, threads, path, quiet=quiet, resume=resume, command=command, callbacks=callbacks
+    )
     return run.run()
 
 
@@ -584,69 +368,10 @@ def resume_run(
         raise SealError(
             f"--resume {path}: expected a seed directory named seed-<n> (reports/<protocol>/<group>/seed-<n>)"
         )
-    saved = _saved_config(path)
-    if protocol_name is not None and saved.name != protocol_name:
+    config = saved_config(path)
+    if protocol_name is not None and config.name != protocol_name:
         raise SealError(
-            f"--resume {path}: this run is of protocol {saved.name!r}, not {protocol_name!r}"
+            f"--resume {path}: this run is of protocol {config.name!r}, not {protocol_name!r}"
         )
-    return Run(saved, seed, path, quiet=quiet, resume=True).run()
-
-
-def load_policy(
-    checkpoint: str | Path, device: str = "auto"
-) -> tuple[ProtocolConfig, PhaseModel, Agent, RunCheckpoint]:
-    """(config, phase model, agent with the saved weights, raw checkpoint) of a run checkpoint.
-
-    SealError naming the file and the field when a field is missing, of the wrong type, or does
-    not fit the rest (a phase its saved config has not, an agent state its networks refuse).
-    """
-    data = check_run_checkpoint(read_checkpoint(checkpoint), checkpoint)
-    table = saved_config_table(data, checkpoint)
-    config = config_from_dict(upgrade_saved(table), f"checkpoint {checkpoint}: field config_toml")
-    phases = {p.name: p for p in plan_phases(config)}
-    if data["phase"] not in phases:
-        raise SealError(
-            f"checkpoint {checkpoint}: field phase = {data['phase']!r}; expected a phase of its "
-            f"saved config (kind {config.kind!r}): {', '.join(phases)}"
-        )
-    phase = phases[data["phase"]]
-    adapters = build_adapters(config)
-    alignment = build_alignment(config, adapters) if config.kind == "finetune" else None
-    model = PhaseModel(config, phase, adapters, alignment)
-    agent = Agent(model.specs, run_agent_config(config, provenance.resolve_device(device)), 0)
-    try:
-        agent.load_state_dict(data["agent"])
-    except (SealError, RuntimeError, ValueError, KeyError, TypeError, IndexError) as exc:
-        # The fields have their types; their values (shapes, optimiser slots) must also fit.
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:300]
-        raise SealError(
-            f"checkpoint {checkpoint}: field agent does not fit the agent its saved config "
-            f"builds: {first}"
-        ) from None
-    return config, model, agent, data
-
-
-def _saved_config(path: Path) -> ProtocolConfig:
-    """The config a run directory saved, read as data (`seal.files`): a regular file inside it,
-    at most CONFIG_LIMIT bytes, valid TOML and a valid protocol; ConfigError naming the file."""
-    RunDir.open(path)
-    config_path = path / "config.toml"
-    raw = read_toml(config_path, what="run config", within=path, limit=CONFIG_LIMIT)
-    return config_from_dict(upgrade_saved(raw), str(config_path))
-
-
-def result_json(results: Sequence[RunResult]) -> str:
-    """The one-line JSON that `seal run --json` ends with."""
-    last = results[-1]
-    data: dict[str, Any] = {
-        "run_dir": str(last.run_dir),
-        "update_counts": last.update_counts,
-        "final_success": last.final_success,
-    }
-    if len(results) > 1:
-        data["run_dirs"] = [str(r.run_dir) for r in results]
-    return json.dumps(
-        data,
-        allow_nan=False,
-        default=lambda o: None if isinstance(o, float) and not math.isfinite(o) else str(o),
-    )
+    plan = plan_run(config, seed)
+    return build(plan, check_resources(plan), path, quiet=quiet, resume=True).run()

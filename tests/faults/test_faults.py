@@ -25,7 +25,7 @@ import torch
 from seal.cli.main import main
 from seal.learner.checkpoint import read_checkpoint
 from seal.protocols import load_protocol
-from seal.run.rundir import DirLock
+from seal.run.dirlock import DirLock
 from seal.run.runner import run_seed
 from tests.faults.point_protocol import point_protocol
 
