@@ -174,9 +174,8 @@ class PhaseLoop:
         try:
             with self.stop.epoch():
                 plan = self._plan()
-                self.collection.start(
-                    plan
-                )  # training.overlap: the actor collects beside the updates
+                # training.overlap: the actor collects beside the updates
+                self.collection.start(plan)
                 self._train(plan, self.collection.lengths())
                 self.collection.finish()
                 last_epoch = self._end_epoch()  # count it, log its curves, evaluate
