@@ -64,7 +64,7 @@ def _cell(text: str) -> str:
 
 
 def _table(title: str, cls: type) -> str:
-    from seal.protocols.loader import toml_value
+    from seal.protocols.toml_io import toml_value
     from seal.typed_config import field_docs
 
     docs = field_docs(cls)

@@ -320,7 +320,8 @@ def test_agent_mismatches_name_every_key_but_shared_update() -> None:
 
 def test_finished_run_reuses_only_complete_runs_of_todays_config(tmp_path) -> None:
     from seal.protocols import load_protocol
-    from seal.protocols.loader import config_to_dict, dumps_toml
+    from seal.protocols.loader import config_to_dict
+    from seal.protocols.toml_io import dumps_toml
 
     arm = next(a for a in ARMS if a.name == "alone")
     resolved = config_to_dict(load_protocol(arm.protocol))
@@ -575,7 +576,8 @@ def test_transfer_tables_and_plots(tmp_path) -> None:
 def _finished_alone_runs(root: Path, steps: list[int]) -> None:
     """Finished runs of the alone arm under `root`, today's config, one per seed, whose target
     reaches 90% on every task at `steps[seed]` gradient steps."""
-    from seal.protocols.loader import config_to_dict, dumps_toml
+    from seal.protocols.loader import config_to_dict
+    from seal.protocols.toml_io import dumps_toml
 
     arm = next(a for a in ARMS if a.name == "alone")
     config = load_protocol(arm.protocol)

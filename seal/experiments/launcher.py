@@ -393,7 +393,8 @@ def run_all(
     SIGTERM or SIGINT stops them all (`Preempted`), each saving its last finished epoch.
     """
     from seal.protocols import load_protocol
-    from seal.protocols.loader import config_to_dict, dumps_toml
+    from seal.protocols.loader import config_to_dict
+    from seal.protocols.toml_io import dumps_toml
     from seal.run.rundir import seed_dir
     from seal.run.runner import new_group_dir
 

@@ -85,7 +85,8 @@ def _defaults(cls: type) -> dict[str, Any]:
 def resolved_tables(arm: Arm, overrides: Sequence[str] = ()) -> tuple[str, dict[str, Any]]:
     """(protocol name, the tables a run of `arm` saves in its config.toml), as the code resolves them now."""
     from seal.protocols import load_protocol
-    from seal.protocols.loader import config_to_dict, dumps_toml
+    from seal.protocols.loader import config_to_dict
+    from seal.protocols.toml_io import dumps_toml
 
     config = load_protocol(arm.protocol, overrides)
     # Through TOML, as the runner writes config.toml, so that both sides compare alike.

@@ -12,7 +12,9 @@ Python API (used by `seal run` and by the Ray sweep):
 from __future__ import annotations
 
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.loader import config_to_dict, dumps_toml, explain, load_protocol
+from seal.protocols.explain import explain
+from seal.protocols.loader import config_to_dict, load_protocol
+from seal.protocols.toml_io import dumps_toml
 
 __all__ = [
     "ProtocolConfig",

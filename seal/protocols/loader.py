@@ -1,4 +1,5 @@
-"""Load, override, validate, scale, explain and write protocol TOML files.
+"""Load, override, validate and scale protocol TOML files (reading and writing the TOML text:
+`toml_io`; `seal protocol explain`: `explain`).
 
 `load_protocol(path, overrides, scale)` is the one entry point: it reads the file, applies
 `--set table.key=value` overrides, checks every key and value against the schema in
@@ -12,16 +13,13 @@ from __future__ import annotations
 import copy
 import dataclasses
 import functools
-import json
 import math
-import tomllib
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from seal import typed_config
 from seal.errors import ConfigError, SealError
-from seal.files import read_data_file
 from seal.protocols import scheduling
 from seal.protocols.config import (
     ALL_TABLES,
@@ -32,133 +30,13 @@ from seal.protocols.config import (
     ProtocolTable,
     TransferConfig,
 )
-from seal.sweep import config_tables as sweep_tables
+from seal.protocols.toml_io import apply_overrides, check_nesting, read_toml, toml_value
+from seal.sweep import config_tables as sweep_tables  # a leaf module: no Ray, no run code
 from seal.typed_config import shown_key
 
 if TYPE_CHECKING:
     from seal.learner.config import AgentConfig
     from seal.schedulers.base import SchedulerConfig
-
-# ---------------------------------------------------------------- reading and overrides
-
-
-def parse_override(text: str, path: str = "--set") -> tuple[list[str], Any]:
-    """Split "table.key=value" into (["table", "key"], value); the value is parsed as TOML.
-
-    A value that is not valid TOML is taken as a plain string, so `--set protocol.device=cpu` works.
-    """
-    key, sep, raw = text.partition("=")
-    parts = [p.strip() for p in key.strip().split(".")]
-    if not sep or len(parts) < 2 or not all(parts):
-        raise ConfigError(
-            f"{path}: override {text!r} must look like table.key=value (e.g. protocol.epochs=100)"
-        )
-    try:
-        value = tomllib.loads(f"v = {raw.strip()}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = raw.strip()
-    except RecursionError:
-        raise ConfigError(
-            f"{path}: override {key.strip()}: the value nests arrays or inline tables more than "
-            f"{MAX_NESTING} levels deep; at most {MAX_NESTING} are valid"
-        ) from None
-    return parts, value
-
-
-def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], path: str) -> dict[str, Any]:
-    """`raw` with each "table.key=value" override set (tables created as needed)."""
-    for text in overrides:
-        parts, value = parse_override(text, path)
-        node = raw
-        for part in parts[:-1]:
-            child = node.setdefault(part, {})
-            if not isinstance(child, dict):
-                raise ConfigError(f"{path}: override {text!r}: {part!r} is a value, not a table")
-            node = child
-        node[parts[-1]] = value
-    return raw
-
-
-MAX_NESTING = 32
-"""The deepest nesting of tables and arrays a protocol or run config may have (the shipped ones
-use 5): deeper input is refused in one line before anything recurses through it."""
-
-
-def _nesting(value: object) -> tuple[int, list[str]]:
-    """(how deep tables and arrays nest in `value`, the key path to the deepest), without recursion."""
-    deepest: tuple[int, list[str]] = (0, [])
-    stack: list[tuple[object, int, list[str]]] = [(value, 0, [])]
-    while stack:
-        node, depth, where = stack.pop()
-        if isinstance(node, dict):
-            items: Iterable[tuple[str, object]] = ((str(k), v) for k, v in node.items())
-        elif isinstance(node, list):
-            items = ((f"[{i}]", v) for i, v in enumerate(node))
-        else:
-            continue
-        if depth + 1 > deepest[0]:
-            deepest = (depth + 1, where)
-        if depth + 1 > MAX_NESTING:
-            break
-        stack.extend((v, depth + 1, [*where, k]) for k, v in items)
-    return deepest
-
-
-def check_nesting(raw: Mapping[str, Any], where: str) -> None:
-    """ConfigError if tables and arrays in `raw` nest deeper than MAX_NESTING."""
-    depth, path = _nesting(dict(raw))
-    if depth > MAX_NESTING:
-        key = "".join(p if p.startswith("[") else f".{shown_key(p)}" for p in path[:4])
-        key = key.removeprefix(".") + ("…" if len(path) > 4 else "")
-        raise ConfigError(
-            f"{where}: {key or 'the document'} nests tables or arrays more than {MAX_NESTING} levels "
-            f"deep; at most {MAX_NESTING} are valid"
-        )
-
-
-def parse_toml(text: str, where: str) -> dict[str, Any]:
-    """`text` parsed as TOML, or ConfigError naming `where` and the syntax problem."""
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{where}: not valid TOML: {exc}") from None
-    except RecursionError:  # tomllib recurses once per level of nested arrays and inline tables
-        raise ConfigError(
-            f"{where}: arrays or inline tables nest more than {MAX_NESTING} levels deep; at most "
-            f"{MAX_NESTING} are valid"
-        ) from None
-    check_nesting(raw, where)
-    return raw
-
-
-def read_toml(
-    path: str | Path,
-    *,
-    what: str = "protocol file",
-    within: str | Path | None = None,
-    limit: int | None = None,
-) -> dict[str, Any]:
-    """The parsed TOML file, or ConfigError naming the file and the problem.
-
-    The file is read as data (`seal.files.read_data_file`): a regular file, inside `within` and
-    at most `limit` bytes when they are given; `what` names it in messages.
-    """
-    p = Path(path)
-    try:
-        data = read_data_file(p, what=what, within=within, limit=limit)
-    except ConfigError:
-        raise
-    except SealError as exc:
-        raise ConfigError(str(exc)) from None
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = data[: exc.start].count(b"\n") + 1
-        raise ConfigError(
-            f"{p}: not UTF-8 text (byte {exc.object[exc.start]:#04x} on line {line}); TOML files must be UTF-8"
-        ) from None
-    return parse_toml(text, str(p))
-
 
 # ---------------------------------------------------------------- scaling
 
@@ -514,100 +392,3 @@ def config_to_dict(config: ProtocolConfig) -> dict[str, Any]:
     if config.resources:
         out["resources"] = plain(config.resources)
     return out
-
-
-def _toml_key(key: str) -> str:
-    return key if key and all(c.isalnum() or c in "-_" for c in key) else json.dumps(key)
-
-
-def toml_value(value: object) -> str:
-    """One value as inline TOML (`seal protocol explain`, a sweep sample's `--set` overrides).
-
-    Documents are written by tomli-w (`dumps_toml`); it has no public inline-value writer.
-    """
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (int, float)):
-        if isinstance(value, float) and not math.isfinite(value):
-            return ("-inf" if value < 0 else "inf") if math.isinf(value) else "nan"
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)  # a JSON string is a valid TOML basic string
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(toml_value(v) for v in value) + "]"
-    if isinstance(value, Mapping):
-        items = (
-            f"{_toml_key(str(k))} = {toml_value(v)}" for k, v in value.items() if v is not None
-        )
-        return "{" + ", ".join(items) + "}"
-    raise SealError(f"cannot write {value!r} ({type(value).__name__}) as TOML")
-
-
-def dumps_toml(data: Mapping[str, Any]) -> str:
-    """Nested dicts as a TOML document (tomli-w), dicts as [tables]; None values are omitted."""
-    import tomli_w
-
-    def without_none(node: Any) -> Any:
-        if isinstance(node, Mapping):
-            return {k: without_none(v) for k, v in node.items() if v is not None}
-        return node
-
-    return tomli_w.dumps(without_none(data))
-
-
-def explain(config: ProtocolConfig) -> str:
-    """Every resolved value of `config` with its documentation, table by table."""
-    out: list[str] = [f"# {config.path}: protocol {config.name!r} (kind {config.kind})", ""]
-
-    def section(title: str, obj: Any, cls: type | None) -> None:
-        out.append(f"[{title}]")
-        docs = typed_config.field_docs(cls) if cls is not None else {}
-        values = (
-            {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
-            if dataclasses.is_dataclass(obj)
-            else dict(obj)
-        )
-        for key, value in values.items():
-            shown = toml_value(value) if value is not None else "(none)"
-            doc = docs.get(key, "").splitlines()[0] if docs.get(key) else ""
-            out.append(f"{key} = {shown}" + (f"    # {doc}" if doc else ""))
-        out.append("")
-
-    section("protocol", config.protocol, type(config.protocol))
-    for name, env in config.envs.items():
-        section(f"envs.{name}", env, EnvConfig)
-    agent = config.agent
-    section("agent", agent, type(agent))
-    if agent.preset:
-        from seal.learner.presets import PRESETS
-
-        out.pop()  # the section's blank line: the preset's lines belong to [agent]
-        out.append(f"# agent.preset = {agent.preset!r} sets:")
-        for key, value in PRESETS[agent.preset].items():
-            shown = toml_value(value)
-            if toml_value(getattr(agent, key)) == shown:
-                out.append(f"#   {key} = {shown}")
-            else:
-                out.append(
-                    f"#   {key} = {shown}, overridden: the explicit {key} = "
-                    f"{toml_value(getattr(agent, key))} wins"
-                )
-        out.append("")
-    for name in ("replay", "training", "evaluation"):
-        obj = getattr(config, name)
-        section(name, obj, type(obj))
-    from seal.protocols.evaluation_cost import explain_lines
-
-    out[-1:] = [*explain_lines(config), ""]  # what its options save, below [evaluation]'s keys
-    if config.scheduler is not None:
-        section("scheduler", config.scheduler.to_table(), type(config.scheduler))
-    if config.finetune is not None:
-        section("finetune", config.finetune, FinetuneConfig)
-    if config.transfer is not None:
-        section("transfer", config.transfer, TransferConfig)
-    section("checkpoint", config.checkpoint, type(config.checkpoint))
-    section("logging", config.logging, type(config.logging))
-    for name in ("search", "resources"):
-        if getattr(config, name):
-            section(name, getattr(config, name), None)
-    return "\n".join(out).rstrip() + "\n"

@@ -24,7 +24,7 @@ from seal.errors import SealError
 from seal.files import check_inside, check_regular_file
 from seal.metrics import REQUIRED_METRICS_COLUMNS
 from seal.protocols.evaluation_cost import DECIDED_KEY
-from seal.protocols.loader import read_toml
+from seal.protocols.toml_io import read_toml
 from seal.run.rundir import (  # defined once, by the writer
     CONFIG_LIMIT,
     TRAIN_COLUMNS,

@@ -295,7 +295,7 @@ def _holds(data: Mapping[str, Any], schema: type, path: str | Path) -> None:
 
 def saved_config_table(data: Mapping[str, Any], path: str | Path) -> dict[str, Any]:
     """The checkpoint's `config_toml` parsed (SealError naming the field if it is not TOML)."""
-    from seal.protocols.loader import parse_toml
+    from seal.protocols.toml_io import parse_toml
 
     try:
         return parse_toml(str(data["config_toml"]), "")

@@ -27,7 +27,8 @@ from typing import TYPE_CHECKING
 import torch
 
 from seal.learner.checkpoint import save_checkpoint
-from seal.protocols.loader import config_to_dict, dumps_toml
+from seal.protocols.loader import config_to_dict
+from seal.protocols.toml_io import dumps_toml
 from seal.run.checkpoint_fields import BestFields, CheckpointFields, EpochFields
 from seal.run.loop import LoopCallback, PhaseLoop
 from seal.run.parts import PhaseOwner

@@ -59,7 +59,8 @@ from seal.learner.checkpoint import read_checkpoint
 from seal.learner.sac import Agent
 from seal.learner.transfer import transfer_from
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.loader import config_to_dict, dumps_toml
+from seal.protocols.loader import config_to_dict
+from seal.protocols.toml_io import dumps_toml
 from seal.run.checkpoint_fields import EpochCheckpoint, check_run_checkpoint
 from seal.run.checkpointing import Checkpointer
 from seal.run.dirlock import DirLock

@@ -25,7 +25,8 @@ from seal.errors import ConfigError, SealError
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.sac import Agent, AgentState
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.loader import config_from_dict, read_toml, upgrade_saved
+from seal.protocols.loader import config_from_dict, upgrade_saved
+from seal.protocols.toml_io import read_toml
 from seal.run import resources
 from seal.run.checkpoint_fields import RunCheckpoint, check_run_checkpoint, saved_config_table
 from seal.run.phase_model import (

@@ -1,8 +1,8 @@
 """The two tables `seal sweep` reads, `[resources]` and `[search]`, checked when a protocol loads.
 
-They live apart from `seal.sweep` (which needs Ray) so that `seal run`, `seal protocol explain`
-and every other loader reject a misspelled key or a bad value in them before anything is written.
-Whether each searched `table.key` names a real config value is checked by the loader, which
+A leaf module of `seal.sweep` (no Ray, nothing of the run), so that the protocol loader, and with
+it `seal run`, `seal protocol explain` and every other reader of protocols, rejects a misspelled
+key or a bad value in them before anything is written. Whether each searched `table.key` names a real config value is checked by the loader, which
 builds the config with every value a distribution can take at its ends.
 """
 

@@ -22,7 +22,8 @@ from typing import TYPE_CHECKING, Any
 
 from seal.errors import SealError
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.loader import config_to_dict, dumps_toml, load_protocol
+from seal.protocols.loader import config_to_dict, load_protocol
+from seal.protocols.toml_io import dumps_toml
 from seal.run.preemption import Preempted, SignalStop
 from seal.run.rundir import new_group_id, seed_dir
 from seal.sweep.manifest import (

@@ -18,7 +18,8 @@ from typing import Any
 
 from seal.errors import SealError
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.loader import config_to_dict, dumps_toml, load_protocol
+from seal.protocols.loader import config_to_dict, load_protocol
+from seal.protocols.toml_io import dumps_toml
 from seal.run.rundir import atomic_write_text
 from seal.sweep.ray_session import parse_resources
 from seal.sweep.trials import TrialRecord

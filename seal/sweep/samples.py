@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING, Any
 
 from seal.errors import ConfigError, SealError
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.loader import apply_overrides, config_from_dict, config_to_dict, toml_value
+from seal.protocols.loader import config_from_dict, config_to_dict
+from seal.protocols.toml_io import apply_overrides, toml_value
 from seal.sweep import config_tables as sweep_tables
 from seal.sweep.config_tables import SEARCH_OPTIONS, Distribution, SearchSpec
 

@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING, Any
 
 from seal.errors import SealError
 from seal.protocols.config import ProtocolConfig
-from seal.protocols.loader import config_to_dict, dumps_toml, load_protocol
+from seal.protocols.loader import config_to_dict, load_protocol
+from seal.protocols.toml_io import dumps_toml
 from seal.run.loop import LoopCallback, PhaseLoop
 from seal.run.rundir import atomic_write_text, new_group_id, seed_dir
 from seal.sweep.config_tables import Resources, SearchSpec

@@ -12,7 +12,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from seal.errors import SealError
-from seal.protocols.loader import toml_value
+from seal.protocols.toml_io import toml_value
 from seal.run.rundir import atomic_write_text
 from seal.sweep.trials import TrialRecord
 

@@ -10,7 +10,8 @@ import pytest
 from seal.cli.main import main
 from seal.errors import ConfigError
 from seal.protocols import config_to_dict, dumps_toml, explain, load_protocol
-from seal.protocols.loader import config_from_dict, parse_override
+from seal.protocols.loader import config_from_dict
+from seal.protocols.toml_io import parse_override
 from seal.schedulers.base import scale_duration
 
 PROTOCOLS = Path(__file__).resolve().parents[2] / "protocols"

@@ -31,7 +31,7 @@ from hypothesis import strategies as st
 from seal.cli.main import main
 from seal.errors import SealError
 from seal.protocols import load_protocol
-from seal.protocols.loader import dumps_toml
+from seal.protocols.toml_io import dumps_toml
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = sorted(ROOT.glob("protocols/**/*.toml"))

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from seal.errors import SealError
-from seal.protocols.loader import dumps_toml
+from seal.protocols.toml_io import dumps_toml
 from seal.run.rundir import CsvLog, RunDir, new_group_id, parse_seed_dir
 
 
