@@ -8,7 +8,7 @@ from seal.bench.collection import bench_collection
 from seal.bench.flops import UpdateShape, flop_formula_check, gemm_flops, ideal_update_gemms
 from seal.bench.suite import format_table
 from seal.cli.main import main
-from seal.learner import collection
+from seal.learner import env_backends
 
 
 def _table_of(key: str, details: dict, **extra_details: object) -> str:
@@ -88,7 +88,7 @@ def test_collection_bench_on_point_ends_on_identical_observations(
 ) -> None:
     # auto's probe is injected (10 us a step, what a point step costs), so the choice does not
     # depend on this machine's speed: 4 x 10 us is far below the 1 ms threshold for workers.
-    monkeypatch.setattr(collection, "_probe_step_seconds", lambda instance, steps=10: 1e-5)
+    monkeypatch.setattr(env_backends, "_probe_step_seconds", lambda instance, steps=10: 1e-5)
     result = bench_collection(
         "point", episodes=1, episode_length=10, backends=("sync", "subproc-batched"), num_workers=2
     )

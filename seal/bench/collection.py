@@ -23,7 +23,7 @@ class _PlainLoop:
     """The reference: one process, one env after another, envs built by the same adapter (same wrappers)."""
 
     def __init__(self, adapter: EnvAdapter, env_name: str, seed: int) -> None:
-        from seal.learner.collection import instance_seed
+        from seal.learner.env_backends import instance_seed
 
         self.seeds = [instance_seed(seed, env_name, task) for task in adapter.tasks]
         self.envs = [
@@ -112,7 +112,7 @@ def bench_collection(
     AssertionError if a backend ends any repeat on other observations than the plain loop.
     """
     from seal.envs import make_adapter
-    from seal.learner.collection import auto_backend
+    from seal.learner.env_backends import auto_backend
 
     adapter = make_adapter(
         adapter_name, episode_length=episode_length

@@ -16,7 +16,7 @@ epochs, which skip updates, are projected at the full per-epoch cost, so the pro
 slight over-estimate for short runs.
 
 The floor (`floor_projection`): at paper scale the environments, not the updates, bound a run.
-Each environment's step cost is measured here (`seal.learner.collection.step_seconds`: CPU
+Each environment's step cost is measured here (`seal.learner.env_backends.step_seconds`: CPU
 seconds of a random-action step, the mean over the protocol's tasks), the env steps a seed makes
 are counted from the protocol (every task collecting one episode every epoch, and every
 evaluation's episodes), and for N cores at a parallel efficiency e:
@@ -104,7 +104,7 @@ def measure_step_costs(
 ) -> dict[str, float]:
     """env -> mean CPU seconds of one env step over the protocol's tasks (each task weighs the same,
     as each collects the same episodes)."""
-    from seal.learner.collection import step_seconds
+    from seal.learner.env_backends import step_seconds
 
     costs: dict[str, float] = {}
     for env, adapter in build_adapters(config).items():

@@ -112,7 +112,7 @@ class TrainingConfig:
     collect), so no environment's episode contributes more env steps than there are updates.
     """
     collector: Literal["auto", "sync", "subproc-batched", "inline-batched", "gym-async"] = "auto"
-    """Collection backend (seal.learner.collection.BACKENDS): "auto" measures one step and picks "inline-batched" or "sync"."""
+    """Collection backend (seal.learner.env_backends.BACKENDS): "auto" measures one step and picks "inline-batched" or "sync"."""
     demo_episodes: Annotated[int, Field(ge=0)] = 0
     """Episodes per task of the adapter's scripted expert put in the replay at the start of each phase (0 = none).
 

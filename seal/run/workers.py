@@ -48,7 +48,7 @@ import numpy as np
 import torch
 
 from seal.errors import SealError, SealWarning
-from seal.learner.collection import exit_with_parent
+from seal.learner.env_backends import exit_with_parent
 from seal.learner.sac import Agent, AgentState
 from seal.run.phase_model import (
     ACTING_THREADS,

@@ -10,8 +10,9 @@ import pytest
 
 from seal.envs.base import EnvAdapter, ObsLayout
 from seal.errors import SealError, UnknownNameError
-from seal.learner import collection
-from seal.learner.collection import Collector, instance_seed
+from seal.learner import env_backends
+from seal.learner.collection import Collector
+from seal.learner.env_backends import instance_seed
 
 # Per task: the step at which info["success"] is 1 (only that step), and the step that terminates.
 SUCCESS_AT = {"a": 2, "b": None, "c": 4, "stop": None}
@@ -189,13 +190,13 @@ def test_batched_backends_deal_instances_round_robin_over_all_environments() -> 
     single = {"toy": ToyAdapter(tasks=["a"]), "toy2": Toy2Adapter(tasks=["a"])}
     with Collector(single, seed=3, backend="inline-batched", num_workers=2) as col:
         backend = col._backend
-        assert isinstance(backend, collection._SubprocBatchedBackend)
+        assert isinstance(backend, env_backends._SubprocBatchedBackend)
         assert [proc is None for proc in backend.procs] == [True, False]  # main + one worker
         assert {e: o.tolist() for e, o in backend._owner.items()} == {"toy": [0], "toy2": [1]}
     uneven = adapters()  # 3 + 2 instances: instance k of the 5 lives in share k % 2
     with Collector(uneven, seed=3, backend="subproc-batched", num_workers=2) as col:
         backend = col._backend
-        assert isinstance(backend, collection._SubprocBatchedBackend)
+        assert isinstance(backend, env_backends._SubprocBatchedBackend)
         assert {e: o.tolist() for e, o in backend._owner.items()} == {
             "toy": [0, 1, 0],
             "toy2": [1, 0],
@@ -360,13 +361,13 @@ def test_auto_chooses_from_what_splitting_a_step_saves(monkeypatch: pytest.Monke
     # The measurement is injected, so the choice does not depend on this machine's speed. The
     # toy envs have 3 + 2 tasks, dealt over 2 shares as toy [0, 1, 0], toy2 [1, 0]; each env's
     # probe prices all its instances. 100 us each: shares 300 + 200 us, the split saves 200 us.
-    assert collection.AUTO_PARALLEL_MIN_SAVING_S == 1e-3
-    monkeypatch.setattr(collection, "_probe_step_seconds", lambda instance, steps=10: 1e-4)
+    assert env_backends.AUTO_PARALLEL_MIN_SAVING_S == 1e-3
+    monkeypatch.setattr(env_backends, "_probe_step_seconds", lambda instance, steps=10: 1e-4)
     with Collector(adapters(), seed=0, backend="auto", num_workers=2) as col:
         assert col.backend_name == "sync"
         assert col.step_cost_s == pytest.approx(5 * 1e-4)
     # 1 ms each: shares 3 + 2 ms, the split saves 2 ms -> the main process steps one share.
-    monkeypatch.setattr(collection, "_probe_step_seconds", lambda instance, steps=10: 1e-3)
+    monkeypatch.setattr(env_backends, "_probe_step_seconds", lambda instance, steps=10: 1e-3)
     with Collector(adapters(), seed=0, backend="auto", num_workers=2) as col:
         assert col.backend_name == "inline-batched"
         assert col.step_cost_s == pytest.approx(5 * 1e-3)
@@ -375,7 +376,7 @@ def test_auto_chooses_from_what_splitting_a_step_saves(monkeypatch: pytest.Monke
     pair = {"toy": ToyAdapter(tasks=["a"]), "toy2": Toy2Adapter(tasks=["a"])}
     costs = {"toy": 4e-3, "toy2": 5e-4}
     monkeypatch.setattr(
-        collection, "_probe_step_seconds", lambda instance, steps=10: costs[instance.env]
+        env_backends, "_probe_step_seconds", lambda instance, steps=10: costs[instance.env]
     )
     with Collector(pair, seed=0, backend="auto", num_workers=2) as col:
         assert col.backend_name == "sync"
@@ -383,8 +384,8 @@ def test_auto_chooses_from_what_splitting_a_step_saves(monkeypatch: pytest.Monke
     # One worker: never parallel, and nothing is probed.
     with Collector(adapters(), seed=0, backend="auto", num_workers=1) as col:
         assert col.backend_name == "sync" and col.step_cost_s is None
-    assert collection.choose_backend(0.999e-3) == "sync"
-    assert collection.choose_backend(1e-3) == "inline-batched"
+    assert env_backends.choose_backend(0.999e-3) == "sync"
+    assert env_backends.choose_backend(1e-3) == "inline-batched"
 
 
 HOLDER = """

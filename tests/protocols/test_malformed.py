@@ -11,7 +11,7 @@ from typing import get_args, get_type_hints
 import pytest
 
 from seal.cli.main import main
-from seal.learner.collection import BACKENDS
+from seal.learner.env_backends import BACKENDS
 from seal.protocols.config import TrainingConfig
 
 BASE = """\
