@@ -18,7 +18,7 @@ import numpy as np
 from scipy import stats as scipy_stats
 
 from seal.errors import SealError
-from seal.stats import _finite, binomial_ci, mde, resolved, t_ci
+from seal.stats import _finite, binomial_ci, mde, resolved, saving, t_ci
 
 SD_BOUND_CONFIDENCE = 0.80
 """Confidence of the one-sided upper limit on the paired SD that the seeds-until-MDE rule uses."""
@@ -121,8 +121,9 @@ def sequential_false_positive_rate(
     `max_seeds` (pair i: the i-th seed of each half, a random pairing). The rule looks at pairs
     0..n-1 for n in `seeds_until_mde_schedule(first, batch, max_seeds)`, as the bench would add
     them, and stops at the first n where `seeds_until_mde_step` stops on the one statistic
-    `difference(a, b)` (default: the saving 1 - a / b, as `steps_saved`); the draw counts when
-    `ci` of those n differences excludes 0 (`resolved`). Returns the rate, its Clopper-Pearson
+    `difference(a[:n], b[:n])`, recomputed at each look as the bench recomputes it from the seeds
+    it has (default: the saving of a over b, `seal.stats.saving`, as `steps_saved`); the draw
+    counts when `ci` of those n differences excludes 0 (`resolved`). Returns the rate, its Clopper-Pearson
     95% CI, how many stopped for each reason, and the seeds used.
     """
     x = np.asarray(values, dtype=float).ravel()
@@ -137,10 +138,8 @@ def sequential_false_positive_rate(
         raise SealError(f"splits {splits!r}: expected >= 1")
     if difference is None:
         if not (x > 0).all():
-            raise SealError(f"values {x.tolist()}: a saving 1 - a / b needs positive costs")
-
-        def difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-            return 1.0 - a / b
+            raise SealError(f"values {x.tolist()}: a saving of costs needs positive costs")
+        difference = saving
 
     schedule = seeds_until_mde_schedule(first, batch, max_seeds)
     rng = np.random.default_rng(seed)
@@ -149,14 +148,15 @@ def sequential_false_positive_rate(
     used: dict[int, int] = {}
     for _ in range(splits):
         order = rng.permutation(len(x))
-        d = difference(x[order[:max_seeds]], x[order[max_seeds : 2 * max_seeds]])
+        a, b = x[order[:max_seeds]], x[order[max_seeds : 2 * max_seeds]]
         for n in schedule:
-            look = seeds_until_mde_step({"d": d[:n]}, n, target, max_seeds, confidence)
+            d = difference(a[:n], b[:n])
+            look = seeds_until_mde_step({"d": d}, n, target, max_seeds, confidence)
             if look["stop"]:
                 break
         reasons[look["reason"]] += 1
         used[n] = used.get(n, 0) + 1
-        if resolved(ci(d[:n])):
+        if resolved(ci(d)):
             excluded += 1
     return {
         "seeds": len(x),

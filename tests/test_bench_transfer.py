@@ -17,6 +17,7 @@ from seal.experiments.arms import ARMS, arms
 from seal.experiments.records import agent_mismatches, code_versions, finished_run
 from seal.experiments.statistics import (
     TargetCost,
+    steps_saved,
     summarise,
     target_auc,
     target_budget,
@@ -83,15 +84,30 @@ def test_a_cell_with_a_censored_seed_is_a_lower_bound() -> None:
     assert rows["Total"] == "≥ 0.0036 ± 0.001697 [1/2]"
 
 
-def test_updates_saved_is_per_seed() -> None:
+def test_updates_saved_is_per_seed_over_the_alone_arms_mean() -> None:
     def cost(consumed: float) -> TargetCost:
         return TargetCost(consumed, 0, 0, 4, {}, ())
 
-    # 1 - 3000/4000 = 0.25; 1 - 6000/5000 = -0.2; an alone run that consumed nothing gives nan.
+    # The alone arm's mean is (4000 + 5000 + 0) / 3 = 3000: (4000 - 3000) / 3000 = 1/3,
+    # (5000 - 6000) / 3000 = -1/3, (0 - 1) / 3000; their mean is 1 - mean(arm) / mean(alone)
+    # = 1 - 3000.33 / 3000.
     saved = updates_saved([cost(3000), cost(6000), cost(1)], [cost(4000), cost(5000), cost(0)])
-    assert saved[:2] == pytest.approx([0.25, -0.2]) and math.isnan(saved[2])
+    assert saved == pytest.approx([1 / 3, -1 / 3, -1 / 3000])
+    assert sum(saved) / 3 == pytest.approx(1 - (9001 / 3) / 3000)
+    # An alone arm that consumed nothing in any seed gives nan.
+    assert all(math.isnan(v) for v in updates_saved([cost(1)], [cost(0)]))
     with pytest.raises(SealError, match="2 seeds of the arm but 1"):
         updates_saved([cost(1), cost(1)], [cost(1)])
+
+
+def test_a_swap_of_the_same_costs_saves_nothing() -> None:
+    # No effect: the arm's costs are the alone arm's, seeds swapped. The saving of the means is
+    # exactly 0; the mean of per-seed ratios would read 1 - (1/3 + 3) / 2 = -0.667 (issue 58).
+    def cost(steps: int) -> TargetCost:
+        return TargetCost(0, steps, 0, 4, {}, ())
+
+    saved = steps_saved([cost(100), cost(300)], [cost(300), cost(100)])
+    assert saved == pytest.approx([1.0, -1.0]) and sum(saved) == pytest.approx(0.0)
 
 
 def test_every_arm_is_a_loadable_protocol_with_the_same_network_and_batch() -> None:
@@ -363,7 +379,7 @@ def test_every_arm_has_the_jsons_keys() -> None:
         return TargetCost(8.0 * steps, steps, 0, 1, {"t0": 8.0 * steps}, ("t0",), {"t0": steps})
 
     chosen = arms(only=["high_source"])
-    # 1 - 1500/2000 = 0.25 and 1 - 3000/2000 = -0.5 per seed; their mean -0.125.
+    # (2000 - 1500) / 2000 = 0.25 and (2000 - 3000) / 2000 = -0.5 per seed; their mean -0.125.
     summary = summarise(
         {"alone": [cost(2000)] * 2, "high_source": [cost(1500), cost(3000)]}, chosen
     )
@@ -375,7 +391,7 @@ def test_every_arm_has_the_jsons_keys() -> None:
     assert summary["high_source"]["steps_saved_per_seed"] == pytest.approx([0.25, -0.5])
     assert summary["high_source"]["steps_saved"] == pytest.approx(-0.125)
     # Student's t over 2 seeds: sd = 0.75 / sqrt(2) = 0.5303, sem = 0.375, t(0.975, 1) = 12.706,
-    # so -0.125 -+ 4.765, cut at 1: no seed saves more than all its steps.
+    # so -0.125 -+ 4.765, cut at 1: the mean saving is at most all the steps.
     low, high = summary["high_source"]["ci95"]
     assert (low, high) == pytest.approx((-4.890, 1.0), abs=1e-3)
     # transitions = steps x 8 per step: the same saving, and a per-step batch of 8.
@@ -482,8 +498,9 @@ def test_bounded_statistics_keep_their_cis_in_their_bounds() -> None:
     from seal.stats import change_ci, t_ci
 
     chosen = arms(only=["oracle_policy"])
-    # Round 5's oracle_policy: G 200, 400, 0, 200, 0 against the alone arm's 2,300-2,600, so
-    # steps_saved .913, .840, 1, .923, 1, whose t interval ends at +1.019.
+    # Round 5's oracle_policy: G 200, 400, 0, 200, 0 against the alone arm's 2,300-2,600 (mean
+    # 2,360), so steps_saved per seed 2100, 2100, 2300, 2400, 2100 / 2360, mean 1 - 160 / 2360,
+    # whose t interval ends at +1.007.
     alone = [_cost(s) for s in (2300, 2500, 2300, 2600, 2100)]
     oracle = [_cost(s) for s in (200, 400, 0, 200, 0)]
     # AUC gains 0.95, 1, 1, 0.9, 1 (an alone arm that never succeeds, an oracle that nearly
@@ -495,7 +512,8 @@ def test_bounded_statistics_keep_their_cis_in_their_bounds() -> None:
     summary = summarise({"alone": alone, "oracle_policy": oracle}, chosen, auc=auc)
     s = summary["oracle_policy"]
     steps = s["steps_saved_per_seed"]
-    assert max(steps) == 1.0 and t_ci(steps)[1] > 1
+    assert steps == pytest.approx([v / 2360 for v in (2100, 2100, 2300, 2400, 2100)])
+    assert s["steps_saved"] == pytest.approx(1 - 160 / 2360) and t_ci(steps)[1] > 1
     assert s["ci95"] == pytest.approx([t_ci(steps)[0], 1.0])
     assert s["transfer_updates_saved_ci95"][1] == 1.0
     assert t_ci(s["auc_gain_per_seed"])[1] > 1
@@ -509,7 +527,7 @@ def test_bounded_statistics_keep_their_cis_in_their_bounds() -> None:
     assert fieller[0] < -1
     assert (total["pct_ci_low"], total["pct_ci_high"]) == pytest.approx((-100.0, 100 * fieller[1]))
     assert total["resolved"]
-    assert "[+0.852, +1.000]" in format_table(costs, chosen, summary)
+    assert "[+0.858, +1.000]" in format_table(costs, chosen, summary)
 
 
 def _synthetic_runs(seeds: int = 5) -> dict[tuple[str, int], pd.DataFrame]:
@@ -698,7 +716,8 @@ def test_seeds_until_mde_stops_when_the_named_statistics_are_precise(monkeypatch
 
     def reach_of(arm: str, seed: int) -> pd.DataFrame:
         alone = 2000 + 100 * (seed % 3)
-        at = {"alone": alone, "high_source": alone - 100, "no_correspondence": alone}[arm]
+        saves = 100 + 100 * (seed % 2)
+        at = {"alone": alone, "high_source": alone - saves, "no_correspondence": alone}[arm]
         return _reaching({t: at for t in ("t0", "t1", "t2", "t3")})
 
     calls = _fake_runs(monkeypatch, reach_of)
@@ -724,9 +743,9 @@ def test_seeds_until_mde_stops_when_the_named_statistics_are_precise(monkeypatch
         ],
     }
     (look,) = rule["looks"]
-    # high_source saves 100 of 2,000-2,200 steps: 1/20, 1/21, 1/22, 1/20, 1/21.
+    # high_source saves 100, 200, 100, 200, 100 steps of the alone arm's mean 2,080.
     assert look["statistics"]["high_source/steps"]["sd"] == pytest.approx(
-        np.std([1 / 20, 1 / 21, 1 / 22, 1 / 20, 1 / 21], ddof=1)
+        np.std([100, 200, 100, 200, 100], ddof=1) / 2080
     )
     assert look["statistics"]["no_correspondence/steps"]["sd"] == 0.0
     assert "stopped at 5 seeds, target reached" in format_until_mde(rule)

@@ -141,19 +141,23 @@ def target_auc(
 
 
 def saved(arm: Sequence[float], alone: Sequence[float]) -> list[float]:
-    """Per seed: 1 - arm / alone (seed i against seed i); nan where the alone figure is 0."""
+    """Per seed i: the share of the alone arm's mean cost the arm saved in seed i
+    (`seal.stats.saving`: (alone_i - arm_i) / mean(alone), whose mean is 1 - mean(arm) /
+    mean(alone)); all nan where the alone arm's mean cost is 0."""
+    from seal.stats import saving
+
     if len(arm) != len(alone):
         raise SealError(f"{len(arm)} seeds of the arm but {len(alone)} of its target-alone arm")
-    return [1.0 - a / b if b > 0 else math.nan for a, b in zip(arm, alone, strict=True)]
+    return saving(arm, alone).tolist()
 
 
 def updates_saved(arm: Sequence[TargetCost], alone: Sequence[TargetCost]) -> list[float]:
-    """Per seed: 1 - arm's consumed / alone's consumed (seed i against seed i)."""
+    """Per seed: the saving of the target's consumed transitions (`saved`)."""
     return saved([a.consumed for a in arm], [b.consumed for b in alone])
 
 
 def steps_saved(arm: Sequence[TargetCost], alone: Sequence[TargetCost]) -> list[float]:
-    """Per seed: 1 - arm's gradient steps to 90% / alone's (seed i against seed i)."""
+    """Per seed: the saving of the target's gradient steps to 90% (`saved`)."""
     return saved([a.grad_steps for a in arm], [b.grad_steps for b in alone])
 
 
@@ -161,9 +165,10 @@ def steps_saved(arm: Sequence[TargetCost], alone: Sequence[TargetCost]) -> list[
 
 
 SAVED_BOUNDS = (-math.inf, 1.0)
-"""The range of a saving 1 - cost(arm) / cost(alone) (steps_saved, transfer_updates_saved): costs
-are >= 0, so it is at most 1 (1: the arm reached at its first evaluation, step 0); below, only the
-arm's budget over the alone arm's cost bounds it, so no fixed bound."""
+"""The range of a mean saving 1 - mean cost(arm) / mean cost(alone) (steps_saved,
+transfer_updates_saved): costs are >= 0, so it is at most 1 (1: the arm reached at its first
+evaluation, step 0, in every seed); below, only the arm's budget over the alone arm's cost bounds
+it, so no fixed bound. (One seed's value can pass 1 where its alone cost is above the mean.)"""
 AUC_GAIN_BOUNDS = (-1.0, 1.0)
 """The range of AUC(arm) - AUC(alone): each AUC is a mean success in [0, 1]."""
 CHANGE_BOUNDS = (-1.0, math.inf)
@@ -414,8 +419,9 @@ def false_positive_rate(
     until every task first reaches 90% (`target_cost`, censored at the run's total).
     `seal.stats.split_false_positive_rate` draws `splits` random half/half splits, pairs the halves'
     seeds at random, and applies the arms' CI (`ARM_CI`: Student's t) and, for comparison, the
-    percentile bootstrap it replaced, to the mean of 1 - G(a) / G(b); and `seal report`'s CI of a
-    change (`seal.stats.change_ci`, paired) to mean(G(a)) / mean(G(b)) - 1 on the same splits.
+    percentile bootstrap it replaced, to the saving of G(a) over G(b) (`seal.stats.saving`); and
+    `seal report`'s CI of a change (`seal.stats.change_ci`, paired) to mean(G(a)) / mean(G(b)) - 1
+    on the same splits.
     """
     from functools import partial
 

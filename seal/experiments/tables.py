@@ -118,7 +118,7 @@ def _change_rows(
 
 
 STATISTICS: tuple[tuple[str, str, str, str], ...] = (
-    ("steps", "steps_saved", "ci95", "steps_saved = 1 - G(arm) / G(alone)"),
+    ("steps", "steps_saved", "ci95", "steps_saved = 1 - mean G(arm) / mean G(alone)"),
     ("robust_steps", "robust_steps_saved", "robust_ci95", "the same, 2 evaluations in a row"),
     ("auc", "auc_gain", "auc_gain_ci95", "AUC(arm) - AUC(alone) of the target's success"),
 )

@@ -13,7 +13,8 @@ for that task and is reported as censored. The mean over seeds is of the per-see
 s of an arm is set against seed s of its target-alone arm.
 
 Each arm's three paired statistics against its alone arm, seed for seed: `steps` (steps_saved,
-1 - G(arm) / G(alone), G = gradient steps until every target task first reaches 90%),
+1 - mean G(arm) / mean G(alone), per seed (G(alone) - G(arm)) / mean G(alone): `seal.stats.saving`;
+G = gradient steps until every target task first reaches 90%),
 `robust_steps` (the same with 2 evaluations in a row) and `auc` (AUC(arm) - AUC(alone), the area
 under each target task's evaluated success over gradient steps 0..budget, over the budget,
 averaged over the tasks; `target_auc`), each with its 95% CI and what the seeds can resolve
@@ -393,7 +394,7 @@ def format_fpr(result: Mapping[str, Any]) -> str:
         f"90% {result['grad_steps_to_90_per_seed']} (censored tasks per seed "
         f"{result['censored_per_seed']})",
         f"{rate['splits']} random {rate['half']}/{rate['half']} splits, halves paired at random, "
-        "CI of the mean of 1 - G(a) / G(b) excluding 0:",
+        "CI of the saving 1 - mean G(a) / mean G(b) excluding 0:",
         f"  {result['ci_method']}: {share(rate)}; goal <= {result['goal']['rate_le']}: {verdict}",
         f"  percentile bootstrap (the arms' CI until measured here), for comparison: {share(other)}",
     ]

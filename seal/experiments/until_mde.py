@@ -79,9 +79,9 @@ def rule_differences(
     loaded: Mapping[tuple[str, int], Any], chosen: Sequence[Arm], seeds: int
 ) -> dict[str, list[float] | None]:
     """Per named statistic (`<arm>/steps`, `<arm>/auc` of each chosen arm of RULE_ARMS), its
-    per-seed paired differences over seeds 0..seeds-1 of `loaded` runs: steps_saved (1 - G(arm) /
-    G(alone)) and the AUC gain (AUC(arm) - AUC(alone) over the alone arm's budget, the tasks'
-    mean), as `summarise` computes them. None for both of an arm that, like its alone arm, never
+    per-seed paired differences over seeds 0..seeds-1 of `loaded` runs: steps_saved (per seed
+    (G(alone) - G(arm)) / mean G(alone), `seal.stats.saving`) and the AUC gain (AUC(arm) -
+    AUC(alone) over the alone arm's budget, the tasks' mean), as `summarise` computes them. None for both of an arm that, like its alone arm, never
     reached in any seed (as `arm_mdes`: its SD would measure the budget)."""
     from seal.experiments.statistics import steps_saved
 
