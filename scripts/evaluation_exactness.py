@@ -29,10 +29,10 @@ CHEAP = ["evaluation.decide_early=true", "evaluation.end_on_success=true"]
 EVAL_PREFIXES = ("eval_",)
 
 
-def run_or_read(protocol: Path, seed: int, out: Path, overrides: list[str]) -> Path:
+def run_or_read(protocol: Path, seed: int, out: Path, overrides: list[str], side: str) -> Path:
     """The run directory of (protocol, seed, overrides) under out/<side>, run if not finished."""
     config = load_protocol(protocol, overrides)
-    group = out / ("cheap" if overrides else "full") / config.name
+    group = out / side / config.name
     run_dir = group / f"seed-{seed}"
     if not (run_dir / "provenance.json").is_file() or not load_run(run_dir).provenance.get(
         "end_time"
@@ -73,8 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     same = True
     seconds = {"full": [0.0, 0.0], "cheap": [0.0, 0.0]}
     for seed in args.seeds:
-        full = run_or_read(args.protocol, seed, args.out, list(args.base))
-        fast = run_or_read(args.protocol, seed, args.out, list(args.base) + cheap)
+        full = run_or_read(args.protocol, seed, args.out, list(args.base), "full")
+        fast = run_or_read(args.protocol, seed, args.out, list(args.base) + cheap, "cheap")
         a, b = crossings(full, threshold), crossings(fast, threshold)
         equal_cross = a.equals(b)
         ta, tb = training_rows(full), training_rows(fast)
