@@ -106,7 +106,7 @@ def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() ->
         assert config.kind == "baseline" and config.envs["fk"].adapter == "franka_kitchen_dense"
         v4 = "_v4" in name
         # v4 arms and the learner tests run all epochs
-        runs_on = v4 or name.endswith("_critic_ln")
+        runs_on = v4 or name.endswith(("_critic_ln", "_bronet"))
         assert config.evaluation.stop_when_reached is not runs_on, name
         assert config.envs["fk"].options == {"reward_version": "v4" if v4 else "v3"}, name
         # 535 epochs x 280 steps = 149,800 env steps: within the issue's 150k budget.
@@ -149,6 +149,15 @@ def test_arms_are_single_kitchen_protocols_differing_only_in_demonstrations() ->
             assert changed.evaluation == dataclasses.replace(
                 plain.evaluation, stop_when_reached=False
             )
+        # BroNet's learner test (issue 54 rule 3), on v3 only: the critic block is the one change.
+        plain, bronet = configs[task], configs[f"{task}_bronet"]
+        assert bronet.agent == dataclasses.replace(plain.agent, critic_block="bronet")
+        assert (bronet.training, bronet.envs, bronet.protocol.seeds) == (
+            plain.training,
+            plain.envs,
+            3,
+        )
+        assert bronet.evaluation == dataclasses.replace(plain.evaluation, stop_when_reached=False)
     with pytest.raises(SealError, match="unknown kitchen arm 'nope'"):
         arms(["nope"])
 
@@ -524,6 +533,16 @@ def test_the_learner_test_applies_issue_54s_rule_and_the_reward_test_pairs_by_le
     assert with_ln["tasks"]["microwave_v4_critic_ln"]["against"] == "microwave_critic_ln"
     assert (with_ln["made"], with_ln["made_v3"]) == (1, 15)
     assert reward_test(runs)["made"] == 0
+    # BroNet's learner test pairs <task>_bronet with <task> and reads none of the LayerNorm arms:
+    # ending in 3 of 15 against 2, crossing in 8 as the plain critic, it wins as "BroNet".
+    runs |= {f"{t}_bronet": arm(*p) for t, p in zip(five, ln, strict=True)}
+    runs["bottom_right_burner_bronet"]["per_seed"].append(
+        {"seed": 2, "reached": False, "env_steps": 30_000, "final_success": 0.0}
+    )
+    bronet = learner_test(runs, "_bronet")
+    assert [bronet[k] for k in totals] == [15, 15, 8, 8, 3, 2]
+    assert bronet["default"] == "BroNet"
+    assert bronet["tasks"]["microwave_bronet"]["against"] == "microwave"
 
 
 @pytest.mark.slow

@@ -11,7 +11,9 @@ under reward v4 (the `*_v4` arms, all 535 epochs run), at least 4 of the 5 tasks
 reach it in at least 2 of 3 seeds (issue 37, `goal.v4`). The `*_v4_critic_ln` arms are issue 37's
 collapse test, v4 with LayerNorm in the critics, set seed for seed against v4 alone (`collapse_test`).
 `reward_test` sets each v4 arm seed for seed against its v3 arm run with stopping off, and applies
-the rule that decides the default reward (envs/franka_kitchen_dense/README.md).
+the rule that decides the default reward (envs/franka_kitchen_dense/README.md). `learner_test`
+applies issue 54's rule to a learner change on v3 (`LEARNERS`: the `*_critic_ln` arms, LayerNorm
+in the critics, and the `*_bronet` arms, BRO's residual critic) against the plain critic.
 """
 
 from __future__ import annotations
@@ -87,12 +89,19 @@ ARMS: tuple[Arm, ...] = (
     _arm("bottom_left_burner_critic_ln", "bottom-left-burner + critic LN"),
     _arm("microwave_critic_ln", "microwave + critic LN"),
     _arm("bottom_right_burner_critic_ln", "bottom-right-burner + critic LN"),
+    _arm("slide_cabinet_bronet", "slide-cabinet + BroNet critic"),
+    _arm("light_switch_bronet", "light-switch + BroNet critic"),
+    _arm("bottom_left_burner_bronet", "bottom-left-burner + BroNet critic"),
+    _arm("microwave_bronet", "microwave + BroNet critic"),
+    _arm("bottom_right_burner_bronet", "bottom-right-burner + BroNet critic"),
 )
 """The arms, each pinned to a reward version by its protocol's `options.reward_version`: v3, and
 v4 for the `*_v4` arms (which run all 535 epochs: `evaluation.stop_when_reached = false`)
 and for the collapse test's `*_v4_critic_ln` arms (v4 with `agent.critic_layer_norm`)."""
 COLLAPSE_TEST_SUFFIX = "_critic_ln"
 """A collapse-test arm is its v4 arm's name with this suffix: the same protocol with one change."""
+LEARNERS: dict[str, str] = {COLLAPSE_TEST_SUFFIX: "critic LN", "_bronet": "BroNet"}
+"""Issue 54's learner changes on v3: an arm's suffix, and what the learner test calls it."""
 V4_SUFFIX = "_v4"
 """A reward-v4 arm is its v3 arm's name with this suffix: the same protocol on reward v4."""
 
@@ -252,6 +261,7 @@ def run_kitchen_bench(
         "collapse_test": collapse_test(result_arms),
         "reward_test": reward_test(result_arms),
         "learner_test": learner_test(result_arms),
+        "learner_test_bronet": learner_test(result_arms, "_bronet"),
         "reward_test_critic_ln": reward_test(result_arms, COLLAPSE_TEST_SUFFIX),
         "seeds": seeds,
         "overrides": list(overrides),
@@ -270,7 +280,7 @@ def rewards_alone_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
         for a in ARMS
         if _arm_config(a).training.demo_episodes == 0
         and _pinned_version(a) == "v3"
-        and not a.name.endswith(COLLAPSE_TEST_SUFFIX)
+        and not a.name.endswith(tuple(LEARNERS))
     ]
     ran = [name for name in plain if name in result_arms]
     reached = [
@@ -304,9 +314,7 @@ def _verdict(reached: int, reachable: int, needed: int, *, all_ran: bool) -> dic
 def _v4_arms() -> list[str]:
     """The reward-v4 arms (the collapse test's are a learner change on v4, not v4's evidence)."""
     return [
-        a.name
-        for a in ARMS
-        if _pinned_version(a) == "v4" and not a.name.endswith(COLLAPSE_TEST_SUFFIX)
+        a.name for a in ARMS if _pinned_version(a) == "v4" and not a.name.endswith(tuple(LEARNERS))
     ]
 
 
@@ -360,15 +368,17 @@ def reward_test(result_arms: Mapping[str, Any], learner: str = "") -> dict[str, 
     return {**test, "default": None if wins is None else ("v4" if wins else "v3")}
 
 
-def learner_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
-    """Issue 54's rule on the default reward (docs/hyperparameters.md): critic LayerNorm against
-    the plain critic on the five v3 arms; `default` "critic LN" if it ends at >= 90% in more runs
-    and crosses in at least as many, "plain" if not, None while the runs left could change it.
-    The old side's keys end in "_plain"."""
-    pairs = [(f"{t}{COLLAPSE_TEST_SUFFIX}", t) for t in _tasks()]
+def learner_test(
+    result_arms: Mapping[str, Any], suffix: str = COLLAPSE_TEST_SUFFIX
+) -> dict[str, Any]:
+    """Issue 54's rule on the default reward (docs/hyperparameters.md): a learner change (an arm
+    suffix of `LEARNERS`) against the plain critic on the five v3 arms; `default` the change's name
+    if it ends at >= 90% in more runs and crosses in at least as many, "plain" if not, None while
+    the runs left could change it. The old side's keys end in "_plain"."""
+    pairs = [(f"{t}{suffix}", t) for t in _tasks()]
     test = rule_test(result_arms, pairs, "_plain", strict="ended_90", weak="crossed")
     wins = test["new_wins"]
-    return {**test, "default": None if wins is None else ("critic LN" if wins else "plain")}
+    return {**test, "default": None if wins is None else (LEARNERS[suffix] if wins else "plain")}
 
 
 def _format_collapse_test(tests: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
@@ -385,11 +395,15 @@ def _format_reward_test(
     return format_rule_test(test, labels, what, "_v3", ("v4", "v3"), rule)
 
 
-def _format_learner_test(test: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
-    if not any(f"{t}{COLLAPSE_TEST_SUFFIX}" in labels for t in _tasks()):
+def _format_learner_test(
+    test: Mapping[str, Any], labels: Mapping[str, str], suffix: str = COLLAPSE_TEST_SUFFIX
+) -> list[str]:
+    if not any(f"{t}{suffix}" in labels for t in _tasks()):
         return []
-    rule = "critic LN if it ends >= 90% in more runs and crosses in at least as many"
-    return format_rule_test(test, labels, "learner test", "_plain", ("critic LN", "plain"), rule)
+    name = LEARNERS[suffix]
+    rule = f"{name} if it ends >= 90% in more runs and crosses in at least as many"
+    what = "learner test" + ("" if suffix == COLLAPSE_TEST_SUFFIX else f" ({name})")
+    return format_rule_test(test, labels, what, "_plain", (name, "plain"), rule)
 
 
 def _q(value: float | None) -> str:
@@ -488,6 +502,11 @@ def format_result(result: Mapping[str, Any]) -> str:
         *(
             _format_learner_test(result["learner_test"], by_name)
             if "learner_test" in result
+            else []
+        ),
+        *(
+            _format_learner_test(result["learner_test_bronet"], by_name, "_bronet")
+            if "learner_test_bronet" in result
             else []
         ),
         *(
