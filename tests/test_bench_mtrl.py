@@ -28,7 +28,8 @@ def test_every_arm_differs_from_the_reference_only_in_its_learner() -> None:
     for arm in ARMS:
         config = load_protocol(arm.protocol)
         assert config.envs == ref.envs and config.training == ref.training
-        assert config.evaluation == ref.evaluation and config.protocol.epochs == 200
+        # 300 epochs x 150 env steps a task: the 45,000 a task of docs/smt_table1.md
+        assert config.evaluation == ref.evaluation and config.protocol.epochs == 300
         assert config.protocol.column == arm.label  # its column in the report
     assert [a.name for a in arms(["paco"])] == ["sac_mt_mh", "paco"]  # the reference comes too
     with pytest.raises(SealError, match="unknown mtrl arm 'nope'"):
@@ -60,7 +61,6 @@ def test_tiny_end_to_end(tmp_path: Path) -> None:
         assert set(learner["first_crossing_env_steps"]["0"]) == {
             "drawer-close-v3",
             "handle-press-v3",
-            "button-press-topdown-v3",
         }
         assert learner["updates_per_s"] > 0
     assert result["learners"]["sac_mt_mh"]["speed_vs_reference"] == 1.0

@@ -1,7 +1,7 @@
 """`seal bench --learn mtrl`: each learner of SMT Table 1 learning at laptop scale, with its speed.
 
 Every arm of protocols/mtrl_learn is one learner (SAC-MT-MH, SAC-MT, PCGrad, PaCo, MOORE, CARE,
-Soft Modular) on the same three easy MT10 tasks with the same budget, each seed one Ray task that
+Soft Modular) on the same two easy MT10 tasks with the same budget, each seed one Ray task that
 runs it as `seal run` does (`seal.experiments.launcher`, two at a time on a local Ray of 2 CPUs,
 `--reuse` across sessions). Per learner it prints: k of n seeds in which every task reached 90% at some evaluation, the first crossing of each
 task per seed (env steps of that task), its FLOPs an update (counted) and its updates/s against
