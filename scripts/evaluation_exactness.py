@@ -54,10 +54,23 @@ def training_rows(run_dir: Path) -> pd.DataFrame:
     return train[keep].reset_index(drop=True)
 
 
-def timing(run_dir: Path) -> tuple[float, float]:
-    """The run's wall seconds and its loop's evaluation seconds (provenance's time_shares)."""
+def timing(run_dir: Path) -> tuple[float, float, float]:
+    """The run's wall seconds, its loop's evaluation seconds and its asynchronous evaluation
+    workers' CPU seconds (provenance's time_shares)."""
     shares = load_run(run_dir).provenance.get("time_shares") or {}
-    return float(shares.get("wall_s", 0.0)), float(shares.get("parts_s", {}).get("evaluate", 0.0))
+    return (
+        float(shares.get("wall_s", 0.0)),
+        float(shares.get("parts_s", {}).get("evaluate", 0.0)),
+        float(shares.get("evaluate_worker_cpu_s", 0.0)),
+    )
+
+
+def _seconds(times: list[float] | tuple[float, float, float]) -> str:
+    wall, evaluate, workers = times
+    return (
+        f"wall {wall:,.1f} s, evaluation {evaluate:,.1f} s in the loop, "
+        f"{workers:,.1f} s of evaluation workers' CPU"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -71,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     cheap = args.overrides or CHEAP
     threshold = load_protocol(args.protocol, args.base).evaluation.threshold
     same = True
-    seconds = {"full": [0.0, 0.0], "cheap": [0.0, 0.0]}
+    seconds = {"full": [0.0, 0.0, 0.0], "cheap": [0.0, 0.0, 0.0]}
     for seed in args.seeds:
         full = run_or_read(args.protocol, seed, args.out, list(args.base), "full")
         fast = run_or_read(args.protocol, seed, args.out, list(args.base) + cheap, "cheap")
@@ -90,14 +103,13 @@ def main(argv: list[str] | None = None) -> int:
             f"{'identical' if equal_train else 'DIFFER'} ({len(ta)} rows); full: {reached}"
         )
         for side, run_dir in (("full", full), ("cheap", fast)):
-            wall, evaluate = timing(run_dir)
-            seconds[side][0] += wall
-            seconds[side][1] += evaluate
-            print(f"  {side}: wall {wall:,.1f} s, evaluation {evaluate:,.1f} s ({run_dir})")
+            times = timing(run_dir)
+            seconds[side] = [a + b for a, b in zip(seconds[side], times, strict=True)]
+            print(f"  {side}: {_seconds(times)} ({run_dir})")
         if not equal_cross:
             print(pd.concat({"full": a, "cheap": b}, axis=1).to_string())
-    for side, (wall, evaluate) in seconds.items():
-        print(f"{side}, seeds {args.seeds}: wall {wall:,.1f} s, evaluation {evaluate:,.1f} s")
+    for side, times in seconds.items():
+        print(f"{side}, seeds {args.seeds}: {_seconds(times)}")
     print(f"{args.protocol} with {' '.join(cheap)}: {'exact' if same else 'NOT EXACT'}")
     return 0 if same else 1
 

@@ -33,7 +33,7 @@ def test_overrides_of_both_sides_keep_the_full_side_full(monkeypatch, tmp_path) 
     monkeypatch.setattr(script, "run_seed", run_seed)
     monkeypatch.setattr(script, "crossings", lambda run_dir, threshold: pd.DataFrame())
     monkeypatch.setattr(script, "training_rows", lambda run_dir: pd.DataFrame())
-    monkeypatch.setattr(script, "timing", lambda run_dir: (1.0, 0.0))
+    monkeypatch.setattr(script, "timing", lambda run_dir: (1.0, 0.0, 0.0))
     base = ["--base", "protocol.epochs=20", "--seeds", "0", "--out", str(tmp_path)]
     assert script.main([str(QUICKSTART), *base]) == 0
     assert runs == [
