@@ -48,9 +48,10 @@ from seal.envs.base import EnvAdapter
 from seal.envs.registry import make_adapter
 from seal.envs.testbed import TESTBED_TABLE, paired_states
 from seal.errors import SealError
+from seal.learner.agent_state import AgentState
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.config import AgentConfig, EnvSpec
-from seal.learner.sac import Agent, AgentState
+from seal.learner.sac import Agent
 
 POINT_VIEW = "point_view"
 """The testbed env that sees the world through `VIEW_MATRIX`."""

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from seal.errors import SealError, UnknownNameError
+from seal.learner.agent_state import AgentState
 from seal.learner.config import EnvSpec
 from seal.learner.networks import (
     LOG_STD_MIN,
@@ -24,7 +25,7 @@ from seal.learner.networks import (
     StackedMLP,
     TaskNetwork,
 )
-from seal.learner.sac import Agent, AgentState, module_key
+from seal.learner.sac import Agent, module_key
 from seal.pieces import map_pieces
 
 

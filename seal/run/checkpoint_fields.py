@@ -28,8 +28,8 @@ import torch
 from seal.errors import SealError
 
 if TYPE_CHECKING:
+    from seal.learner.agent_state import AgentState
     from seal.learner.replay import ReplayState
-    from seal.learner.sac import AgentState
     from seal.run.workers import PendingFields
 
 
@@ -144,8 +144,8 @@ class _Invalid(Exception):
 @functools.cache
 def _type_names() -> dict[str, object]:
     """The names the TypedDicts' annotations use under TYPE_CHECKING, for `get_type_hints`."""
+    from seal.learner.agent_state import AgentState
     from seal.learner.replay import ReplayState
-    from seal.learner.sac import AgentState
     from seal.run.rundir import MetricsRow
     from seal.run.workers import PendingFields
 

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 from seal.envs import EnvAdapter, EnvMap, env_map
 from seal.errors import ConfigError, SealError
-from seal.learner.sac import Agent, AgentState
+from seal.learner.agent_state import AgentState
+from seal.learner.sac import Agent
 from seal.learner.transfer import map_env
 from seal.protocols.config import ProtocolConfig
 

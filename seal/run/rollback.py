@@ -18,8 +18,8 @@ import numpy as np
 import torch
 
 if TYPE_CHECKING:
+    from seal.learner.agent_state import AgentState
     from seal.learner.replay import MultiTaskReplay, ReplayState
-    from seal.learner.sac import AgentState
     from seal.run.checkpoint_fields import PhaseStateFields
     from seal.run.workers import PendingEvaluation
 

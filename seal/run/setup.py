@@ -22,8 +22,9 @@ import torch
 from seal import provenance
 from seal.device import ThreadChoice, apply_matmul_precision
 from seal.errors import ConfigError, SealError
+from seal.learner.agent_state import AgentState
 from seal.learner.checkpoint import read_checkpoint
-from seal.learner.sac import Agent, AgentState
+from seal.learner.sac import Agent
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, upgrade_saved
 from seal.protocols.toml_io import read_toml

@@ -27,8 +27,8 @@ from seal.run.state import PhaseState
 from seal.run.workers import cpu_copy
 
 if TYPE_CHECKING:
+    from seal.learner.agent_state import AgentState
     from seal.learner.replay import MultiTaskReplay
-    from seal.learner.sac import AgentState
     from seal.run.collection import Collection
     from seal.run.evaluation import Evaluation
     from seal.run.parts import LoopParts

@@ -48,8 +48,9 @@ import numpy as np
 import torch
 
 from seal.errors import SealError, SealWarning
+from seal.learner.agent_state import AgentState
 from seal.learner.env_backends import exit_with_parent
-from seal.learner.sac import Agent, AgentState
+from seal.learner.sac import Agent
 from seal.run.phase_model import (
     ACTING_THREADS,
     Phase,

@@ -24,8 +24,8 @@ from seal.envs.testbed import (
 )
 from seal.errors import SealError
 from seal.learner import Agent, AgentConfig, EnvSpec
+from seal.learner.agent_state import AgentState
 from seal.learner.networks import LOG_STD_MIN
-from seal.learner.sac import AgentState
 from seal.learner.transfer import map_env, transfer_from
 
 SOURCE = EnvSpec("source", obs_dim=4, act_dim=2, num_tasks=4)
