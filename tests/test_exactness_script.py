@@ -2,29 +2,19 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
-from types import ModuleType
 
 import pandas as pd
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "evaluation_exactness.py"
+from tests.script_module import load_script
+
 QUICKSTART = Path(__file__).resolve().parents[1] / "protocols" / "quickstart.toml"
-
-
-def _script() -> ModuleType:
-    """The script, loaded from its path (scripts/ is no package)."""
-    spec = importlib.util.spec_from_file_location("evaluation_exactness", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def test_overrides_of_both_sides_keep_the_full_side_full(monkeypatch, tmp_path) -> None:
     # --base overrides go to both sides; the full run must still land under full/ and run
     # without the cheap options (a full side under cheap/ compared the cheap run with itself).
-    script = _script()
+    script = load_script("evaluation_exactness")
     runs: list[tuple[Path, bool, bool]] = []
 
     def run_seed(config, seed, group, quiet):

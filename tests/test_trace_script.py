@@ -2,22 +2,9 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-from types import ModuleType
-
 import numpy as np
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "trace_kitchen_policy.py"
-
-
-def _script() -> ModuleType:
-    """The script, loaded from its path (scripts/ is no package)."""
-    spec = importlib.util.spec_from_file_location("trace_kitchen_policy", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.script_module import load_script
 
 
 def test_earned_is_the_discounted_return_with_the_last_state_bootstrapped() -> None:
@@ -27,7 +14,7 @@ def test_earned_is_the_discounted_return_with_the_last_state_bootstrapped() -> N
         assert obs.tolist() == [7.0] and action.tolist() == [0.5]  # the last state's own action
         return 8.0
 
-    line = _script()._q_against_earned(
+    line = load_script("trace_kitchen_policy")._q_against_earned(
         (q, 0.5), 120.4, [1.0, 2.0], np.array([7.0]), np.array([0.5])
     )
     assert line == "critic's Q at reset 120 against 4 earned (discounted)"
