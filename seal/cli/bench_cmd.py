@@ -45,7 +45,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "--learn reach_sb3 runs reach-v3 (protocols/learn/reach.toml) under seal run and under "
             "stable-baselines3's SAC.learn, seeds 0-2 each, both evaluated by SEAL's evaluation every "
             "2,000 env steps and stopped at the first >= 90%, and prints k of 3 per side; "
-            "--learn mtrl runs SMT Table 1's learners (protocols/mtrl_learn) on three easy MT10 "
+            "--learn mtrl runs SMT Table 1's learners (protocols/mtrl_learn) on two easy MT10 "
             "tasks, seeds 0-2, and prints per learner k of 3 seeds with every task >= 90%, each "
             "task's first crossing and its updates/s against MTMHSAC's, timed side by side. "
             "Every --learn run is a Ray task (the ray extra: pip install 'seal[ray]') that runs its "
@@ -65,7 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         const="evidence",
         default=None,
         metavar="transfer|kitchen|table1|quickstart|reach_sb3|mtrl|learner",
-        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs; --learn table1: only paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md); --learn quickstart: README command 1 over seeds 0-9; --learn reach_sb3: reach-v3 learned under seal run and under SB3's SAC.learn; --learn mtrl: SMT Table 1's learners on three easy MT10 tasks (protocols/mtrl_learn), with their updates/s against MTMHSAC's; --learn learner --set agent.KEY=VALUE: whether a learner change is no slower on Meta-World (issue 54's rule: the quickstart, table1's single_mw and reach, seed-paired)",
+        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs; --learn table1: only paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md); --learn quickstart: README command 1 over seeds 0-9; --learn reach_sb3: reach-v3 learned under seal run and under SB3's SAC.learn; --learn mtrl: SMT Table 1's learners on two easy MT10 tasks (protocols/mtrl_learn), with their updates/s against MTMHSAC's; --learn learner --set agent.KEY=VALUE: whether a learner change is no slower on Meta-World (issue 54's rule: the quickstart, table1's single_mw and reach, seed-paired)",
     )
     parser.add_argument(
         "--full",
