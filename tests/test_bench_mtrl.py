@@ -28,8 +28,10 @@ def test_every_arm_differs_from_the_reference_only_in_its_learner() -> None:
     for arm in ARMS:
         config = load_protocol(arm.protocol)
         assert config.envs == ref.envs and config.training == ref.training
-        # 300 epochs x 150 env steps a task: the 45,000 a task of docs/smt_table1.md
+        # 300 epochs x 150 env steps a task: the 45,000 a task of docs/smt_table1.md, one update
+        # per env step (2 tasks x 150)
         assert config.evaluation == ref.evaluation and config.protocol.epochs == 300
+        assert config.training.grad_steps_per_epoch == 300
         assert config.protocol.column == arm.label  # its column in the report
     assert [a.name for a in arms(["paco"])] == ["sac_mt_mh", "paco"]  # the reference comes too
     with pytest.raises(SealError, match="unknown mtrl arm 'nope'"):
