@@ -260,8 +260,7 @@ def run_kitchen_bench(
         },
         "collapse_test": collapse_test(result_arms),
         "reward_test": reward_test(result_arms),
-        "learner_test": learner_test(result_arms),
-        "learner_test_bronet": learner_test(result_arms, "_bronet"),
+        **{learner_key(suffix): learner_test(result_arms, suffix) for suffix in LEARNERS},
         "reward_test_critic_ln": reward_test(result_arms, COLLAPSE_TEST_SUFFIX),
         "seeds": seeds,
         "overrides": list(overrides),
@@ -366,6 +365,12 @@ def reward_test(result_arms: Mapping[str, Any], learner: str = "") -> dict[str, 
     test = rule_test(result_arms, pairs, "_v3", strict="crossed", weak="ended_90")
     wins = test["new_wins"]
     return {**test, "default": None if wins is None else ("v4" if wins else "v3")}
+
+
+def learner_key(suffix: str) -> str:
+    """The bench result's key of a learner change's rule test: "learner_test" for critic LN (the
+    records' readers know it by that name), "learner_test<suffix>" for the others."""
+    return "learner_test" + ("" if suffix == COLLAPSE_TEST_SUFFIX else suffix)
 
 
 def learner_test(
@@ -500,14 +505,10 @@ def format_result(result: Mapping[str, Any]) -> str:
         *_format_collapse_test(result.get("collapse_test", {}), by_name),
         *(_format_reward_test(result["reward_test"], by_name) if "reward_test" in result else []),
         *(
-            _format_learner_test(result["learner_test"], by_name)
-            if "learner_test" in result
-            else []
-        ),
-        *(
-            _format_learner_test(result["learner_test_bronet"], by_name, "_bronet")
-            if "learner_test_bronet" in result
-            else []
+            line
+            for suffix in LEARNERS
+            if learner_key(suffix) in result
+            for line in _format_learner_test(result[learner_key(suffix)], by_name, suffix)
         ),
         *(
             _format_reward_test(result["reward_test_critic_ln"], by_name, COLLAPSE_TEST_SUFFIX)
