@@ -216,3 +216,16 @@ def test_ratio_lever_bench_reports_every_mode_with_gradient_norm_ratios() -> Non
     assert "pure-noise ceiling 0.73" in table
     table = _table_of("ratio_lever_expected", result, ratio_lever=result)
     assert "ratio_lever_expected" in table and "expected steps over 2 batches" in table
+
+
+def test_paco_update_speedup_times_two_agents_that_compute_the_same_update() -> None:
+    """The two sides differ only in PaCo's path: after five updates their losses agree, and the
+    figure is the sets side's seconds over the composed side's (no verdict on the speed)."""
+    from seal.bench.paco import bench_paco_update
+
+    d = bench_paco_update(updates=2, repeats=1)
+    assert d["loss_max_rel_diff"] < 1e-4
+    assert d["batch"] == 2 * 128 and d["sets"] == 5 and d["hidden"] == [256, 256]
+    assert d["paco_update_speedup"] == pytest.approx(d["sets_update_s"] / d["per_task_update_s"])
+    table = _table_of("paco_update_speedup", {"paco_update_speedup": 2.5}, paco_update=d)
+    assert "paco_update_speedup" in table and ">=2.0" in table and "K 5" in table

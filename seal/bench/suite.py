@@ -26,6 +26,8 @@ machine load affects both sides (the load is recorded with the results):
   stable-baselines3's `SAC.learn` / `seal run`'s loop, per env (reach-v3, the kitchen's
   slide-cabinet), with each side's env steps/s and updates/s, SEAL's shares of its wall and
   ``sac_vs_sb3`` at (256, 256) beside it (`seal.bench.e2e`).
+- ``paco_update_speedup``: seconds per update of PaCo run through its K parameter sets per row /
+  with each task's layer composed first, at the mtrl bench's shapes (`seal.bench.paco`).
 - ``collect_mt10_speedup`` / ``collect_fk_speedup``: env steps/s of `Collector` over the 10 tasks /
   a plain single-process loop over envs built by the same adapter (same wrappers), with the same
   actions; both must end on identical observations.
@@ -52,6 +54,7 @@ from seal.bench.flops import (
     quickstart_setup,
 )
 from seal.bench.lever import bench_ratio_lever
+from seal.bench.paco import bench_paco_update
 from seal.bench.sb3 import bench_sac_vs_sb3
 from seal.bench.timing import machine_load
 from seal.errors import SealError
@@ -103,6 +106,7 @@ def run_bench(
         "collect_mt10_speedup",
         "collect_fk_speedup",
         "ratio_lever",
+        "paco_update_speedup",
     )
     opt_in = ("paper_update_rate", "e2e_vs_sb3")  # minutes on a CPU: only when asked for
     chosen = list(only or keys)
@@ -183,6 +187,16 @@ def run_bench(
         out["details"]["ratio_lever"] = d
         out["ratio_lever_expected"] = d["ratio_lever_expected"]
         out["ratio_lever"] = d["ratio_lever"]
+    if "paco_update_speedup" in chosen:
+        log("paco_update_speedup")
+        try:
+            d = bench_paco_update(settings.flops_updates, settings.repeats)
+        except SealError as exc:
+            out["details"]["paco_update"] = {"skipped": str(exc)}
+            out["paco_update_speedup"] = None
+        else:
+            out["details"]["paco_update"] = d
+            out["paco_update_speedup"] = d["paco_update_speedup"]
     if learn:
         out["learn"] = run_learn(log)
     out["load_after"] = machine_load()
@@ -198,6 +212,7 @@ GOALS = {
     "ratio_lever_expected": 0.8,
     "ratio_lever": 0.8,
     "paper_update_rate": 1000,  # on one H100 (issue 13)
+    "paco_update_speedup": 2.0,  # the networks' multiply-adds fall ~4.8x at K = 5, 2 tasks
 }
 E2E_GOALS = {"reach-v3": 1.3, "slide-cabinet": 1.2}
 """e2e_vs_sb3's goal per env: the kitchen's heavier physics dilutes any update gain."""
@@ -296,6 +311,15 @@ def format_table(result: Mapping[str, Any]) -> str:
                 else ""
             )
             + f"; {rate['device_name'] if 'device_name' in rate else rate['device']}, batch {rate['batch']}, {rate['threads']} threads (goal: one H100)"
+        )
+    paco = d.get("paco_update", {})
+    if "skipped" in paco:
+        detail["paco_update_speedup"] = lambda: f"skipped: {paco['skipped']}"
+    elif paco:
+        detail["paco_update_speedup"] = lambda: (
+            f"sets {paco['sets_update_s'] * 1e3:.1f} ms, composed per task {paco['per_task_update_s'] * 1e3:.1f} ms; "
+            f"K {paco['sets']}, {paco['hidden']}, batch {paco['batch']}, {paco['threads']} thread; "
+            f"losses after 5 updates {paco['loss_max_rel_diff']:.0e} rel"
         )
     for key in ("collect_mt10_speedup", "collect_fk_speedup"):
         if key in d and "backends" in d[key]:

@@ -102,6 +102,10 @@ class Embedding(nn.Module):
         out = F.embedding(task_ids, self.table)
         return out if self.bias is None else out + self.bias
 
+    def rows(self) -> torch.Tensor:
+        """(num_tasks, out_dim): every task's row, bias included (forward of every task id)."""
+        return self.table if self.bias is None else self.table + self.bias
+
     @property
     def per_task(self) -> list[nn.Parameter]:
         """The table: each row reached by one task's samples only."""

@@ -47,7 +47,7 @@ def activation_width(config: AgentConfig) -> int:
     """The summed widths of the activations one sample leaves for backward in one member of
     `config.architecture` (the memory estimate's per-sample term, as `sum(hidden)` for MTMHSAC)."""
     arch, hidden = config.architecture, sum(config.hidden)
-    if arch == "paco":  # every set's outputs, then their mix
+    if arch == "paco":  # compiled: every set's outputs, then their mix (eager keeps less)
         return (config.paco_sets + 1) * hidden
     if arch == "moore":  # every expert's layers, the orthonormal basis and the mixed feature
         return config.moore_experts * (hidden + config.hidden[-1]) + config.hidden[-1]

@@ -96,3 +96,34 @@ def test_an_agent_with_paco_acts_and_updates(layer_norm: bool) -> None:
     # Two tasks, same observation: the task vector alone tells them apart.
     mean = agent.actor("mw", torch.cat((torch.zeros(2, 6), torch.eye(3)[:2]), 1), torch.arange(2))
     assert not torch.equal(mean[0], mean[1])
+
+
+@pytest.mark.parametrize(
+    "tasks",
+    [
+        [2, 0, 1, 1, 0, 2],  # every task twice, unsorted: one batched matmul
+        [1, 1, 0, 1, 1, 1, 0],  # unequal counts, task 2 absent: one matmul a task
+        [],
+    ],
+)
+def test_per_task_path_equals_the_sets_path_in_outputs_and_gradients(tasks: list[int]) -> None:
+    """The eager path (compose phi_tau, then each task's rows) is the compiled path's map."""
+    net = _net(seed=5)
+    for norm in (False, True):
+        if norm:
+            net = PaCo(5, 4, 3, CONFIG, layer_norm=True)
+            net.reset_parameters(torch.Generator().manual_seed(6), "torch", None)
+        ids = torch.tensor(tasks, dtype=torch.int64)
+        x = torch.randn(len(tasks), 5, generator=torch.Generator().manual_seed(7))
+        outs, grads = [], []
+        for path in (net.forward_per_task, net.forward_sets):
+            net.zero_grad()
+            y = path(x, ids)
+            (y * torch.arange(1.0, 5.0)).sum().backward()
+            outs.append(y)
+            grads.append([p.grad.clone() for p in net.parameters()])
+        assert outs[0].shape == (len(tasks), 4)
+        torch.testing.assert_close(outs[0], outs[1], rtol=1e-5, atol=1e-6)
+        for a, b in zip(*grads, strict=True):
+            torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(net(x, ids), outs[0], rtol=0, atol=0)  # eager: per task
