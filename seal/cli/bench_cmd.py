@@ -15,7 +15,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "bench",
         help="benchmark the learner and collection against references (ratios)",
         description=(
-            "Measures sac_vs_sb3, mt10_update_flops_fraction, collect_mt10_speedup and collect_fk_speedup "
+            "Measures sac_vs_sb3, mt10_update_flops_fraction, small_update_flops_fraction, "
+            "collect_mt10_speedup, collect_fk_speedup, ratio_lever and paco_update_speedup, each "
             "side by side in one run and prints a table (or one JSON object with --json). "
             "--only paper_update_rate (not in the default run: slow on a CPU) times the paper-scale "
             "SEAL update (MT10 + 10 kitchens, batch 2,560) eager and compiled, CUDA graphs on a GPU. "
