@@ -61,6 +61,8 @@ def test_the_bench_needs_a_change_to_compare(capsys: pytest.CaptureFixture[str])
     assert len(err.splitlines()) == 1 and "--set agent.critic_layer_norm=true" in err
     assert main(["bench", "--learn", "learner", "--arms", "nope", "--set", "a.b=1"]) == 2
     assert "quickstart, table1_single_mw, reach" in capsys.readouterr().err
+    assert main(["bench", "--learn", "kitchen", "--baseline", "a.b=1"]) == 2
+    assert "--baseline only applies to --learn learner" in capsys.readouterr().err
 
 
 @pytest.mark.slow  # four point runs on two local Rays: ~25 s idle
@@ -72,7 +74,8 @@ def test_both_learners_run_seed_for_seed_and_no_run_reads_them_back(
     monkeypatch.setattr(learner, "CHECKS", (learner.Check("point", arm, 2, "pt", "east"),))
     out = tmp_path / "out"
     change = ["agent.critic_layer_norm=true"]
-    result = learner.run_learner_bench(seeds=5, out=str(out), overrides=change)
+    plain = ["agent.critic_layer_norm=false"]  # the old side whatever the default is
+    result = learner.run_learner_bench(seeds=5, out=str(out), overrides=change, baseline=plain)
     (check,) = result["checks"]
     assert check["seeds"] == 2 and check["paired_seeds"] == [0, 1]  # the check's own 2 seeds
     # Four runs: each seed as shipped and with the change, told apart by their agent tables.
@@ -88,14 +91,22 @@ def test_both_learners_run_seed_for_seed_and_no_run_reads_them_back(
     diffs = [check["new"][s]["env_steps"] - check["old"][s]["env_steps"] for s in ("0", "1")]
     assert check["change"]["differences"] == diffs
     assert result["complete"] and result["no_slower"] in (True, False)
-    again = learner.run_learner_bench(seeds=5, out=str(out), overrides=change, run=False)
+    again = learner.run_learner_bench(
+        seeds=5, out=str(out), overrides=change, run=False, baseline=plain
+    )
     assert again["checks"] == result["checks"]
     text = learner.format_result(again)
     assert re.search(r"point \(pt/east\), env steps to 90% old -> new: s0 ", text)
     assert "rule (every check no slower)" in text
+    assert "against the protocols with agent.critic_layer_norm=false (old)" in text
+    # The sides swapped: the same four runs, each seed's change negated.
+    swapped = learner.run_learner_bench(
+        seeds=5, out=str(out), overrides=plain, run=False, baseline=change
+    )
+    assert swapped["checks"][0]["change"]["differences"] == [-d for d in diffs]
     # A run missing on one side: the rule is not decided.
     missing = learner.run_learner_bench(
-        seeds=5, out=str(tmp_path / "empty"), overrides=change, run=False
+        seeds=5, out=str(tmp_path / "empty"), overrides=change, run=False, baseline=plain
     )
     assert missing["no_slower"] is None and not missing["complete"]
     assert math.isnan(missing["checks"][0]["change"]["mean"])

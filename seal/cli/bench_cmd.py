@@ -195,6 +195,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="TABLE.KEY=VALUE",
         help="with --protocol or --learn transfer, table1, quickstart, reach_sb3, kitchen, mtrl or learner: override a protocol value (e.g. protocol.device=cuda, evaluation.stop_when_reached=false)",
     )
+    parser.add_argument(
+        "--baseline",
+        action="append",
+        default=[],
+        metavar="TABLE.KEY=VALUE",
+        help="with --learn learner: the old side's overrides (default: the protocols as shipped), e.g. --baseline agent.critic_layer_norm=false to compare against the learner before a default moved",
+    )
     parser.set_defaults(func=run)
 
 
@@ -281,6 +288,8 @@ def run(args: argparse.Namespace) -> int:
             + ", ".join(OVERRIDE_SETS[:-1])
             + f" and {OVERRIDE_SETS[-1]}"
         )
+    if args.baseline and args.learn != "learner":
+        raise SealError("--baseline only applies to --learn learner (its old side)")
     if args.learn in LEARN_SETS:
         import importlib
 
@@ -341,6 +350,8 @@ def run(args: argparse.Namespace) -> int:
             extra["overrides"] = args.overrides
         if args.no_run:
             extra["run"] = False
+        if args.baseline:
+            extra["baseline"] = args.baseline
         result = getattr(bench, f"run_{args.learn}_bench")(
             seeds=default_seeds if args.seeds is None else args.seeds,
             out=args.out or default_out,

@@ -16,6 +16,8 @@ seed that never got there counts at its run's total, a lower bound, marked "+". 
 paired change new - old, its mean and 95% Student's t CI (`seal.stats.t_ci`). The change is no
 slower when the CI includes 0 or lies below it; the learner passes when all three checks are.
 
+`--baseline` gives the old side overrides of its own: once a default has moved, `--baseline
+agent.critic_layer_norm=false --set agent.critic_layer_norm=true` still reads the runs that moved it.
 Both learners' runs share `out`: `--reuse` tells them apart by their saved agent table
 (`seal.experiments.records.finished_run`). The quickstart's runs reserve a whole node each, as
 `seal bench --learn quickstart`'s do; the others one CPU.
@@ -120,9 +122,10 @@ def run_learner_bench(
     reuse: bool = False,
     address: str | None = None,
     run: bool = True,
+    baseline: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """Run (or, with `run=False`, read) each check's seeds (at most `seeds`) as shipped and with
-    `overrides`, and apply the rule."""
+    """Run (or, with `run=False`, read) each check's seeds (at most `seeds`) as shipped (with
+    `baseline`'s overrides, if any) and with `overrides`, and apply the rule."""
     from seal import load_run
     from seal.bench.timing import machine_load
 
@@ -136,7 +139,7 @@ def run_learner_bench(
     load_before = machine_load()
     started = time.monotonic()
     checks, shas = [], {}
-    sides_of = ("old", ()), ("new", tuple(overrides))
+    sides_of = ("old", tuple(baseline)), ("new", tuple(overrides))
     chosen = arms(only)
     dirs: dict[tuple[str, str, int], Path] = {}
     for check in chosen if run else ():
@@ -192,6 +195,7 @@ def run_learner_bench(
     versions = code_versions(shas)
     return {
         "overrides": list(overrides),
+        "baseline": list(baseline),
         "checks": checks,
         "no_slower": (all(verdicts) if complete and None not in verdicts else None),
         "complete": complete,
@@ -204,7 +208,9 @@ def run_learner_bench(
 def format_result(result: Mapping[str, Any]) -> str:
     """The human-readable output of `run_learner_bench`."""
     change = " ".join(result["overrides"])
-    lines = [f"Meta-World, no slower: {change} (new) against the protocols as shipped (old)"]
+    old = " ".join(result.get("baseline", ()))
+    against = f"the protocols with {old}" if old else "the protocols as shipped"
+    lines = [f"Meta-World, no slower: {change} (new) against {against} (old)"]
     for c in result["checks"]:
 
         def cell(v: Mapping[str, Any] | None) -> str:
