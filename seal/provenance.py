@@ -101,6 +101,19 @@ def device_description(device: str) -> str:
     return f"{device} ({torch.get_num_threads()} threads)"
 
 
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo on Linux), else what `platform` knows: a seed's outcome
+    holds on one CPU, so every run records the one it ran on."""
+    import platform
+
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.exists():
+        for line in cpuinfo.read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    return platform.processor() or platform.machine()
+
+
 def utc_now() -> str:
     """The current UTC time as an ISO-8601 string with seconds."""
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
@@ -119,5 +132,6 @@ def collect(
         "command": " ".join(command if command is not None else sys.argv),
         "device": resolved,
         "device_name": device_description(resolved),
+        "cpu": cpu_model(),
         **extra,
     }

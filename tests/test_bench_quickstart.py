@@ -7,7 +7,14 @@ from pathlib import Path
 import pytest
 
 from seal.errors import SealError
-from seal.experiments.quickstart import arms, format_result, k_of_n_line, run_quickstart_bench
+from seal.experiments.quickstart import (
+    arms,
+    format_result,
+    k_of_n_line,
+    run_quickstart_bench,
+    where_run,
+)
+from seal.provenance import cpu_model
 from tests.test_bench_table1 import TINY
 
 
@@ -23,6 +30,17 @@ def test_k_of_n_counts_a_seed_only_when_every_task_reached() -> None:
     assert "Seed 1 did not reach: slide-cabinet (fk)." in line
     assert "Seed 2 did not reach: drawer-close-v3 (mw), slide-cabinet (fk)." in line
     assert "Seed 0 did not" not in line and "Seed 3 did not" not in line
+
+
+def test_where_names_each_runs_recorded_cpu() -> None:
+    """The line names the CPUs the runs recorded, not the machine that reads them."""
+    one = where_run(dict.fromkeys(range(10), "CPU A"), None)
+    assert one.startswith("CPU A, ") and one.endswith("protocol.threads = as shipped")
+    mixed = where_run({**dict.fromkeys(range(7), "CPU A"), 7: "CPU B", 8: "CPU B", 9: "CPU B"}, "1")
+    assert mixed.startswith("CPU A for seeds 0-6; CPU B for seeds 7-9, ")
+    assert mixed.endswith("protocol.threads = 1")
+    old = where_run({0: None, 2: None, 3: "CPU B"}, None)
+    assert old.startswith(f"CPU not recorded (this machine: {cpu_model()}) for seeds 0, 2; CPU B ")
 
 
 def test_only_the_quickstart_arm() -> None:

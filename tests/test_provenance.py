@@ -5,13 +5,14 @@ from __future__ import annotations
 from franka_kitchen_dense import gym_id
 
 from seal.protocols.config import EnvConfig
-from seal.provenance import collect, reward_versions
+from seal.provenance import collect, cpu_model, reward_versions
 
 
 def test_reward_version_is_recorded_and_matches_the_gym_ids() -> None:
     assert reward_versions() == {"franka_kitchen_dense": "v3"}
     assert gym_id("kettle") == "seal/FrankaKitchenDense-kettle-v3"
     record = collect(command=["seal", "run"], device="cpu")
+    assert record["cpu"] == cpu_model() and record["cpu"]
     assert record["reward_versions"] == {"franka_kitchen_dense": "v3"}
 
 

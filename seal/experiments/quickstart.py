@@ -12,7 +12,6 @@ run only on the same CPU and thread count, so the line says where it was measure
 from __future__ import annotations
 
 import os
-import platform
 import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -24,6 +23,7 @@ from seal.experiments.arms import Arm
 from seal.experiments.launcher import bench_context, run_or_reuse
 from seal.experiments.records import code_versions, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
+from seal.provenance import cpu_model
 
 REPO = Path(__file__).resolve().parents[2]
 ARM = Arm("quickstart", "quickstart", None, directory=REPO / "protocols")
@@ -53,14 +53,26 @@ def seeds_reached(run_dirs: Mapping[int, Path]) -> dict[int, dict[str, bool]]:
     return out
 
 
-def cpu_model() -> str:
-    """The CPU's model name (/proc/cpuinfo on Linux), else what `platform` knows."""
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.exists():
-        for line in cpuinfo.read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    return platform.processor() or platform.machine()
+def where_run(cpus: Mapping[int, str | None], threads: str | None) -> str:
+    """Where the seeds ran, from each run's recorded CPU (runs made before provenance recorded it
+    are named as such, with this machine's beside them)."""
+    by_cpu: dict[str, list[int]] = {}
+    for seed, cpu in sorted(cpus.items()):
+        by_cpu.setdefault(cpu or "", []).append(seed)
+    parts = []
+    for cpu, seeds in by_cpu.items():
+        named = cpu or f"CPU not recorded (this machine: {cpu_model()})"
+        parts.append(named if len(by_cpu) == 1 else f"{named} for seeds {_span(seeds)}")
+    return (
+        f"{'; '.join(parts)}, {os.cpu_count()} CPUs, protocol.threads = {threads or 'as shipped'}"
+    )
+
+
+def _span(seeds: Sequence[int]) -> str:
+    """0-6 for a run of consecutive seeds, else the list."""
+    if seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 2:
+        return f"{seeds[0]}-{seeds[-1]}"
+    return ", ".join(str(s) for s in seeds)
 
 
 def k_of_n_line(reached: Mapping[int, Mapping[str, bool]], where: str) -> str:
@@ -116,13 +128,13 @@ def run_quickstart_bench(
     threads = next(
         (o.split("=", 1)[1] for o in overrides if o.startswith("protocol.threads=")), None
     )
-    where = f"{cpu_model()}, {os.cpu_count()} CPUs, protocol.threads = {threads or 'as shipped'}"
-    line = k_of_n_line(reached, where)
-    table = result.tables["update_counts.md"].read_text()
-    seed0_table = seed0.tables["update_counts.md"].read_text()
     from seal import load_run
 
     loaded = {s: load_run(p) for s, p in by_seed.items()}
+    where = where_run({s: r.provenance.get("cpu") for s, r in loaded.items()}, threads)
+    line = k_of_n_line(reached, where)
+    table = result.tables["update_counts.md"].read_text()
+    seed0_table = seed0.tables["update_counts.md"].read_text()
     versions = code_versions(
         {(arm.name, s): r.provenance.get("git_sha") for s, r in loaded.items()}
     )

@@ -2,7 +2,7 @@
 
     reports/<protocol>/<group-id>/seed-<n>/
         config.toml        the resolved protocol (loads back with `seal run`)
-        provenance.json    git_sha, packages, command, device, seed, start/end time, protocol, kind,
+        provenance.json    git_sha, packages, command, device, cpu (model), seed, start/end time, protocol, kind,
                            group, phase_names, update_threads (the threads and the rule's inputs)
         metrics.csv        one row per evaluation and task (METRICS_COLUMNS)
         train.csv          long format: seed,phase,epoch,grad_steps,env,key,value (TRAIN_COLUMNS);
