@@ -82,6 +82,7 @@ def _twin_sacs(
         multi_head_policy=False,
         max_grad_norm=0.0,
         adam_eps=1e-8,
+        critic_layer_norm=False,  # SB3's critics are plain MLPs
         device="cpu",
     )
     ours = Agent([EnvSpec("bench", SB3_OBS_DIM, SB3_ACT_DIM, 1)], config, seed)

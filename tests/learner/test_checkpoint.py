@@ -159,7 +159,7 @@ def test_export_without_replay(tmp_path: Path) -> None:
     full = save_checkpoint(tmp_path / "full.pt", agent, replay)
     export = save_checkpoint(tmp_path / "export.pt", agent)
     assert export.stat().st_size < full.stat().st_size
-    other = Agent(SPECS, AgentConfig(architecture="seal", **SMALL), seed=5)
+    other = Agent(SPECS, _config(), seed=5)
     state = read_checkpoint(export)
     assert state["replay"] is None
     other.load_state_dict(state["agent"])  # the agent alone loads

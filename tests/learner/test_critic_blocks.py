@@ -61,7 +61,7 @@ def _critic_size(config: AgentConfig, specs: list[EnvSpec]) -> int:
 
 def test_parameter_counts_by_hand() -> None:
     # The kitchen's MTMHSAC critic: input 59 obs + 1 one-hot + 9 action = 69, one Q head; twins.
-    base = AgentConfig(hidden=(512, 512), device="cpu")
+    base = AgentConfig(hidden=(512, 512), critic_layer_norm=False, device="cpu")
     head = 512 + 1
     mlp = 69 * 512 + 512 + 512 * 512 + 512 + head
     assert _critic_size(base, [SPEC]) == 2 * mlp
