@@ -148,14 +148,12 @@ def run_bench(
             out["small_update_flops_fraction"] = d["small_update_flops_fraction"]
     if "paper_update_rate" in chosen:
         log("paper_update_rate")
-        try:
-            d = bench_update_rate(updates=settings.flops_updates, repeats=settings.repeats)
-        except SealError as exc:
-            out["details"]["paper_update_rate"] = {"skipped": str(exc)}
-            out["paper_update_rate"] = None
-        else:
-            out["details"]["paper_update_rate"] = d
-            out["paper_update_rate"] = d["paper_update_rate"]
+        _record(
+            out,
+            "paper_update_rate",
+            "paper_update_rate",
+            lambda: bench_update_rate(updates=settings.flops_updates, repeats=settings.repeats),
+        )
     if "e2e_vs_sb3" in chosen:
         figures = {}
         for name in E2E_PROTOCOLS:
@@ -189,18 +187,31 @@ def run_bench(
         out["ratio_lever"] = d["ratio_lever"]
     if "paco_update_speedup" in chosen:
         log("paco_update_speedup")
-        try:
-            d = bench_paco_update(settings.flops_updates, settings.repeats)
-        except SealError as exc:
-            out["details"]["paco_update"] = {"skipped": str(exc)}
-            out["paco_update_speedup"] = None
-        else:
-            out["details"]["paco_update"] = d
-            out["paco_update_speedup"] = d["paco_update_speedup"]
+        _record(
+            out,
+            "paco_update_speedup",
+            "paco_update",
+            lambda: bench_paco_update(settings.flops_updates, settings.repeats),
+        )
     if learn:
         out["learn"] = run_learn(log)
     out["load_after"] = machine_load()
     return out
+
+
+def _record(
+    out: dict[str, Any], key: str, detail: str, measure: Callable[[], Mapping[str, Any]]
+) -> None:
+    """out[key] and out["details"][detail] from measure(), or a "skipped" detail and None where
+    it cannot run here (an env or extra not installed: SealError)."""
+    try:
+        d = measure()
+    except SealError as exc:
+        out["details"][detail] = {"skipped": str(exc)}
+        out[key] = None
+    else:
+        out["details"][detail] = d
+        out[key] = d[key]
 
 
 GOALS = {
