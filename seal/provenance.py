@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import importlib.metadata
+import os
 import subprocess
 import sys
 from collections.abc import Iterable
@@ -132,6 +133,6 @@ def collect(
         "command": " ".join(command if command is not None else sys.argv),
         "device": resolved,
         "device_name": device_description(resolved),
-        "cpu": cpu_model(),
+        "cpu": f"{cpu_model()}, {os.cpu_count()} CPUs",
         **extra,
     }

@@ -63,6 +63,9 @@ def test_the_bench_needs_a_change_to_compare(capsys: pytest.CaptureFixture[str])
     assert "quickstart, table1_single_mw, reach" in capsys.readouterr().err
     assert main(["bench", "--learn", "kitchen", "--baseline", "a.b=1"]) == 2
     assert "--baseline only applies to --learn learner" in capsys.readouterr().err
+    same = ["--learn", "learner", "--baseline", "agent.critic_layer_norm=true"]
+    assert main(["bench", *same, "--set", "agent.critic_layer_norm=true", "--no-run"]) == 2
+    assert "is the change itself" in capsys.readouterr().err
 
 
 @pytest.mark.slow  # four point runs on two local Rays: ~25 s idle

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -34,13 +35,19 @@ def test_k_of_n_counts_a_seed_only_when_every_task_reached() -> None:
 
 def test_where_names_each_runs_recorded_cpu() -> None:
     """The line names the CPUs the runs recorded, not the machine that reads them."""
-    one = where_run(dict.fromkeys(range(10), "CPU A"), None)
-    assert one.startswith("CPU A, ") and one.endswith("protocol.threads = as shipped")
-    mixed = where_run({**dict.fromkeys(range(7), "CPU A"), 7: "CPU B", 8: "CPU B", 9: "CPU B"}, "1")
-    assert mixed.startswith("CPU A for seeds 0-6; CPU B for seeds 7-9, ")
-    assert mixed.endswith("protocol.threads = 1")
-    old = where_run({0: None, 2: None, 3: "CPU B"}, None)
-    assert old.startswith(f"CPU not recorded (this machine: {cpu_model()}) for seeds 0, 2; CPU B ")
+    one = where_run(dict.fromkeys(range(10), "CPU A, 2 CPUs"), None)
+    assert one == "CPU A, 2 CPUs; protocol.threads = as shipped"
+    b = dict.fromkeys((7, 8, 9), "CPU B, 16 CPUs")
+    mixed = where_run({**dict.fromkeys(range(7), "CPU A, 2 CPUs"), **b}, "1")
+    assert (
+        mixed == "CPU A, 2 CPUs for seeds 0-6; CPU B, 16 CPUs for seeds 7-9; protocol.threads = 1"
+    )
+    old = where_run({0: None, 2: None, 3: "CPU B, 16 CPUs"}, None)
+    here = f"this machine: {cpu_model()}, {os.cpu_count()} CPUs"
+    assert old == (
+        f"CPU not recorded ({here}) for seeds 0, 2; CPU B, 16 CPUs for seeds 3; "
+        "protocol.threads = as shipped"
+    )
 
 
 def test_only_the_quickstart_arm() -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 from franka_kitchen_dense import gym_id
 
 from seal.protocols.config import EnvConfig
@@ -12,7 +14,7 @@ def test_reward_version_is_recorded_and_matches_the_gym_ids() -> None:
     assert reward_versions() == {"franka_kitchen_dense": "v3"}
     assert gym_id("kettle") == "seal/FrankaKitchenDense-kettle-v3"
     record = collect(command=["seal", "run"], device="cpu")
-    assert record["cpu"] == cpu_model() and record["cpu"]
+    assert record["cpu"] == f"{cpu_model()}, {os.cpu_count()} CPUs" and cpu_model()
     assert record["reward_versions"] == {"franka_kitchen_dense": "v3"}
 
 

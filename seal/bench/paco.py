@@ -7,6 +7,7 @@ updates are compared as a check that both compute the same update."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -26,6 +27,7 @@ def bench_paco_update(
     from seal.learner.mtrl.paco import PaCo
 
     specs, config, per_task = quickstart_setup(protocol)
+    config = dataclasses.replace(config, compile=False)  # compiled, both sides run the sets
     agents = {"per_task": Agent(specs, config, seed), "sets": Agent(specs, config, seed)}
     for net in (agents["sets"].actor, agents["sets"].critic):
         for module in net.modules():

@@ -136,6 +136,10 @@ def run_learner_bench(
         )
     if seeds < 2:
         raise SealError(f"--seeds must be >= 2 for a paired CI, got {seeds}")
+    if sorted(baseline) == sorted(overrides):
+        raise SealError(
+            f"--baseline {' '.join(baseline)} is the change itself: both sides would be the same runs"
+        )
     load_before = machine_load()
     started = time.monotonic()
     checks, shas = [], {}

@@ -61,11 +61,9 @@ def where_run(cpus: Mapping[int, str | None], threads: str | None) -> str:
         by_cpu.setdefault(cpu or "", []).append(seed)
     parts = []
     for cpu, seeds in by_cpu.items():
-        named = cpu or f"CPU not recorded (this machine: {cpu_model()})"
+        named = cpu or f"CPU not recorded (this machine: {cpu_model()}, {os.cpu_count()} CPUs)"
         parts.append(named if len(by_cpu) == 1 else f"{named} for seeds {_span(seeds)}")
-    return (
-        f"{'; '.join(parts)}, {os.cpu_count()} CPUs, protocol.threads = {threads or 'as shipped'}"
-    )
+    return f"{'; '.join(parts)}; protocol.threads = {threads or 'as shipped'}"
 
 
 def _span(seeds: Sequence[int]) -> str:

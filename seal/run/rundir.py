@@ -2,8 +2,9 @@
 
     reports/<protocol>/<group-id>/seed-<n>/
         config.toml        the resolved protocol (loads back with `seal run`)
-        provenance.json    git_sha, packages, command, device, cpu (model), seed, start/end time, protocol, kind,
-                           group, phase_names, update_threads (the threads and the rule's inputs)
+        provenance.json    git_sha, packages, command, device, cpu (model and count), seed,
+                           start/end time, protocol, kind, group, phase_names, update_threads
+                           (the threads and the rule's inputs)
         metrics.csv        one row per evaluation and task (METRICS_COLUMNS)
         train.csv          long format: seed,phase,epoch,grad_steps,env,key,value (TRAIN_COLUMNS);
                            each evaluation adds its critic probe (eval_q/<task>, eval_earned/<task>,

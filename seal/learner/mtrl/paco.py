@@ -5,9 +5,9 @@ composition phi_tau = Phi w_tau with a learned task vector w_tau (K,). Eager, ea
 composed per task first and each task's rows then run through their own phi_tau: B in out + T K
 in out multiply-adds a layer. Compiled (where the rows' task counts cannot be read on the host), the
 K maps run on every row as one batched matmul and the outputs are mixed by the row's w_tau, which is
-the same map since a layer is affine (x phi_tau = sum_k w_tau,k x phi_k) at K B in out: about 4x
-the eager path's time on the bench's shapes (K = 5, 2 tasks x 128 rows, 256 wide). The hidden
-layers are agent.hidden wide (ReLU after the mix), and the output layer composes too, so there are no per-task heads: what is per task is w_tau alone.
+the same map since a layer is affine (x phi_tau = sum_k w_tau,k x phi_k) at K B in out: 2.8-3.3x
+the eager path's time on the bench's shapes (K = 5, 2 tasks x 128 rows, 256 wide; `seal bench
+--only paco_update_speedup`). The hidden layers are agent.hidden wide (ReLU after the mix), and the output layer composes too, so there are no per-task heads: what is per task is w_tau alone.
 
 From metaworld-algorithms' nn/paco.py (the paper's MT10 setting, K = 5): w_tau is a Dense layer
 with bias over the one-hot task id (here the `Embedding` table plus bias), the whole network
@@ -99,14 +99,19 @@ class PaCo(nn.Module):
 
 def _per_task(layer: Dense, w: torch.Tensor, x: torch.Tensor, sizes: list[int]) -> torch.Tensor:
     """(B, in) rows grouped by task, sizes[t] of task t -> (B, out) = x_t phi_t, phi_t = Phi w_t.
-    One batched matmul when every task has the same number of rows, else one matmul a task."""
-    weight = torch.einsum("tk,kio->tio", w, layer.weight)
-    bias = torch.einsum("tk,kio->tio", w, layer.bias)
+    One batched matmul when every task has the same number of rows, else one matmul a task that
+    has rows (only those tasks' layers are composed: acting on one row composes one)."""
     if len(set(sizes)) == 1:
+        weight = torch.einsum("tk,kio->tio", w, layer.weight)
+        bias = torch.einsum("tk,kio->tio", w, layer.bias)
         rows = x.view(len(sizes), sizes[0], x.shape[-1])
         return torch.baddbmm(bias, rows, weight).reshape(x.shape[0], layer.out_dim)
     parts = [
-        torch.addmm(bias[t, 0], rows, weight[t])
+        torch.addmm(
+            torch.einsum("k,ko->o", w[t], layer.bias[:, 0]),
+            rows,
+            torch.einsum("k,kio->io", w[t], layer.weight),
+        )
         for t, rows in enumerate(x.split(sizes))
         if sizes[t]
     ]
