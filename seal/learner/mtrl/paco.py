@@ -7,7 +7,8 @@ in out multiply-adds a layer. Compiled (where the rows' task counts cannot be re
 K maps run on every row as one batched matmul and the outputs are mixed by the row's w_tau, which is
 the same map since a layer is affine (x phi_tau = sum_k w_tau,k x phi_k) at K B in out: 2.8-3.3x
 the eager path's time on the bench's shapes (K = 5, 2 tasks x 128 rows, 256 wide; `seal bench
---only paco_update_speedup`). The hidden layers are agent.hidden wide (ReLU after the mix), and the output layer composes too, so there are no per-task heads: what is per task is w_tau alone.
+--only paco_update_speedup`). The hidden layers are agent.hidden wide (ReLU after the mix), and
+the output layer composes too, so there are no per-task heads: what is per task is w_tau alone.
 
 From metaworld-algorithms' nn/paco.py (the paper's MT10 setting, K = 5): w_tau is a Dense layer
 with bias over the one-hot task id (here the `Embedding` table plus bias), the whole network
