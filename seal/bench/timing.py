@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import TypedDict
 
 import torch
@@ -23,6 +23,18 @@ def _timeit(fn: Callable[[], object], repeats: int) -> float:
         start = time.perf_counter()
         fn()
         best = min(best, time.perf_counter() - start)
+    return best
+
+
+def best_interleaved(
+    runs: Mapping[str, Callable[[], object]], repeats: int, per: int = 1
+) -> dict[str, float]:
+    """Each run's best-of-`repeats` wall time / `per`, the runs timed in turn within each repeat
+    so that machine load falls on all of them alike."""
+    best = dict.fromkeys(runs, math.inf)
+    for _ in range(repeats):
+        for name, fn in runs.items():
+            best[name] = min(best[name], _timeit(fn, 1) / per)
     return best
 
 

@@ -13,7 +13,6 @@ does at this scale: it shows that each one learns.
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -76,7 +75,7 @@ def update_rates(
     protocol's shapes, on one CPU thread: timed interleaved, the best of `repeats` per arm;
     FLOPs counted by FlopCounterMode (`seal.bench.flops.counted_update_flops`)."""
     from seal.bench.flops import _agent_batches, counted_update_flops
-    from seal.bench.timing import _timeit
+    from seal.bench.timing import best_interleaved
     from seal.device import torch_threads
     from seal.learner import Agent, EnvSpec
     from seal.protocols import load_protocol
@@ -93,16 +92,16 @@ def update_rates(
         flops[name] = counted_update_flops(specs, config.agent, config.training.batch_per_task)
         batches[name] = _agent_batches(specs, config.training.batch_per_task, seed=0)
         agents[name].update(batches[name])  # the first update also builds lazy state
-    best = dict.fromkeys(names, math.inf)
+
+    def run(name: str) -> Callable[[], None]:
+        def updates_of() -> None:
+            for _ in range(updates):
+                agents[name].update(batches[name])
+
+        return updates_of
+
     with torch_threads(1):
-        for _ in range(repeats):
-            for name in names:
-
-                def run(name: str = name) -> None:
-                    for _ in range(updates):
-                        agents[name].update(batches[name])
-
-                best[name] = min(best[name], _timeit(run, 1) / updates)
+        best = best_interleaved({name: run(name) for name in names}, repeats, updates)
     return {name: 1.0 / best[name] for name in names}, flops
 
 
