@@ -24,9 +24,9 @@ from seal.protocols import load_protocol
 from seal.sweep.trials import TrialRecord, execute_trial
 
 ROOT = Path(__file__).resolve().parents[1]
-QUICKSTART = (311_710, 256)
+QUICKSTART = (315_806, 256)
 """The quickstart's update: actor and critic parameters, transitions per gradient step."""
-PAPER = (2_363_500, 2_560)
+PAPER = (2_373_100, 2_560)
 """protocols/high_fk.toml's: MT10 and the 10 kitchens, 400-wide, 128 per task."""
 
 
@@ -51,7 +51,7 @@ def test_a_fixed_setting_is_capped_at_the_cores_and_zero_is_kept() -> None:
     auto = choose_threads("auto", *PAPER, cores=16)
     assert (auto.threads, auto.parameters, auto.batch, auto.cores) == (8, *PAPER, 16)
     assert auto.describe().startswith(
-        "8 (auto: 2,363,500 parameters x batch 2,560, 16 usable cores;"
+        "8 (auto: 2,373,100 parameters x batch 2,560, 16 usable cores;"
     )
     assert "capped at 2 cores" in choose_threads(4, *QUICKSTART, cores=2).describe()
     with pytest.raises(SealError, match="protocol.threads = 'many'"):
@@ -71,9 +71,9 @@ def test_explain_prints_the_choice_and_its_inputs(
     assert main(["protocol", "explain", str(ROOT / "protocols" / "quickstart.toml")]) == 0
     out = capsys.readouterr().out
     assert 'threads = "auto"' in out
-    assert "# update threads: 1 (auto: 311,710 parameters x batch 256, 16 usable cores;" in out
+    assert "# update threads: 1 (auto: 315,806 parameters x batch 256, 16 usable cores;" in out
     assert main(["protocol", "explain", str(ROOT / "protocols" / "high_fk.toml")]) == 0
-    assert "# update threads: 8 (auto: 2,363,500 parameters x batch 2,560, 16 usable cores;" in (
+    assert "# update threads: 8 (auto: 2,373,100 parameters x batch 2,560, 16 usable cores;" in (
         capsys.readouterr().out
     )
 

@@ -37,6 +37,8 @@ PRESETS: dict[str, dict[str, object]] = {
         # (R:283) is not taken: ours keeps the per-task Q output (docs/hyperparameters.md).
         "critic_sharing": "per_env",
         "critic_hidden": (400, 400, 400),
+        # Plain Dense layers (R:300-315): no LayerNorm, which is the default since issue 54.
+        "critic_layer_norm": False,
         # Not set: shared_update stays "weighted" (the ratio lever's trunk step); the prototype
         # steps the trunk once per env (R:900-924), which is shared_update = "sequential".
         # init stays "metaworld_algorithms" (the prototype's 0.1 biases are not taken).

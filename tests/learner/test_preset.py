@@ -82,6 +82,8 @@ def test_the_built_network_has_the_prototypes_layer_shapes() -> None:
     critic = {n: tuple(p.shape) for n, p in agent.critic.named_parameters()}
     assert critic["nets.mw.trunk.weights.0"] == (2, 39 + 10 + 4, 400)
     assert critic["nets.mw.heads.mw.weight"] == (2, 400, 10)
+    # Plain Dense layers (R:300-315), though the default critic has LayerNorm (issue 54).
+    assert not [name for name in critic if "norm" in name]
 
 
 def _agent_and_batches(config: AgentConfig) -> tuple[Agent, object]:

@@ -99,10 +99,11 @@ def test_the_check_uses_the_memory_available(
 def test_explain_prints_the_estimate(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["protocol", "explain", str(POINT)]) == 0
     memory, threads = capsys.readouterr().out.strip().splitlines()[-2:]
-    assert memory.startswith("# estimated memory: ") and "16,024 parameters" in memory
-    assert threads.startswith("# update threads: 1 (auto: 16,024 parameters x batch 256, ")
+    # 16,024 plain, + 512 of the critics' LayerNorm: a gain and a bias per unit, 2 x 64 units, twins.
+    assert memory.startswith("# estimated memory: ") and "16,536 parameters" in memory
+    assert threads.startswith("# update threads: 1 (auto: 16,536 parameters x batch 256, ")
     config = load_protocol(POINT)
-    assert estimate_resources(config, build_adapters(config), "cpu").peak.parameters == 16_024
+    assert estimate_resources(config, build_adapters(config), "cpu").peak.parameters == 16_536
 
 
 def test_on_cuda_the_devices_free_memory_counts(monkeypatch: pytest.MonkeyPatch) -> None:
