@@ -14,7 +14,7 @@ Two architectures share one building block, `TaskNetwork`, which for environment
   mean and log std); `head_hidden` gives it hidden layers (`MLPHead`, the prototype's 3 x 400 with
   a per-task last one; `agent.preset = "seal_prototype"` sets all three). The critics
   (`critic_sharing`): by default ("per_env", the authors' prototype) each env has its own twin
-  critic, a plain MLP over (obs_i, one-hot, action_i) with one Q output per task of env i
+  critic, an MLP (LayerNorm before each hidden ReLU: `critic_layer_norm`) over (obs_i, one-hot, action_i) with one Q output per task of env i
   (`PerEnvCritic`); "shared" follows the policy's pattern instead (per-env critic translators, a
   shared critic trunk, per-env per-task Q heads). The twin Qs are two independent copies, and the
   target critics are deep copies that share no tensor with the online ones. Which Adam owns which
