@@ -8,12 +8,11 @@ updates are compared as a check that both compute the same update."""
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from seal.bench.flops import QUICKSTART, _agent_batches, quickstart_setup
-from seal.bench.timing import best_interleaved
+from seal.bench.timing import best_interleaved, updates_of
 from seal.device import torch_threads
 
 PACO_PROTOCOL = QUICKSTART.parent / "mtrl_learn" / "paco.toml"
@@ -40,15 +39,7 @@ def bench_paco_update(
             for _ in range(5):
                 metrics = agent.update(batches)
             losses[name] = {k: v for k, v in metrics.items() if k.startswith("losses")}
-
-        def run(agent: Agent) -> Callable[[], None]:
-            def updates_of() -> None:
-                for _ in range(updates):
-                    agent.update(batches)
-
-            return updates_of
-
-        runs = {name: run(agent) for name, agent in agents.items()}
+        runs = {name: updates_of(agent, batches, updates) for name, agent in agents.items()}
         best = best_interleaved(runs, repeats, updates)
     rel = {
         k: abs(losses["per_task"][k] - v) / max(abs(v), 1e-12) for k, v in losses["sets"].items()

@@ -75,7 +75,7 @@ def update_rates(
     protocol's shapes, on one CPU thread: timed interleaved, the best of `repeats` per arm;
     FLOPs counted by FlopCounterMode (`seal.bench.flops.counted_update_flops`)."""
     from seal.bench.flops import _agent_batches, counted_update_flops
-    from seal.bench.timing import best_interleaved
+    from seal.bench.timing import best_interleaved, updates_of
     from seal.device import torch_threads
     from seal.learner import Agent, EnvSpec
     from seal.protocols import load_protocol
@@ -92,16 +92,9 @@ def update_rates(
         flops[name] = counted_update_flops(specs, config.agent, config.training.batch_per_task)
         batches[name] = _agent_batches(specs, config.training.batch_per_task, seed=0)
         agents[name].update(batches[name])  # the first update also builds lazy state
-
-    def run(name: str) -> Callable[[], None]:
-        def updates_of() -> None:
-            for _ in range(updates):
-                agents[name].update(batches[name])
-
-        return updates_of
-
+    runs = {name: updates_of(agents[name], batches[name], updates) for name in names}
     with torch_threads(1):
-        best = best_interleaved({name: run(name) for name in names}, repeats, updates)
+        best = best_interleaved(runs, repeats, updates)
     return {name: 1.0 / best[name] for name in names}, flops
 
 
