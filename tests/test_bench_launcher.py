@@ -11,10 +11,12 @@ step that never comes hung. The runs are a tiny `point` protocol, a few seconds 
 
 from __future__ import annotations
 
+import _thread
 import contextlib
 import json
 import os
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -30,7 +32,7 @@ from seal.errors import SealError
 from seal.experiments.arms import ARMS, Arm
 from seal.experiments.launcher import check_shared_out, run_all, run_cpus, run_or_reuse
 from seal.protocols import load_protocol
-from seal.run.preemption import Preempted, SignalStop
+from seal.run.preemption import Preempted, SignalStop, hearing_cancel
 from seal.run.runner import run_seed
 from seal.sweep.ray_session import RaySession
 from seal.sweep.trials import is_finished, last_preemption, read_evaluations
@@ -95,6 +97,34 @@ def in_background(steps: Callable[[], None]) -> Iterator[None]:
 
 
 # ---------------------------------------------------------------- without a Ray
+
+
+def _interrupted() -> bool:
+    """Whether Ray's gentle cancel, `_thread.interrupt_main()`, interrupts this (main) thread."""
+    try:
+        _thread.interrupt_main()
+        for _ in range(10**6):  # the interrupt is taken between bytecodes
+            pass
+    except KeyboardInterrupt:
+        return True
+    return False
+
+
+def test_a_trial_hears_the_gentle_cancel_where_its_worker_ignores_sigint() -> None:
+    # A Ray worker started under a background driver (`nohup seal bench ... &`) ignores SIGINT,
+    # and there Ray's gentle cancel does nothing: the run never saved (issue 54's runs, 2026-12-06).
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        assert not _interrupted()
+        with hearing_cancel():
+            assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+            assert _interrupted()
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        signal.signal(signal.SIGINT, handler := lambda *_: None)  # a process's own handler: kept
+        with hearing_cancel():
+            assert signal.getsignal(signal.SIGINT) is handler
+    finally:
+        signal.signal(signal.SIGINT, before)
 
 
 def test_a_run_reserves_the_cpus_its_threads_resolve_to(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -344,3 +374,66 @@ def test_a_run_whose_worker_is_lost_runs_again_from_its_last_checkpoint(
     ref = run_seed(load_protocol(arm.protocol), 0, tmp_path / "ref").run_dir
     got, want = (pd.read_csv(Path(d) / "metrics.csv") for d in (run, ref))
     pd.testing.assert_frame_equal(got.drop(columns="wall_s"), want.drop(columns="wall_s"))
+
+
+DRIVER = """
+import sys
+from pathlib import Path
+from seal.experiments.arms import Arm
+from seal.experiments.launcher import run_all
+from seal.run.preemption import Preempted
+arm = Arm("tiny", "Tiny", None, directory=Path(sys.argv[1]))
+try:
+    run_all([(arm, 0)], Path(sys.argv[2]), parallel=1, log=lambda line: print(line, flush=True))
+except Preempted as stop:
+    print(stop, flush=True)
+    sys.exit(stop.exit_code)
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(3 * HUNG_S)
+def test_a_bench_started_in_the_background_still_lets_its_run_save(tmp_path: Path) -> None:
+    """A bench whose shell ignores SIGINT (a background job: `nohup seal bench ... &`) gives its
+    Ray workers an ignored SIGINT; stopped with SIGTERM, its run still saves its last finished
+    epoch (`hearing_cancel`), where before the fix it was cut off after the grace period."""
+    arm, out = tiny_arm(tmp_path, epochs=200), tmp_path / "out"
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), str(root / "envs")])}
+    driver = subprocess.Popen(
+        [sys.executable, "-c", DRIVER, str(arm.directory), str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )
+    lines: list[str] = []
+    stopping = threading.Event()
+
+    def read() -> None:
+        assert driver.stdout is not None
+        for line in driver.stdout:
+            lines.append(line)
+            if "SIGTERM: stopping 1 runs" in line:
+                stopping.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        wait_until(lambda: any(read_evaluations(r) for r in run_dirs(out)), "evaluated")
+        held = worker_pid(out)
+        os.kill(held, signal.SIGSTOP)  # it cannot finish before the bench stops
+        try:
+            driver.send_signal(signal.SIGTERM)
+            assert stopping.wait(HUNG_S), "".join(lines)[-3000:]
+        finally:
+            os.kill(held, signal.SIGCONT)
+        assert driver.wait(HUNG_S) == 143, "".join(lines)[-3000:]
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+    reader.join(HUNG_S)
+    (run,) = run_dirs(out)
+    assert last_preemption(run).startswith("SIGINT "), "".join(lines)[-3000:]
+    assert any((run / "checkpoints").glob("ckpt-*.pt"))

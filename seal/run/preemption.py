@@ -26,7 +26,8 @@ in them: the run stops them. The spawned evaluation and actor workers ignore bot
 (`seal.run.workers`). Handlers can only be installed from the main thread; elsewhere
 (e.g. a Ray Tune function trainable's thread) a run keeps the process's own handling, and a
 signal the process was started ignoring stays ignored. A sweep's gentle `ray.cancel` reaches a
-trial as a SIGINT (Ray's `_thread.interrupt_main`), so the trial stops as on Ctrl-C.
+trial as a SIGINT (Ray's `_thread.interrupt_main`), so the trial stops as on Ctrl-C; the trial
+hears it even in a worker that inherited an ignored SIGINT (`hearing_cancel`).
 """
 
 from __future__ import annotations
@@ -267,6 +268,27 @@ class SignalStop:
             for s in SIGNALS:
                 if signal.getsignal(s) == self._on_signal:
                     signal.signal(s, signal.SIG_DFL)
+
+
+@contextlib.contextmanager
+def hearing_cancel() -> Iterator[None]:
+    """SIGINT heard for the block, in a Ray task: Ray's gentle cancel (`ray.cancel(force=False)`)
+    is `_thread.interrupt_main()`, which does nothing in a process that ignores SIGINT, and a Ray
+    worker inherits that from a driver started as a shell's background job (`nohup seal bench
+    ... &`). The run would then neither hear the stop nor save, and be cut off after the grace
+    period. Python's default handler is set for the block (the run's `SignalStop` takes over from
+    it) and the ignoring restored after; elsewhere the block runs unchanged."""
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
+    ):
+        yield
+        return
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def ignore_signals() -> None:

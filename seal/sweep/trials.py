@@ -148,7 +148,7 @@ def execute_trial(
     machine start no more intra-op threads than the cores Ray reserved for them.
     Never raises for a failing run: the error is stored in the record and in error.txt.
     """
-    from seal.run.preemption import Preempted
+    from seal.run.preemption import Preempted, hearing_cancel
     from seal.run.runner import run_seed
 
     run_dir = Path(record.run_dir)
@@ -165,15 +165,16 @@ def execute_trial(
     (run_dir / "error.txt").unlink(missing_ok=True)
     try:
         _set_threads(threads)
-        run_seed(
-            config,
-            record.seed,
-            run_dir.parent,
-            quiet=True,
-            resume=record.start == "continued",
-            command=list(command) if command else None,
-            cores=threads,
-        )
+        with hearing_cancel():  # the sweep's or bench's gentle cancel, however the worker started
+            run_seed(
+                config,
+                record.seed,
+                run_dir.parent,
+                quiet=True,
+                resume=record.start == "continued",
+                command=list(command) if command else None,
+                cores=threads,
+            )
         record.status, record.error = "finished", ""
     except Preempted as stop:  # a SIGTERM or SIGINT here, or the sweep's gentle ray.cancel
         record.status = "finished" if is_finished(run_dir) else "preempted"
