@@ -11,11 +11,11 @@ from seal.provenance import collect, cpu_model, reward_versions
 
 
 def test_reward_version_is_recorded_and_matches_the_gym_ids() -> None:
-    assert reward_versions() == {"franka_kitchen_dense": "v3"}
-    assert gym_id("kettle") == "seal/FrankaKitchenDense-kettle-v3"
+    assert reward_versions() == {"franka_kitchen_dense": "v4"}
+    assert gym_id("kettle") == "seal/FrankaKitchenDense-kettle-v4"
     record = collect(command=["seal", "run"], device="cpu")
     assert record["cpu"] == f"{cpu_model()}, {os.cpu_count()} CPUs" and cpu_model()
-    assert record["reward_versions"] == {"franka_kitchen_dense": "v3"}
+    assert record["reward_versions"] == {"franka_kitchen_dense": "v4"}
 
 
 def test_a_runs_reward_version_option_is_recorded() -> None:
@@ -24,6 +24,6 @@ def test_a_runs_reward_version_option_is_recorded() -> None:
     )
     assert reward_versions([v2]) == {"franka_kitchen_dense": "v2"}
     default = EnvConfig(adapter="franka_kitchen_dense", tasks=["kettle"])
-    assert reward_versions([v2, default]) == {"franka_kitchen_dense": "v2+v3"}
+    assert reward_versions([v2, default]) == {"franka_kitchen_dense": "v2+v4"}
     record = collect(command=["seal", "run"], device="cpu", envs=[v2])
     assert record["reward_versions"] == {"franka_kitchen_dense": "v2"}

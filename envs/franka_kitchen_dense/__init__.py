@@ -1,8 +1,8 @@
 """Ten dense single-task Franka kitchens (SEAL Table 2), as gymnasium envs and a SEAL adapter.
 
 Importing the package registers `seal/FrankaKitchenDense-<task>-<version>` for every task and every
-reward version still built (`REWARD_VERSIONS`: v2, v3, v4; v3 is the default, v4, newer,
-registered as `seal/FrankaKitchenDenseCandidate-<task>-v4`, `gym_id`); the heavy
+reward version still built (`REWARD_VERSIONS`: v2, v3, v4; v4, the newest, is the default,
+`gym_id`); the heavy
 modules (gymnasium-robotics, MuJoCo) load only when an env is made.
 """
 

@@ -104,12 +104,13 @@ DEFAULT_EPISODE_LENGTH = 280  # upstream FrankaKitchen-v1 max_episode_steps
 #     distance to the nearest other task's site (not the initial distance); sweep's in_place
 #     margin is its travel (initial distance - threshold), so the start pays the tail 0.1.
 # v4: v3 plus a potential-based approach term F = gamma * Phi(s') - Phi(s), Phi = -k * |tcp - site|,
-#     added after the success override and the [0, 10] clip (not the default: issue 37's rule on its records chose v3).
+#     added after the success override and the [0, 10] clip (the default since issue 54's rule 4,
+#     with critic LayerNorm, on its records; issue 37's rule had chosen v3 with the plain critic).
 REWARD_VERSIONS: tuple[str, ...] = ("v2", "v3", "v4")
 """Reward versions this package still builds (each has its gymnasium ids), oldest first."""
-REWARD_VERSION = "v3"
-"""The default, named explicitly: v3, which the rule written before v3's runs chose over v4 on the
-committed records (README, "Which reward is the default")."""
+REWARD_VERSION = "v4"
+"""The default, named explicitly: v4, which the rule written before the runs chose over v3 on the
+committed records with the default learner (README, "Which reward is the default")."""
 SHAPED_VERSIONS: tuple[str, ...] = ("v4",)
 """Versions whose reward adds the potential-based approach term (`rewards.approach_shaping`)."""
 
@@ -120,7 +121,7 @@ def newer_than_default(version: str) -> bool:
 
 
 def gym_id(task: str, version: str = REWARD_VERSION) -> str:
-    """The gymnasium id registered for `task` under reward `version`, e.g. "seal/FrankaKitchenDense-kettle-v3".
+    """The gymnasium id registered for `task` under reward `version`, e.g. "seal/FrankaKitchenDense-kettle-v4".
 
     A version newer than the default is registered under its own name,
     "seal/FrankaKitchenDenseCandidate-<task>-<version>": gymnasium calls an id "out of date" when a

@@ -142,9 +142,6 @@ def test_always_success_is_caught_at_reset() -> None:
     assert result["success_at_reset"] == 1.0
 
 
-@pytest.mark.filterwarnings(
-    "ignore:adapter 'broken_approach_paying_kitchen'. reward_version = 'v4' is"
-)
 @pytest.mark.slow
 def test_broken_adapters_of_the_kitchen_fixtures_fail() -> None:
     path = pathlib.Path(__file__).with_name("broken_adapters.py")

@@ -474,8 +474,8 @@ def test_gymnasium_ids_are_registered() -> None:
     ids = {gym_id(t) for t in TASK_NAMES}
     assert ids <= set(gym.registry)
     assert {gym_id(t, "v2") for t in TASK_NAMES} <= set(gym.registry)  # v2 stays available
-    assert gym_id("light-switch") == "seal/FrankaKitchenDense-light-switch-v3"
-    env = gym.make("seal/FrankaKitchenDense-light-switch-v3", episode_length=2)
+    assert gym_id("light-switch") == "seal/FrankaKitchenDense-light-switch-v4"
+    env = gym.make("seal/FrankaKitchenDense-light-switch-v4", episode_length=2)
     assert (
         isinstance(env.unwrapped, FrankaKitchenDenseEnv)
         and env.unwrapped.task.joint == "light_switch"

@@ -93,7 +93,9 @@ def test_reward_along_the_slide_experts_trajectory() -> None:
       step 60, d 0.24013: (0.19013 / 0.320466) * 3 = 1.779877 -> 0.239925 -> 2.3993
     Step 77: the handle within 5 cm of its goal (d 0.04733): success, 10.
     """
-    env = FrankaKitchenDenseAdapter(tasks=["slide-cabinet"]).make("slide-cabinet", 0)
+    env = FrankaKitchenDenseAdapter(tasks=["slide-cabinet"], reward_version="v3").make(
+        "slide-cabinet", 0
+    )
     opaque = Opaque(env)
     obs, _ = opaque.reset(seed=0)
     rewards, distances, successes = {}, {}, {}

@@ -105,7 +105,7 @@ def test_the_expert_told_of_gravity_compensation_still_solves_the_slide() -> Non
             "gravity=true",
             "seal envs: error: adapter 'franka_kitchen_dense': unknown option(s) ['gravity']; "
             "valid options: gravity_compensation (true or false, default false), "
-            'reward_version ("v2", "v3" or "v4", default "v3"), gamma (reward v4\'s approach-term '
+            'reward_version ("v2", "v3" or "v4", default "v4"), gamma (reward v4\'s approach-term '
             "discount in (0, 1], default 0.99; must equal agent.gamma)",
         ),
         (

@@ -56,7 +56,7 @@ CONSTANTS = Constants(
 
 def test_k_and_gamma_are_the_documented_ones() -> None:
     assert (K, GAMMA) == (20.0, 0.99)
-    assert REWARD_VERSION == "v3" and REWARD_VERSIONS[-1] == "v4"  # v4 is a candidate
+    assert REWARD_VERSION == "v4" == REWARD_VERSIONS[-1]  # the default is the newest built
 
 
 def test_approach_term_telescopes_on_a_hand_worked_trajectory() -> None:
@@ -115,14 +115,14 @@ def test_in_the_env_phi_starts_at_reset_and_the_sum_telescopes() -> None:
     env.close()
 
 
-@pytest.mark.filterwarnings("ignore:adapter 'franka_kitchen_dense'. reward_version = 'v4' is")
+@pytest.mark.filterwarnings("ignore:adapter 'franka_kitchen_dense'. reward_version = 'v3' is")
 def test_posing_resets_phi_and_a_held_state_pays_the_still_term() -> None:
     # The same posed state under v3 and v4: the held step's reward differs by (gamma - 1) Phi(s)
     # exactly, whatever one step of the unsupported arm's sag would pay.
-    v3 = FrankaKitchenDenseAdapter(tasks=["bottom-left-burner"]).make("bottom-left-burner", 0)
-    v4 = FrankaKitchenDenseAdapter(tasks=["bottom-left-burner"], reward_version="v4").make(
+    v3 = FrankaKitchenDenseAdapter(tasks=["bottom-left-burner"], reward_version="v3").make(
         "bottom-left-burner", 0
     )
+    v4 = FrankaKitchenDenseAdapter(tasks=["bottom-left-burner"]).make("bottom-left-burner", 0)
     raw = v4.unwrapped
     v4.reset(seed=0)
     joint = raw.initial_task_joint()
@@ -168,10 +168,10 @@ def test_the_approach_cycle_fails_a_reward_with_the_approach_term_inside_the_cli
     assert figures["exploit_returns"]["parking"] == pytest.approx(returns["parking"], rel=0.05)
 
 
-def test_v4_ids_leave_the_default_the_newest_of_its_name() -> None:
-    assert gym_id("microwave") == "seal/FrankaKitchenDense-microwave-v3"
-    assert gym_id("microwave", "v4") == "seal/FrankaKitchenDenseCandidate-microwave-v4"
-    assert {gym_id(t, "v4") for t in TASK_NAMES} <= set(gym.registry)
+def test_the_default_ids_are_the_newest_of_their_name() -> None:
+    assert gym_id("microwave") == "seal/FrankaKitchenDense-microwave-v4"
+    assert gym_id("microwave", "v3") == "seal/FrankaKitchenDense-microwave-v3"
+    assert {gym_id(t, "v3") for t in TASK_NAMES} <= set(gym.registry)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         env = gym.make(gym_id("light-switch"), episode_length=2)
