@@ -432,12 +432,13 @@ def test_the_reward_test_sets_v4_against_v3_seed_for_seed_and_applies_the_rule()
     labels = {k: a["label"] for k, a in result_arms.items()}
     lines = _format_reward_test(test, labels)
     assert lines[0] == (
-        "reward test, light-switch v4 against light-switch, seeds 0, 1, 2: crossed 90% within the budget 1, 1, 1 "
+        "reward test with the plain critic, light-switch v4 against light-switch, seeds 0, 1, 2: "
+        "crossed 90% within the budget 1, 1, 1 "
         "against 0, 0, 1; final success 0, 0.9, 0.2 against 0, 0, 1"
     )
     assert lines[-1] == (
-        "reward test, v4 against v3, seeds 0-2 of 5 tasks: crossed 90% in 4 of 6 runs made against "
-        "2 of 5, ended >= 90% in 2 against 3; the default by the rule (v4 if it crosses in more "
+        "reward test with the plain critic, v4 against v3, seeds 0-2 of 5 tasks: crossed 90% in 4 "
+        "of 6 runs made against 2 of 5, ended >= 90% in 2 against 3; the rule's verdict (v4 if it crosses in more "
         "runs and ends in at least as many, of 15 each): not decided (the runs left could change it)"
     )
 

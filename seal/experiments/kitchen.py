@@ -395,7 +395,7 @@ def _format_reward_test(
 ) -> list[str]:
     if not any(name + learner in labels for name in _v4_arms()):
         return []
-    what = "reward test" + (" with critic LN" if learner else "")
+    what = "reward test" + (" with critic LN" if learner else " with the plain critic")
     rule = "v4 if it crosses in more runs and ends in at least as many"
     return format_rule_test(test, labels, what, "_v3", ("v4", "v3"), rule)
 

@@ -166,7 +166,7 @@ def format_rule_test(
         f"{what}, {sides[0]} against {sides[1]}, seeds 0-{RULE_SEEDS - 1} of "
         f"{test['of'] // RULE_SEEDS} tasks: crossed 90% in {test['crossed']} of {test['made']} "
         f"runs made against {test[f'crossed{old}']} of {test[f'made{old}']}, ended >= 90% in "
-        f"{test['ended_90']} against {test[f'ended_90{old}']}; the default by the rule ({rule}, "
+        f"{test['ended_90']} against {test[f'ended_90{old}']}; the rule's verdict ({rule}, "
         f"of {test['of']} each): {verdict}"
     )
     return lines
