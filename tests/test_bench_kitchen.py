@@ -17,11 +17,13 @@ from seal.experiments.kitchen import (
     ARMS,
     _arm_config,
     _format_collapse_test,
+    _format_default_ended,
     _format_reward_test,
     _format_v4,
     _pinned_version,
     arms,
     collapse_test,
+    default_ended_goal,
     end_mean_q,
     end_q_ratio,
     format_result,
@@ -312,6 +314,53 @@ def test_v4_goal_counts_tasks_reached_in_two_of_three_seeds_within_budget() -> N
     five["microwave_v4_critic_ln"] = arm("microwave v4 + critic LN", yes, yes, yes)
     assert v4_goal(five)["of"] == 5
     assert v4_goal(five)["reached"] == ["slide-cabinet v4", "bottom-left-burner v4"]
+
+
+def test_issue_54s_goal_counts_the_default_learners_runs_on_the_default_reward_that_end_at_90() -> (
+    None
+):
+    default = [
+        f"{t}_v4_critic_ln"
+        for t in ("light_switch", "microwave", "slide_cabinet", "bottom_left_burner")
+        + ("bottom_right_burner",)
+    ]
+
+    def arm(name: str, *finals: float) -> dict:
+        per_seed = [{"seed": s, "final_success": f} for s, f in enumerate(finals)]
+        return {"label": name.replace("_", "-"), "per_seed": per_seed}
+
+    # Today's defaults (LayerNorm critic, MLP block, reward v4) make the v4 + LayerNorm arms these.
+    assert default_ended_goal({})["arms"] == default
+    five = {name: arm(name, 1.0, 0.9, 1.0) for name in default}  # 0.9 ends at 90%
+    five["microwave_v4"] = arm("microwave_v4", 1.0, 1.0, 1.0)  # the plain critic: not counted
+    five["slide_cabinet_v4_critic_ln"] = arm("slide_cabinet_v4_critic_ln", 1.0, 0.8, 0.0, 1.0)
+    goal = default_ended_goal(five)
+    # 4 arms x 3 + slide-cabinet's seed 0 (its seed 3 is past the rule's seeds) = 13 of 15.
+    assert (goal["of"], goal["made"], len(goal["ended"]), goal["met"]) == (15, 15, 13, True)
+    assert "slide-cabinet-v4-critic-ln s1" not in goal["ended"]
+    five["light_switch_v4_critic_ln"] = arm("light_switch_v4_critic_ln", 0.0, 0.5, 1.0)
+    assert (len(default_ended_goal(five)["ended"]), default_ended_goal(five)["met"]) == (11, False)
+    # With runs left: met once 12 have ended at 90%, not met once the rest cannot make up the
+    # shortfall, not judged between.
+    five["light_switch_v4_critic_ln"] = arm("light_switch_v4_critic_ln", 1.0)
+    five["slide_cabinet_v4_critic_ln"] = arm("slide_cabinet_v4_critic_ln", 1.0, 0.0)
+    goal = default_ended_goal(five)
+    assert (goal["made"], len(goal["ended"]), goal["met"]) == (12, 11, None)
+    labels = {n: n for n in five}
+    assert _format_default_ended(goal, labels).endswith(
+        "end >= 90%: 11 of 12 made: not judged (12 of 15 runs made)"
+    )
+    five["light_switch_v4_critic_ln"] = arm("light_switch_v4_critic_ln", 1.0, 1.0)
+    goal = default_ended_goal(five)
+    assert (goal["made"], len(goal["ended"]), goal["met"], goal["all_ran"]) == (13, 12, True, False)
+    assert _format_default_ended(goal, labels).endswith(
+        ": 12 of 13 made: met before every run was made (13 of 15 runs made; a run made has ended "
+        "where it ends)"
+    )
+    five["light_switch_v4_critic_ln"] = arm("light_switch_v4_critic_ln", 0.0, 0.0)
+    five["microwave_v4_critic_ln"] = arm("microwave_v4_critic_ln", 1.0, 1.0, 0.1)
+    goal = default_ended_goal(five)  # 0 + 2 + 1 + 3 + 3 = 9 ended, 2 runs left: at most 11
+    assert (goal["made"], len(goal["ended"]), goal["met"]) == (13, 9, False)
 
 
 def test_the_collapse_test_sets_each_seed_against_v4_alone() -> None:

@@ -8,7 +8,8 @@ transitions) at the first evaluation at >= 90%; a run that never got there is ce
 Goals: every arm's task reaches 90% within 150k env steps in every seed (issue 11); at least 4 of
 the 5 demonstration-free reward-v3 arms reach it in at least one seed (issue 25, `goal.rewards_alone`);
 under reward v4 (the `*_v4` arms, all 535 epochs run), at least 4 of the 5 tasks
-reach it in at least 2 of 3 seeds (issue 37, `goal.v4`). The `*_v4_critic_ln` arms are issue 37's
+reach it in at least 2 of 3 seeds (issue 37, `goal.v4`); at least 12 of the 15 runs (seeds 0-2) of
+the default learner on the default reward end at >= 90% success (issue 54, `goal.default_ended`). The `*_v4_critic_ln` arms are issue 37's
 collapse test, v4 with LayerNorm in the critics, set seed for seed against v4 alone (`collapse_test`).
 `reward_test` sets each v4 arm seed for seed against its v3 arm run with stopping off, and applies
 the rule that decides the default reward (envs/franka_kitchen_dense/README.md). `learner_test`
@@ -33,6 +34,7 @@ from seal.experiments.arms import Arm
 from seal.experiments.kitchen_rules import (
     ENV_STEP_BUDGET,
     RULE_SEEDS,
+    ended_90,
     format_collapse_test,
     format_rule_test,
     rule_test,
@@ -59,6 +61,11 @@ V4_SEEDS_NEEDED = 2
 """... at least this many of ..."""
 V4_SEEDS = RULE_SEEDS
 """... this many seeds."""
+DEFAULT_ENDED_NEEDED = 12
+"""Issue 54: of the runs of seeds 0-2 of the five tasks with the default learner on the default
+reward (15), at least this many end at >= 90% success."""
+LEARNER_KEYS = ("critic_layer_norm", "critic_block")
+"""The agent keys that tell the kitchen arms' learners apart (`LEARNERS`)."""
 
 
 def _arm(name: str, label: str) -> Arm:
@@ -257,6 +264,7 @@ def run_kitchen_bench(
             "met": False if failed else (None if missing else True),
             "rewards_alone": rewards_alone_goal(result_arms),
             "v4": v4_goal(result_arms),
+            "default_ended": default_ended_goal(result_arms),
         },
         "collapse_test": collapse_test(result_arms),
         "reward_test": reward_test(result_arms),
@@ -345,6 +353,52 @@ def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+def _default_arms() -> list[str]:
+    """The demonstration-free arms that run the default learner (every `LEARNER_KEYS` key at
+    `AgentConfig`'s default) on the default reward (`franka_kitchen_dense.REWARD_VERSION`, pinned or
+    followed): one per task, whichever arms today's defaults make these."""
+    from franka_kitchen_dense import REWARD_VERSION
+
+    from seal.learner.config import AgentConfig
+
+    default = AgentConfig()
+    return [
+        arm.name
+        for arm in ARMS
+        if (config := _arm_config(arm)).training.demo_episodes == 0
+        and (_pinned_version(arm) or REWARD_VERSION) == REWARD_VERSION
+        and all(getattr(config.agent, k) == getattr(default, k) for k in LEARNER_KEYS)
+    ]
+
+
+def default_ended_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
+    """Issue 54's goal: of the `RULE_SEEDS` seeds of each default-learner, default-reward arm, how
+    many runs ended at >= 90% success (`kitchen_rules.ended_90`); met once `DEFAULT_ENDED_NEEDED`
+    have, not met once the runs left cannot make up the shortfall (a run's end is final)."""
+    names = _default_arms()
+    judged = {
+        n: [f for f in result_arms[n]["per_seed"] if f["seed"] < RULE_SEEDS]
+        for n in names
+        if n in result_arms
+    }
+    made = sum(len(runs) for runs in judged.values())
+    ended = [
+        f"{result_arms[n]['label']} s{f['seed']}"
+        for n, runs in judged.items()
+        for f in runs
+        if ended_90(f)
+    ]
+    of = RULE_SEEDS * len(names)
+    return {
+        "needed": DEFAULT_ENDED_NEEDED,
+        "of": of,
+        "arms": names,
+        "made": made,
+        "ended": ended,
+        **_verdict(len(ended), len(ended) + of - made, DEFAULT_ENDED_NEEDED, all_ran=made == of),
+    }
+
+
 def _tasks() -> list[str]:
     """The five demonstration-free tasks the rules compare, as their v3 arms' names."""
     return [name.removesuffix(V4_SUFFIX) for name in _v4_arms()]
@@ -430,13 +484,26 @@ def _demos(run_dir: Path) -> dict[str, Any] | None:
     return next(iter(demos.values()), None)
 
 
-def _format_verdict(goal: Mapping[str, Any], runs_left: str) -> str:
+def _format_default_ended(goal: Mapping[str, Any], labels: Mapping[str, str]) -> str:
+    arms = ", ".join(labels.get(n, n) for n in goal["arms"])
+    runs_left = f"{goal['made']} of {goal['of']} runs made"
+    return (
+        f"goal (issue 54): >= {goal['needed']} of the {goal['of']} runs of the default learner on the "
+        f"default reward ({arms}) end >= 90%: {len(goal['ended'])} of {goal['made']} made: "
+        f"{_format_verdict(goal, runs_left, 'a run made has ended where it ends')}"
+    )
+
+
+def _format_verdict(
+    goal: Mapping[str, Any], runs_left: str, final: str = "a later run cannot undo a crossing"
+) -> str:
+    """`final`: why a goal met before every run was made stays met."""
     if goal["met"] is None:
         return f"not judged ({runs_left})"
     if goal["all_ran"]:
         return "met" if goal["met"] else "not met"
     if goal["met"]:
-        return f"met before every run was made ({runs_left}; a later run cannot undo a crossing)"
+        return f"met before every run was made ({runs_left}; {final})"
     return f"not met before every run was made ({runs_left}; the runs left cannot make up the shortfall)"
 
 
@@ -502,6 +569,11 @@ def format_result(result: Mapping[str, Any]) -> str:
         f"goal: every arm >= 90% within {goal['env_steps_le']:,} env steps in every seed: {met}",
         _format_rewards_alone(goal["rewards_alone"]),
         _format_v4(goal["v4"]),
+        *(
+            [_format_default_ended(goal["default_ended"], by_name)]
+            if "default_ended" in goal
+            else []
+        ),
         *_format_collapse_test(result.get("collapse_test", {}), by_name),
         *(_format_reward_test(result["reward_test"], by_name) if "reward_test" in result else []),
         *(

@@ -50,6 +50,11 @@ def within_budget(figures: Mapping[str, Any]) -> bool:
     return bool(figures["reached"] and figures["env_steps"] <= ENV_STEP_BUDGET)
 
 
+def ended_90(figures: Mapping[str, Any]) -> bool:
+    """Whether a run's final evaluation was at >= 90% success."""
+    return bool(figures["final_success"] >= DEFAULT_THRESHOLD - SUCCESS_TOLERANCE)
+
+
 def _judged(arm: Mapping[str, Any]) -> list[dict[str, Any]]:
     """An arm's runs of the seeds the rules name, each with its two verdicts: crossed 90% within
     the budget, final success >= 90%."""
@@ -57,7 +62,7 @@ def _judged(arm: Mapping[str, Any]) -> list[dict[str, Any]]:
         {
             **f,
             "crossed": within_budget(f),
-            "ended_90": f["final_success"] >= DEFAULT_THRESHOLD - SUCCESS_TOLERANCE,
+            "ended_90": ended_90(f),
         }
         for f in arm["per_seed"]
         if f["seed"] < RULE_SEEDS
