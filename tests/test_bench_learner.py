@@ -113,3 +113,25 @@ def test_both_learners_run_seed_for_seed_and_no_run_reads_them_back(
     )
     assert missing["no_slower"] is None and not missing["complete"]
     assert math.isnan(missing["checks"][0]["change"]["mean"])
+
+
+def test_the_quickstart_check_reads_rule_2s_committed_v3_records_though_the_quickstart_moved_to_v4() -> (
+    None
+):
+    (quickstart,) = learner.arms(["quickstart"])
+    assert quickstart.pins == ("envs.fk.options={reward_version='v3'}",)
+    out = Path(__file__).resolve().parents[1] / "results" / "learner_check"
+    result = learner.run_learner_bench(
+        out=str(out),
+        overrides=["agent.critic_layer_norm=true"],
+        baseline=["agent.critic_layer_norm=false"],
+        only=["quickstart"],
+        run=False,
+    )
+    (check,) = result["checks"]
+    assert check["paired_seeds"] == list(range(10))
+    # Seed 0's drawer-close, read by hand from the two records' metrics.csv.
+    assert (check["old"]["0"]["env_steps"], check["new"]["0"]["env_steps"]) == (8_000, 4_000)
+    assert "(mw/drawer-close-v3; both sides envs.fk.options={reward_version='v3'})" in (
+        learner.format_result(result)
+    )
