@@ -354,8 +354,8 @@ def test_issue_54s_goal_counts_the_default_learners_runs_on_the_default_reward_t
     goal = default_ended_goal(five)
     assert (goal["made"], len(goal["ended"]), goal["met"], goal["all_ran"]) == (13, 12, True, False)
     assert _format_default_ended(goal, labels).endswith(
-        ": 12 of 13 made: met before every run was made (13 of 15 runs made; a run made has ended "
-        "where it ends)"
+        ": 12 of 13 made: met before every run was made (13 of 15 runs made; a run made cannot "
+        "change how it ended)"
     )
     five["light_switch_v4_critic_ln"] = arm("light_switch_v4_critic_ln", 0.0, 0.0)
     five["microwave_v4_critic_ln"] = arm("microwave_v4_critic_ln", 1.0, 1.0, 0.1)

@@ -490,7 +490,7 @@ def _format_default_ended(goal: Mapping[str, Any], labels: Mapping[str, str]) ->
     return (
         f"goal (issue 54): >= {goal['needed']} of the {goal['of']} runs of the default learner on the "
         f"default reward ({arms}) end >= 90%: {len(goal['ended'])} of {goal['made']} made: "
-        f"{_format_verdict(goal, runs_left, 'a run made has ended where it ends')}"
+        f"{_format_verdict(goal, runs_left, 'a run made cannot change how it ended')}"
     )
 
 
