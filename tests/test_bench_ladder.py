@@ -137,5 +137,6 @@ def test_the_cli_wires_ladder_no_run_and_reuse(
     assert "--ladder only applies to --learn transfer" in capsys.readouterr().err
     assert main(["bench", "--learn", "transfer", "--fpr", "--no-run"]) == 2
     assert (
-        "--no-run only applies to --learn kitchen, learner and transfer" in capsys.readouterr().err
+        "--no-run only applies to --learn kitchen, learner, mtrl and transfer"
+        in capsys.readouterr().err
     )

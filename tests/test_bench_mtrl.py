@@ -9,6 +9,7 @@ import pytest
 
 from seal.errors import SealError
 from seal.experiments.mtrl import ARMS, arms, crossings, format_result, run_mtrl_bench
+from seal.experiments.records import finished_runs
 from seal.protocols import load_protocol
 from tests.test_reports import HEADER
 
@@ -69,3 +70,38 @@ def test_tiny_end_to_end(tmp_path: Path) -> None:
     assert "| SAC-MT-MH" in result["by_task_table"] and "| PaCo" in result["by_task_table"]
     text = format_result(result)
     assert "PaCo" in text and "updates/s (x SAC-MT-MH)" in text
+    assert result["missing"] == [] and "not run" not in text
+
+    # --no-run over two seeds takes the finished seed 0 and names seed 1 of both arms.
+    read = run_mtrl_bench(seeds=2, out=tmp_path, overrides=TINY, only=["paco"], run=False)
+    assert read["missing"] == ["sac_mt_mh/seed-1", "paco/seed-1"]
+    for name, learner in read["learners"].items():
+        ran = result["learners"][name]
+        assert learner["seeds"] == 1 and learner["run_dirs"] == ran["run_dirs"]
+        assert learner["first_crossing_env_steps"] == ran["first_crossing_env_steps"]
+    assert "not run (--no-run found no finished run): sac_mt_mh/seed-1, paco/seed-1" in (
+        format_result(read)
+    )
+
+
+def test_no_run_without_a_finished_run_says_so_and_writes_nothing(tmp_path: Path) -> None:
+    with pytest.raises(SealError, match=r"holds no finished run of these arms \(seeds 0-2\)"):
+        run_mtrl_bench(seeds=3, out=tmp_path, only=["paco"], run=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+RECORDS = Path(__file__).resolve().parents[1] / "results" / "mtrl_learn"
+"""The committed records of `seal bench --learn mtrl` (docs/smt_table1.md)."""
+
+
+def test_every_committed_record_is_read_as_a_finished_run_of_todays_protocol() -> None:
+    """A record that today's code would not take (a default changed under it, a file missing) is
+    silently left out of `--no-run`'s table: this names it instead."""
+    by_protocol = {load_protocol(a.protocol).name: a for a in ARMS}
+    records = sorted(RECORDS.glob("*/*/seed-*"))
+    assert records, f"no run records under {RECORDS}"
+    for record in records:
+        arm = by_protocol[record.parents[1].name]
+        seed = int(record.name.removeprefix("seed-"))
+        taken = finished_runs([(arm, seed)], RECORDS)
+        assert taken == {(arm.name, seed): record}, f"{record}: not taken as {arm.name} seed {seed}"

@@ -118,7 +118,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--no-run",
         action="store_true",
-        help="with --learn kitchen, learner or transfer (not with --fpr or --seeds-until-mde): run and resume nothing; report the finished runs under --out that --reuse would take (run records, say) and name the ones not found (transfer: over the seeds 0..k-1 that have a run of every arm)",
+        help="with --learn kitchen, learner, mtrl or transfer (not with --fpr or --seeds-until-mde): run and resume nothing; report the finished runs under --out that --reuse would take (run records, say) and name the ones not found (transfer: over the seeds 0..k-1 that have a run of every arm)",
     )
     parser.add_argument(
         "--jobs",
@@ -267,11 +267,11 @@ def run(args: argparse.Namespace) -> int:
             "--seeds-until-mde (it runs the ladder's own arms)"
         )
     if args.no_run and (
-        args.learn not in ("kitchen", "learner", "transfer") or args.fpr or until_mde
+        args.learn not in ("kitchen", "learner", "mtrl", "transfer") or args.fpr or until_mde
     ):
         raise SealError(
-            "--no-run only applies to --learn kitchen, learner and transfer, without --fpr and "
-            "--seeds-until-mde"
+            "--no-run only applies to --learn kitchen, learner, mtrl and transfer, without --fpr "
+            "and --seeds-until-mde"
         )
     if (args.address is not None or args.jobs is not None) and args.learn not in LEARN_SETS:
         raise SealError(

@@ -42,7 +42,7 @@ from seal.experiments.kitchen_rules import (
 )
 from seal.experiments.kitchen_rules import collapse_test as _collapse_test
 from seal.experiments.launcher import bench_context, run_or_reuse
-from seal.experiments.records import code_versions, finished_run, versions_note
+from seal.experiments.records import code_versions, finished_runs, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 from seal.protocols import load_protocol
 
@@ -218,8 +218,7 @@ def run_kitchen_bench(
             jobs, Path(out), overrides, parallel, log, reuse, address=address
         )
     else:
-        found = {(a.name, s): finished_run(a, s, Path(out), overrides) for a, s in jobs}
-        run_dirs = reused = {key: path for key, path in found.items() if path is not None}
+        run_dirs = reused = finished_runs(jobs, Path(out), overrides)
     loaded = {key: load_run(path) for key, path in run_dirs.items()}
     result_arms: dict[str, Any] = {}
     for arm in chosen:

@@ -7,7 +7,8 @@ runs it as `seal run` does (`seal.experiments.launcher`, two at a time on a loca
 task per seed (env steps of that task), its FLOPs an update (counted) and its updates/s against
 SAC-MT-MH's, timed side by side in this bench run (the same batch shapes, the arms interleaved,
 the best of `repeats`), so the ratio does not depend on the machine. `seal report` over the arms' runs writes the table in
-SMT Table 1's layout (tables/success_by_task.md). It need not order the learners as the paper
+SMT Table 1's layout (tables/success_by_task.md). `--no-run` reads the finished runs under
+`--out` (the committed records of results/mtrl_learn) and names the seeds it did not find. It need not order the learners as the paper
 does at this scale: it shows that each one learns.
 """
 
@@ -22,7 +23,7 @@ from typing import Any
 from seal.errors import SealError, UnknownNameError
 from seal.experiments.arms import Arm
 from seal.experiments.launcher import bench_context, run_or_reuse
-from seal.experiments.records import code_versions, versions_note
+from seal.experiments.records import code_versions, finished_runs, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
 
 MTRL_LEARN = Path(__file__).resolve().parents[2] / "protocols" / "mtrl_learn"
@@ -106,10 +107,15 @@ def run_mtrl_bench(
     log: Callable[[str], None] = lambda _: None,
     only: Sequence[str] | None = None,
     reuse: bool = False,
+    run: bool = True,
     address: str | None = None,
 ) -> dict[str, Any]:
     """Run (or reuse) every arm's seeds 0..seeds-1 on Ray (a local Ray of `parallel` CPUs, or
-    the cluster at `address`), time the updates, report the runs."""
+    the cluster at `address`), time the updates, report the runs.
+
+    Without `run`, nothing is run or resumed: the figures are those of the finished runs under
+    `out` that `reuse` would take, each learner's k of n over the seeds found, and `missing`
+    names the rest; a learner with none is left out, the reference's speed still timed."""
     from seal import load_run
     from seal.bench.timing import machine_load
     from seal.reports import report
@@ -120,15 +126,25 @@ def run_mtrl_bench(
     load_before = machine_load()
     started = time.monotonic()
     jobs = [(arm, seed) for seed in range(seeds) for arm in chosen]
-    run_dirs, reused = run_or_reuse(
-        jobs, Path(out), overrides, parallel, log, reuse, address=address
-    )
+    if run:
+        run_dirs, reused = run_or_reuse(
+            jobs, Path(out), overrides, parallel, log, reuse, address=address
+        )
+    else:
+        run_dirs = reused = finished_runs(jobs, Path(out), overrides)
+        if not run_dirs:
+            raise SealError(
+                f"--no-run: {out} holds no finished run of these arms (seeds 0-{seeds - 1}); "
+                "run them first (--reuse continues any that a session cut short)"
+            )
     wall = time.monotonic() - started
     log("timing the updates side by side")
     rates, flops = update_rates([a.name for a in chosen], overrides)
     learners = {}
     for arm in chosen:
-        by_seed = {s: run_dirs[(arm.name, s)] for s in range(seeds)}
+        by_seed = {s: run_dirs[(arm.name, s)] for s in range(seeds) if (arm.name, s) in run_dirs}
+        if not by_seed:
+            continue
         crossed = crossings(by_seed)
         every = [
             s
@@ -138,7 +154,7 @@ def run_mtrl_bench(
         learners[arm.name] = {
             "label": arm.label,
             "every_task_90": len(every),
-            "seeds": seeds,
+            "seeds": len(by_seed),
             "first_crossing_env_steps": {str(s): t for s, t in crossed.items()},
             "updates_per_s": rates[arm.name],
             "speed_vs_reference": rates[arm.name] / rates[REFERENCE],
@@ -148,6 +164,7 @@ def run_mtrl_bench(
     result = report([p for p in run_dirs.values()], out=Path(out) / "mtrl" / "all")
     loaded = {key: load_run(p) for key, p in run_dirs.items()}
     return {
+        "missing": [f"{a.name}/seed-{s}" for a, s in jobs if (a.name, s) not in run_dirs],
         "learners": learners,
         "reference": REFERENCE,
         "by_task_table": result.tables["success_by_task.md"].read_text(),
@@ -163,7 +180,7 @@ def run_mtrl_bench(
 
 def format_result(result: Mapping[str, Any]) -> str:
     """The human-readable output of `run_mtrl_bench`."""
-    ref = result["learners"][result["reference"]]["label"]
+    ref = next(a.label for a in ARMS if a.name == result["reference"])
     lines = [
         f"{'learner':<14} {'every task >= 90%':<18} {'first crossing per seed (env steps a task)':<60} "
         f"updates/s (x {ref}), GFLOP an update"
@@ -181,7 +198,10 @@ def format_result(result: Mapping[str, Any]) -> str:
             f"{per_seed:<60} {learner['updates_per_s']:.1f} (x {learner['speed_vs_reference']:.2f}), "
             f"{learner['flops_per_update'] / 1e9:.2f}"
         )
-    lines += ["", "- = never reached 90% within the run.", "", result["by_task_table"].rstrip(), ""]
+    lines += ["", "- = never reached 90% within the run."]
+    if result.get("missing"):
+        lines.append(f"not run (--no-run found no finished run): {', '.join(result['missing'])}")
+    lines += ["", result["by_task_table"].rstrip(), ""]
     note = versions_note(result["code_versions"])
     if note:
         lines.append(f"WARNING, {note}")

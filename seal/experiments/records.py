@@ -118,6 +118,15 @@ def finished_run(arm: Arm, seed: int, out: Path, overrides: Sequence[str] = ()) 
     return None
 
 
+def finished_runs(
+    jobs: Sequence[tuple[Arm, int]], out: Path, overrides: Sequence[str] = ()
+) -> dict[tuple[str, int], Path]:
+    """`--no-run`: (arm name, seed) -> the finished run `finished_run` takes, for the jobs that
+    have one; the rest are left out."""
+    found = {(a.name, s): finished_run(a, s, out, overrides) for a, s in jobs}
+    return {key: path for key, path in found.items() if path is not None}
+
+
 def unfinished_run(arm: Arm, seed: int, out: Path, overrides: Sequence[str] = ()) -> Path | None:
     """The newest run of (arm, seed) under `out` with today's resolved config that did not finish
     but saved an epoch checkpoint with its replay to go on from (`seal run --resume`), else None."""
