@@ -730,6 +730,31 @@ def test_seeds_run_one_at_a_time_make_one_column(tmp_path: Path) -> None:
     ]
 
 
+def test_seeds_that_differ_in_what_they_save_or_log_still_make_one_column(tmp_path: Path) -> None:
+    # The mtrl bench's seed 0 saved no replay, its later seeds did (to resume across sessions):
+    # [checkpoint] and [logging] say what a run keeps, not what it learns. [training] does not.
+    root = tmp_path / "reports"
+    _write_group(root, "high_fk", {0: HIGH_FK[0]}, group="g1")
+    extra = {
+        1: "[checkpoint]\ninterval = 25\nsave_replay = false\n",
+        2: "[logging]\ntensorboard = false\n",
+    }
+    for seed, table in extra.items():
+        group = _write_group(root, "high_fk", {seed: HIGH_FK[0]}, group=f"g{seed + 1}")
+        config = group / f"seed-{seed}" / "config.toml"
+        config.write_text(config.read_text() + "\n" + table)
+    groups = sorted((root / "high_fk").iterdir())
+    result = report(groups, out=tmp_path / "o")
+    counts = result.update_counts
+    assert set(counts["column"]) == {"High FK"}
+    assert set(counts["seeds"]) == {3}
+
+    config = root / "high_fk" / "g3" / "seed-2" / "config.toml"
+    config.write_text(config.read_text() + "\n[training]\nbatch_per_task = 64\n")
+    split = report(groups, out=tmp_path / "o2")
+    assert set(split.update_counts["column"]) == {"High FK [high_fk/g1]", "High FK [high_fk/g3]"}
+
+
 def test_reward_versions_are_compared_only_for_adapters_the_runs_have(
     tmp_path: Path, groups: dict[str, Path]
 ) -> None:

@@ -186,12 +186,18 @@ class _Group:
 # Keys that differ between the seeds of one experiment run one seed at a time (`seal bench`,
 # sweeps): the seed range, and a checkpoint each seed starts from (a positive control's pre-training).
 _PER_SEED_KEYS = {"protocol": ("seeds", "first_seed"), "transfer": ("checkpoint",)}
+# Tables of what a run saves and logs, not what it learns (resume is exact: docs/faults.md), so
+# seeds made with another checkpoint interval or replay saving are still seeds of one experiment.
+_RECORD_KEEPING_TABLES = ("checkpoint", "logging")
 
 
 def _experiment(run: RunData) -> str:
-    """What makes two runs seeds of one experiment: the protocol name and the resolved config, per-seed keys aside."""
+    """What makes two runs seeds of one experiment: the protocol name and the resolved config,
+    per-seed keys and the record-keeping tables aside."""
     config = {
-        table: dict(values) for table, values in run.config.items() if isinstance(values, dict)
+        table: dict(values)
+        for table, values in run.config.items()
+        if isinstance(values, dict) and table not in _RECORD_KEEPING_TABLES
     }
     for table, keys in _PER_SEED_KEYS.items():
         for key in keys:
@@ -202,8 +208,9 @@ def _experiment(run: RunData) -> str:
 def _gather(paths: Iterable[str | os.PathLike[str]]) -> list[_Group]:
     """Resolve run and group paths into groups (runs given one by one join their group).
 
-    Group directories of one experiment (same protocol and config but the per-seed keys, e.g.
-    one `seal run --seeds <s>` per seed) whose seeds do not overlap merge into one group, so
+    Group directories of one experiment (same protocol and config but the per-seed keys and
+    [checkpoint] and [logging], e.g. one `seal run --seeds <s>` per seed) whose seeds do not
+    overlap merge into one group, so
     that their seeds make one column; otherwise every group directory is its own.
     """
     by_group: dict[Path, dict[Path, RunData]] = {}
