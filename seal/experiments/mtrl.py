@@ -3,13 +3,14 @@
 Every arm of protocols/mtrl_learn is one learner (SAC-MT-MH, SAC-MT, PCGrad, PaCo, MOORE, CARE,
 Soft Modular) on the same two easy MT10 tasks with the same budget, each seed one Ray task that
 runs it as `seal run` does (`seal.experiments.launcher`, two at a time on a local Ray of 2 CPUs,
-`--reuse` across sessions). Per learner it prints: k of n seeds in which every task reached 90% at some evaluation, the first crossing of each
-task per seed (env steps of that task), its FLOPs an update (counted) and its updates/s against
-SAC-MT-MH's, timed side by side in this bench run (the same batch shapes, the arms interleaved,
-the best of `repeats`), so the ratio does not depend on the machine. `seal report` over the arms' runs writes the table in
-SMT Table 1's layout (tables/success_by_task.md). `--no-run` reads the finished runs under
-`--out` (the committed records of results/mtrl_learn) and names the seeds it did not find. It need not order the learners as the paper
-does at this scale: it shows that each one learns.
+`--reuse` across sessions). Per learner it prints: k of n seeds in which every task reached 90%
+at some evaluation, the first crossing of each task per seed (env steps of that task), its FLOPs
+an update (counted) and its updates/s against SAC-MT-MH's, timed side by side in this bench run
+(the same batch shapes, the arms interleaved, the best of `repeats`), so the ratio does not
+depend on the machine. `seal report` over the arms' runs writes the table in SMT Table 1's layout
+(tables/success_by_task.md). `--no-run` reads the finished runs under `--out` (the committed
+records of results/mtrl_learn) and names the seeds it did not find. It need not order the
+learners as the paper does at this scale: it shows that each one learns.
 """
 
 from __future__ import annotations
