@@ -13,7 +13,7 @@ From metaworld-algorithms' nn/moore.py (its MLP is nn/base.py's; MOOREConfig in 
 - The k experts run as one batched matmul a layer (`Dense` with members = k).
 - Gram-Schmidt is its orthogonal_1d: classical (each expert's output minus its projection on the
   basis so far), eps 1e-8 added to every norm; orthonormal when k <= agent.hidden[-1].
-- The mix is an einsum over the experts by w_tau (no softmax or normalisation of w_tau), then tanh.
+- The mix is a weighted sum over the experts by w_tau (no softmax or normalisation of w_tau), then tanh.
 - The output heads are one Dense (with bias) per task on the mixed feature, the sample's task's
   taken: computed as one matmul for all heads and a gather (cheaper here than gathering each
   sample's kernel); only the sample's head gets gradient.
@@ -55,14 +55,18 @@ class ExpertLayerNorm(nn.Module):
 
 
 def gram_schmidt(x: torch.Tensor) -> torch.Tensor:
-    """(B, k, n) -> (B, k, n): each sample's k rows made orthonormal in order (classical GS)."""
-    basis = x[:, :1] / (torch.linalg.vector_norm(x[:, :1], dim=-1, keepdim=True) + EPS)
-    for i in range(1, x.shape[1]):
-        v = x[:, i : i + 1]  # (B, 1, n)
-        w = v - (v @ basis.transpose(1, 2)) @ basis
-        w = w / (torch.linalg.vector_norm(w, dim=-1, keepdim=True) + EPS)
-        basis = torch.cat((basis, w), dim=1)
-    return basis
+    """(B, k, n) -> (B, k, n): each sample's k rows made orthonormal in order (classical GS).
+
+    Row i's projections are taken with its own input (classical, as orthogonal_1d), each as an
+    elementwise product summed over n: on a CPU, cheaper forward and backward than k batched
+    matmuls of B tiny matrices and the slices of x they need."""
+    basis: list[torch.Tensor] = []
+    for v in x.unbind(1):  # (B, n) each; contiguous when x is the experts' (k, B, n) transposed
+        w = v
+        for b in basis:
+            w = w - (v * b).sum(-1, keepdim=True) * b
+        basis.append(w / (torch.linalg.vector_norm(w, dim=-1, keepdim=True) + EPS))
+    return torch.stack(basis, dim=1)
 
 
 class Moore(nn.Module):
@@ -112,7 +116,8 @@ class Moore(nn.Module):
     def forward(self, x: torch.Tensor, task_ids: torch.Tensor) -> torch.Tensor:
         """(B, in_dim), (B,) -> (B, out_dim)."""
         w = self.task_weights(task_ids)  # (B, k)
-        features = torch.tanh(torch.einsum("bkn,bk->bn", self.experts(x), w))
+        # The mix as a product and a sum over k, not an einsum (B matmuls of 1 x k by k x n).
+        features = torch.tanh((self.experts(x) * w.unsqueeze(-1)).sum(1))
         # Every head at once, one matmul (B, n) @ (n, T * out), then the sample's task's head.
         n = features.shape[-1]
         kernels = self.heads.weight.transpose(0, 1).reshape(n, self.num_tasks * self.out_dim)

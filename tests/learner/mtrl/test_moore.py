@@ -43,6 +43,18 @@ def test_gram_schmidt_is_qr_up_to_signs() -> None:
     torch.testing.assert_close(basis, signs * q, rtol=0, atol=1e-7)
 
 
+def test_gram_schmidt_gradient_matches_qr() -> None:
+    """Its gradient is that of the same basis taken from torch.linalg.qr (signs held fixed)."""
+    gen = torch.Generator().manual_seed(3)
+    x = torch.randn(4, 3, 7, generator=gen, dtype=torch.float64, requires_grad=True)
+    weights = torch.randn(4, 3, 7, generator=gen, dtype=torch.float64)
+    (got,) = torch.autograd.grad((gram_schmidt(x) * weights).sum(), x)
+    q = torch.linalg.qr(x.transpose(1, 2)).Q.transpose(1, 2)
+    signs = torch.sign((gram_schmidt(x) * q).sum(-1, keepdim=True)).detach()
+    (want,) = torch.autograd.grad((signs * q * weights).sum(), x)
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-7)  # QR has no EPS in its norms
+
+
 def test_forward_mixes_the_experts_by_the_task_weights_then_the_tasks_head() -> None:
     net = _net()
     x, tasks = _x(), torch.tensor([0, 1, 2, 2, 1, 0])
