@@ -15,12 +15,12 @@ from seal import load_run
 from seal.errors import SealError, SealWarning
 from seal.experiments.kitchen import (
     ARMS,
-    _arm_config,
     _format_collapse_test,
     _format_default_ended,
+    _format_learner_test,
     _format_reward_test,
     _format_v4,
-    _pinned_version,
+    arm_config,
     arms,
     collapse_test,
     default_ended_goal,
@@ -28,6 +28,7 @@ from seal.experiments.kitchen import (
     end_q_ratio,
     format_result,
     learner_test,
+    pinned_version,
     reward_test,
     rewards_alone_goal,
     run_figures,
@@ -593,6 +594,29 @@ def test_the_learner_test_applies_issue_54s_rule_and_the_reward_test_pairs_by_le
     assert [bronet[k] for k in totals] == [15, 15, 8, 8, 3, 2]
     assert bronet["default"] == "BroNet"
     assert bronet["tasks"]["microwave_bronet"]["against"] == "microwave"
+    # Against LayerNorm (ended in 2 of 15, crossed in 8 after the edits above), the same 15 BroNet
+    # runs win too: its side's keys end in "_critic_ln".
+    against_ln = learner_test(runs, "_bronet", "_critic_ln")
+    ln_totals = [t.replace("_plain", "_critic_ln") for t in totals]
+    assert [against_ln[k] for k in ln_totals] == [15, 15, 8, 8, 3, 2]
+    assert against_ln["tasks"]["microwave_bronet"]["against"] == "microwave_critic_ln"
+    assert against_ln["default"] == "BroNet"
+    # One more LayerNorm run ending >= 0.9 (3 against 3): LayerNorm stays, named as such.
+    runs["slide_cabinet_critic_ln"]["per_seed"][2]["final_success"] = 1.0
+    assert learner_test(runs, "_bronet", "_critic_ln")["default"] == "critic LN"
+    # Rows as the bench prints them: the comparison named, each side by its learner's name.
+    result = {"learner_test_bronet_vs_critic_ln": learner_test(runs, "_bronet", "_critic_ln")}
+    labels = {name: name for name in runs}
+    (line,) = [
+        line
+        for line in _format_learner_test(
+            result["learner_test_bronet_vs_critic_ln"], labels, "_bronet", "_critic_ln"
+        )
+        if "seeds 0-2" in line
+    ]
+    assert line.startswith("learner test (BroNet against critic LN), BroNet against critic LN,")
+    assert "crossed 90% in 8 of 15 runs made against 8 of 15, ended >= 90% in 3 against 3" in line
+    assert line.endswith("critic LN (no run left to make can change it)")
 
 
 @pytest.mark.slow
@@ -629,7 +653,7 @@ def test_every_committed_run_record_is_read_as_a_finished_run_of_todays_protocol
     """A record that today's code would not take (a default changed under it, a file missing) is
     silently left out of `--no-run`'s table: this names it instead. The v3 arms ran with
     `evaluation.stop_when_reached=false`, as the issue-37 table sets them beside v4."""
-    by_protocol = {_arm_config(a).name: a for a in ARMS}
+    by_protocol = {arm_config(a).name: a for a in ARMS}
     records = sorted(RECORDS.glob("*/*/seed-*"))
     assert records, f"no run records under {RECORDS}"
     with warnings.catch_warnings():  # the v4 records' candidate-reward warning, expected here
@@ -639,8 +663,8 @@ def test_every_committed_run_record_is_read_as_a_finished_run_of_todays_protocol
         seed = int(record.name.removeprefix("seed-"))
         assert found == record, f"{record}: not taken as the finished run of {arm.name} seed {seed}"
         run = load_run(record)
-        assert run.metrics["epoch"].max() == _arm_config(arm).protocol.epochs  # stopping off
-        assert run.provenance["reward_versions"] == {"franka_kitchen_dense": _pinned_version(arm)}
+        assert run.metrics["epoch"].max() == arm_config(arm).protocol.epochs  # stopping off
+        assert run.provenance["reward_versions"] == {"franka_kitchen_dense": pinned_version(arm)}
 
 
 def _taken(record: Path, by_protocol: dict) -> tuple:

@@ -14,23 +14,36 @@ collapse test, v4 with LayerNorm in the critics, set seed for seed against v4 al
 `reward_test` sets each v4 arm seed for seed against its v3 arm run with stopping off, and applies
 the rule that decides the default reward (envs/franka_kitchen_dense/README.md). `learner_test`
 applies issue 54's rule to a learner change on v3 (`LEARNERS`: the `*_critic_ln` arms, LayerNorm
-in the critics, and the `*_bronet` arms, BRO's residual critic) against the plain critic.
+in the critics, and the `*_bronet` arms, BRO's residual critic) against the plain critic, and BroNet
+against LayerNorm too (`LEARNER_TESTS`). The arms and their groups are `seal.experiments.kitchen_arms`.
 """
 
 from __future__ import annotations
 
 import os
 import time
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
-from seal.errors import SealError, SealWarning, UnknownNameError
+from seal.errors import SealError
 from seal.evaluation import SUCCESS_TOLERANCE
-from seal.experiments.arms import Arm
+from seal.experiments.kitchen_arms import (
+    ARMS,
+    COLLAPSE_TEST_SUFFIX,
+    KITCHEN_LEARN,
+    LEARNER_TESTS,
+    LEARNERS,
+    V4_SUFFIX,
+    arm_config,
+    arms,
+    default_arms,
+    pinned_version,
+    rule_tasks,
+    v4_arms,
+)
 from seal.experiments.kitchen_rules import (
     ENV_STEP_BUDGET,
     RULE_SEEDS,
@@ -44,15 +57,11 @@ from seal.experiments.kitchen_rules import collapse_test as _collapse_test
 from seal.experiments.launcher import bench_context, run_or_reuse
 from seal.experiments.records import code_versions, finished_runs, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
-from seal.protocols import load_protocol
 
 if TYPE_CHECKING:
     import pandas as pd
 
-    from seal.protocols.config import ProtocolConfig
 
-KITCHEN_LEARN = Path(__file__).resolve().parents[2] / "protocols" / "kitchen_learn"
-"""The kitchen learning protocols."""
 REWARDS_ALONE_NEEDED = 4
 """Issue 25: of the demonstration-free arms, at least this many reach 90% within the budget in at least one seed."""
 V4_TASKS_NEEDED = 4
@@ -64,78 +73,6 @@ V4_SEEDS = RULE_SEEDS
 DEFAULT_ENDED_NEEDED = 12
 """Issue 54: of the runs of seeds 0-2 of the five tasks with the default learner on the default
 reward (15), at least this many end at >= 90% success."""
-LEARNER_KEYS = ("critic_layer_norm", "critic_block")
-"""The agent keys that tell the kitchen arms' learners apart (`LEARNERS`)."""
-
-
-def _arm(name: str, label: str) -> Arm:
-    return Arm(name, label, None, directory=KITCHEN_LEARN)
-
-
-ARMS: tuple[Arm, ...] = (
-    _arm("slide_cabinet", "slide-cabinet"),
-    _arm("slide_cabinet_demos", "slide-cabinet + demos"),
-    _arm("light_switch", "light-switch"),
-    _arm("light_switch_demos", "light-switch + demos"),
-    _arm("bottom_left_burner", "bottom-left-burner"),
-    _arm("bottom_left_burner_demos", "bottom-left-burner + demos"),
-    _arm("microwave", "microwave"),
-    _arm("bottom_right_burner", "bottom-right-burner"),
-    _arm("slide_cabinet_v4", "slide-cabinet v4"),
-    _arm("light_switch_v4", "light-switch v4"),
-    _arm("bottom_left_burner_v4", "bottom-left-burner v4"),
-    _arm("microwave_v4", "microwave v4"),
-    _arm("bottom_right_burner_v4", "bottom-right-burner v4"),
-    _arm("light_switch_v4_critic_ln", "light-switch v4 + critic LN"),
-    _arm("microwave_v4_critic_ln", "microwave v4 + critic LN"),
-    _arm("slide_cabinet_v4_critic_ln", "slide-cabinet v4 + critic LN"),
-    _arm("bottom_left_burner_v4_critic_ln", "bottom-left-burner v4 + critic LN"),
-    _arm("bottom_right_burner_v4_critic_ln", "bottom-right-burner v4 + critic LN"),
-    _arm("slide_cabinet_critic_ln", "slide-cabinet + critic LN"),
-    _arm("light_switch_critic_ln", "light-switch + critic LN"),
-    _arm("bottom_left_burner_critic_ln", "bottom-left-burner + critic LN"),
-    _arm("microwave_critic_ln", "microwave + critic LN"),
-    _arm("bottom_right_burner_critic_ln", "bottom-right-burner + critic LN"),
-    _arm("slide_cabinet_bronet", "slide-cabinet + BroNet critic"),
-    _arm("light_switch_bronet", "light-switch + BroNet critic"),
-    _arm("bottom_left_burner_bronet", "bottom-left-burner + BroNet critic"),
-    _arm("microwave_bronet", "microwave + BroNet critic"),
-    _arm("bottom_right_burner_bronet", "bottom-right-burner + BroNet critic"),
-)
-"""The arms, each pinned to a reward version by its protocol's `options.reward_version`: v3, and
-v4 for the `*_v4` arms (which run all 535 epochs: `evaluation.stop_when_reached = false`)
-and for the collapse test's `*_v4_critic_ln` arms (v4 with `agent.critic_layer_norm`)."""
-COLLAPSE_TEST_SUFFIX = "_critic_ln"
-"""A collapse-test arm is its v4 arm's name with this suffix: the same protocol with one change."""
-LEARNERS: dict[str, str] = {COLLAPSE_TEST_SUFFIX: "critic LN", "_bronet": "BroNet"}
-"""Issue 54's learner changes on v3: an arm's suffix, and what the learner test calls it."""
-V4_SUFFIX = "_v4"
-"""A reward-v4 arm is its v3 arm's name with this suffix: the same protocol on reward v4."""
-
-
-def _arm_config(arm: Arm) -> ProtocolConfig:
-    """An arm's protocol, read to classify it: the reward-version warning a run of it gives is not
-    the reader's to see (the goals read every arm, run or not)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SealWarning)
-        return load_protocol(arm.protocol)
-
-
-def _pinned_version(arm: Arm) -> str | None:
-    """The kitchen reward version an arm's protocol pins (None if it pins none)."""
-    config = _arm_config(arm)
-    return next(iter(config.envs.values())).options.get("reward_version")
-
-
-def arms(only: Sequence[str] | None = None) -> list[Arm]:
-    """All arms, or the named ones."""
-    if not only:
-        return list(ARMS)
-    by_name = {a.name: a for a in ARMS}
-    for name in only:
-        if name not in by_name:
-            raise UnknownNameError("kitchen arm", name, list(by_name))
-    return [a for a in ARMS if a.name in only]
 
 
 class RunFigures(TypedDict):
@@ -267,7 +204,10 @@ def run_kitchen_bench(
         },
         "collapse_test": collapse_test(result_arms),
         "reward_test": reward_test(result_arms),
-        **{learner_key(suffix): learner_test(result_arms, suffix) for suffix in LEARNERS},
+        **{
+            learner_key(suffix, against): learner_test(result_arms, suffix, against)
+            for suffix, against in LEARNER_TESTS
+        },
         "reward_test_critic_ln": reward_test(result_arms, COLLAPSE_TEST_SUFFIX),
         "seeds": seeds,
         "overrides": list(overrides),
@@ -284,8 +224,8 @@ def rewards_alone_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     plain = [
         a.name
         for a in ARMS
-        if _arm_config(a).training.demo_episodes == 0
-        and _pinned_version(a) == "v3"
+        if arm_config(a).training.demo_episodes == 0
+        and pinned_version(a) == "v3"
         and not a.name.endswith(tuple(LEARNERS))
     ]
     ran = [name for name in plain if name in result_arms]
@@ -317,18 +257,11 @@ def _verdict(reached: int, reachable: int, needed: int, *, all_ran: bool) -> dic
     return {"met": met, "all_ran": all_ran}
 
 
-def _v4_arms() -> list[str]:
-    """The reward-v4 arms (the collapse test's are a learner change on v4, not v4's evidence)."""
-    return [
-        a.name for a in ARMS if _pinned_version(a) == "v4" and not a.name.endswith(tuple(LEARNERS))
-    ]
-
-
 def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     """Issue 37's goal over the reward-v4 arms: how many reached 90% within the budget in at least
     `V4_SEEDS_NEEDED` seeds; `met` as `_verdict` decides it, every run made when all five ran with
     `V4_SEEDS` seeds or more."""
-    v4 = _v4_arms()
+    v4 = v4_arms()
     ran = [name for name in v4 if name in result_arms]
     seeds = {name: result_arms[name]["per_seed"] if name in ran else [] for name in v4}
     crossed = {name: sum(within_budget(f) for f in runs) for name, runs in seeds.items()}
@@ -352,29 +285,11 @@ def v4_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-def _default_arms() -> list[str]:
-    """The demonstration-free arms that run the default learner (every `LEARNER_KEYS` key at
-    `AgentConfig`'s default) on the default reward (`franka_kitchen_dense.REWARD_VERSION`, pinned or
-    followed): one per task, whichever arms today's defaults make these."""
-    from franka_kitchen_dense import REWARD_VERSION
-
-    from seal.learner.config import AgentConfig
-
-    default = AgentConfig()
-    return [
-        arm.name
-        for arm in ARMS
-        if (config := _arm_config(arm)).training.demo_episodes == 0
-        and (_pinned_version(arm) or REWARD_VERSION) == REWARD_VERSION
-        and all(getattr(config.agent, k) == getattr(default, k) for k in LEARNER_KEYS)
-    ]
-
-
 def default_ended_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     """Issue 54's goal: of the `RULE_SEEDS` seeds of each default-learner, default-reward arm, how
     many runs ended at >= 90% success (`kitchen_rules.ended_90`); met once `DEFAULT_ENDED_NEEDED`
     have, not met once the runs left cannot make up the shortfall (a run's end is final)."""
-    names = _default_arms()
+    names = default_arms()
     judged = {
         n: [f for f in result_arms[n]["per_seed"] if f["seed"] < RULE_SEEDS]
         for n in names
@@ -398,11 +313,6 @@ def default_ended_goal(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-def _tasks() -> list[str]:
-    """The five demonstration-free tasks the rules compare, as their v3 arms' names."""
-    return [name.removesuffix(V4_SUFFIX) for name in _v4_arms()]
-
-
 def collapse_test(result_arms: Mapping[str, Any]) -> dict[str, Any]:
     """Each `*_critic_ln` arm run beside its arm, seed for seed (`kitchen_rules.collapse_test`):
     issue 37's collapse test on v4, issue 54's learner change on v3."""
@@ -414,29 +324,37 @@ def reward_test(result_arms: Mapping[str, Any], learner: str = "") -> dict[str, 
     LayerNorm): `kitchen_rules.rule_test`, the old side's keys ending in "_v3"; `default` "v4" if
     v4 crosses in more runs and ends at >= 90% in at least as many, "v3" if not, None while the
     runs left could change it."""
-    pairs = [(f"{t}{V4_SUFFIX}{learner}", f"{t}{learner}") for t in _tasks()]
+    pairs = [(f"{t}{V4_SUFFIX}{learner}", f"{t}{learner}") for t in rule_tasks()]
     test = rule_test(result_arms, pairs, "_v3", strict="crossed", weak="ended_90")
     wins = test["new_wins"]
     return {**test, "default": None if wins is None else ("v4" if wins else "v3")}
 
 
-def learner_key(suffix: str) -> str:
-    """The bench result's key of a learner change's rule test: "learner_test" for critic LN (the
-    records' readers know it by that name), "learner_test<suffix>" for the others."""
-    return "learner_test" + ("" if suffix == COLLAPSE_TEST_SUFFIX else suffix)
+def learner_key(suffix: str, against: str = "") -> str:
+    """The bench result's key of a learner test: "learner_test" for critic LN against the plain
+    critic (the records' readers know it by that name), "learner_test<suffix>" for another change
+    against it, and "learner_test<suffix>_vs<against>" against another learner."""
+    new = "" if suffix == COLLAPSE_TEST_SUFFIX else suffix
+    return f"learner_test{new}" + (f"_vs{against}" if against else "")
+
+
+def _side(suffix: str) -> str:
+    """A learner's name in the learner tests: `LEARNERS`'s, "plain" for no suffix."""
+    return LEARNERS[suffix] if suffix else "plain"
 
 
 def learner_test(
-    result_arms: Mapping[str, Any], suffix: str = COLLAPSE_TEST_SUFFIX
+    result_arms: Mapping[str, Any], suffix: str = COLLAPSE_TEST_SUFFIX, against: str = ""
 ) -> dict[str, Any]:
     """Issue 54's rule on the default reward (docs/hyperparameters.md): a learner change (an arm
-    suffix of `LEARNERS`) against the plain critic on the five v3 arms; `default` the change's name
-    if it ends at >= 90% in more runs and crosses in at least as many, "plain" if not, None while
-    the runs left could change it. The old side's keys end in "_plain"."""
-    pairs = [(f"{t}{suffix}", t) for t in _tasks()]
-    test = rule_test(result_arms, pairs, "_plain", strict="ended_90", weak="crossed")
+    suffix of `LEARNERS`) against the plain critic (or the learner of suffix `against`) on the five
+    v3 arms; `default` the change's name if it ends at >= 90% in more runs and crosses in at least
+    as many, the old side's name if not, None while the runs left could change it. The old side's
+    keys end in "_plain" (or in `against`)."""
+    pairs = [(f"{t}{suffix}", f"{t}{against}") for t in rule_tasks()]
+    test = rule_test(result_arms, pairs, against or "_plain", strict="ended_90", weak="crossed")
     wins = test["new_wins"]
-    return {**test, "default": None if wins is None else (LEARNERS[suffix] if wins else "plain")}
+    return {**test, "default": None if wins is None else _side(suffix if wins else against)}
 
 
 def _format_collapse_test(tests: Mapping[str, Any], labels: Mapping[str, str]) -> list[str]:
@@ -446,7 +364,7 @@ def _format_collapse_test(tests: Mapping[str, Any], labels: Mapping[str, str]) -
 def _format_reward_test(
     test: Mapping[str, Any], labels: Mapping[str, str], learner: str = ""
 ) -> list[str]:
-    if not any(name + learner in labels for name in _v4_arms()):
+    if not any(name + learner in labels for name in v4_arms()):
         return []
     what = "reward test" + (" with critic LN" if learner else " with the plain critic")
     rule = "v4 if it crosses in more runs and ends in at least as many"
@@ -454,14 +372,18 @@ def _format_reward_test(
 
 
 def _format_learner_test(
-    test: Mapping[str, Any], labels: Mapping[str, str], suffix: str = COLLAPSE_TEST_SUFFIX
+    test: Mapping[str, Any],
+    labels: Mapping[str, str],
+    suffix: str = COLLAPSE_TEST_SUFFIX,
+    against: str = "",
 ) -> list[str]:
-    if not any(f"{t}{suffix}" in labels for t in _tasks()):
+    if not any(f"{t}{suffix}" in labels for t in rule_tasks()):
         return []
-    name = LEARNERS[suffix]
+    name, old = _side(suffix), _side(against)
     rule = f"{name} if it ends >= 90% in more runs and crosses in at least as many"
-    what = "learner test" + ("" if suffix == COLLAPSE_TEST_SUFFIX else f" ({name})")
-    return format_rule_test(test, labels, what, "_plain", (name, "plain"), rule)
+    tag = f"{name} against {old}" if against else ("" if suffix == COLLAPSE_TEST_SUFFIX else name)
+    what = "learner test" + (f" ({tag})" if tag else "")
+    return format_rule_test(test, labels, what, against or "_plain", (name, old), rule)
 
 
 def _q(value: float | None) -> str:
@@ -577,9 +499,11 @@ def format_result(result: Mapping[str, Any]) -> str:
         *(_format_reward_test(result["reward_test"], by_name) if "reward_test" in result else []),
         *(
             line
-            for suffix in LEARNERS
-            if learner_key(suffix) in result
-            for line in _format_learner_test(result[learner_key(suffix)], by_name, suffix)
+            for suffix, against in LEARNER_TESTS
+            if learner_key(suffix, against) in result
+            for line in _format_learner_test(
+                result[learner_key(suffix, against)], by_name, suffix, against
+            )
         ),
         *(
             _format_reward_test(result["reward_test_critic_ln"], by_name, COLLAPSE_TEST_SUFFIX)

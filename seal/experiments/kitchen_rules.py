@@ -6,9 +6,9 @@ runs made with stopping off (a run that stopped at its first crossing has no fin
   evaluations >= 90% after the first (issue 37, on v4; issue 54, on v3 too).
 - `reward_test`: v4 against v3 on one learner (issue 37's rule: v4 becomes the default if it
   crosses 90% in more runs and ends at >= 90% in at least as many, of 15 each).
-- `learner_test`: critic LayerNorm against the plain critic on reward v3 (issue 54's rule,
-  docs/hyperparameters.md: LayerNorm becomes the default if it ends at >= 90% in more runs and
-  crosses in at least as many, of 15 each).
+- `learner_test`: a learner change against the plain critic (or another learner) on reward v3
+  (issue 54's rule, docs/hyperparameters.md: LayerNorm becomes the default if it ends at >= 90% in
+  more runs and crosses in at least as many, of 15 each).
 A rule's verdict is given as soon as no run left to make could change it, None before.
 """
 
