@@ -27,7 +27,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,11 +35,10 @@ import pandas as pd
 import pytest
 
 from tests.testbed_tiny import SMALL
+from tests.waiting import HUNG_S, wait_until
 
 pytest.importorskip("ray")
 
-HUNG_S = 900.0
-"""How long a test waits for a step (a node, a checkpoint, a bench) before calling it hung."""
 ARMS = ["alone", "pretrain_source"]
 """Two runs of one seed, independent of each other: one CPU each, so one on each node."""
 OVERRIDES = ["protocol.epochs=30", "checkpoint.interval=2", *SMALL]
@@ -254,13 +253,6 @@ def local_reference(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Pat
     out = tmp_path_factory.mktemp("local")
     result, _ = finish(bench(out))
     return table(result), out
-
-
-def wait_until(ready: Callable[[], bool], what: str) -> None:
-    deadline = time.monotonic() + HUNG_S
-    while not ready():
-        assert time.monotonic() < deadline, f"never {what}"
-        time.sleep(0.05)
 
 
 def assert_same_runs(out: Path, reference: Path) -> None:

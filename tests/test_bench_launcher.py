@@ -37,9 +37,7 @@ from seal.run.runner import run_seed
 from seal.sweep.ray_session import RaySession
 from seal.sweep.trials import is_finished, last_preemption, read_evaluations
 from tests.faults.point_protocol import point_protocol
-
-HUNG_S = 900.0
-"""How long a test waits for a run's next step before calling it hung."""
+from tests.waiting import HUNG_S, wait_until
 
 
 def tiny_arm(tmp_path: Path, epochs: int, interval: int = 5) -> Arm:
@@ -50,13 +48,6 @@ def tiny_arm(tmp_path: Path, epochs: int, interval: int = 5) -> Arm:
     text = point_protocol("tiny", epochs, interval=interval, train_interval=None)
     (directory / "tiny.toml").write_text(text)
     return Arm("tiny", "Tiny", None, directory=directory)
-
-
-def wait_until(ready: Callable[[], bool], what: str) -> None:
-    deadline = time.monotonic() + HUNG_S
-    while not ready():
-        assert time.monotonic() < deadline, f"never {what}"
-        time.sleep(0.05)
 
 
 def run_dirs(out: Path) -> list[Path]:

@@ -19,7 +19,6 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import pytest
@@ -30,6 +29,7 @@ from seal.sweep.ray_session import parse_resources
 from seal.sweep.samples import count_trials, parse_search, sample_overrides, with_overrides
 from seal.sweep.tables import rank_trials
 from seal.sweep.trials import TrialRecord, is_finished, read_evaluations
+from tests.waiting import HUNG_S, wait_until
 
 TINY = """
 [protocol]
@@ -551,22 +551,14 @@ def test_resume_of_a_missing_sweep_dir_is_a_user_error(tmp_path: Path) -> None:
         sweep(resume=tmp_path)
 
 
-HUNG_SWEEP_S = 900
-"""How long the SIGTERM test waits for a sweep's next step before calling it hung."""
-
-
 def _wait_until(ready, child: subprocess.Popen[str], what: str, err: Path) -> None:  # noqa: ANN001
-    # Only a hung sweep gets there: 180 s was reached once by a sweep that was working, starting Ray
-    # and two trials on 2 cores beside three kitchen runs (round 11's full suite).
-    deadline = time.monotonic() + HUNG_SWEEP_S
-    while not ready():
-        assert child.poll() is None, f"the sweep ended before {what}: {err.read_text()}"
-        assert time.monotonic() < deadline, f"never {what}"
-        time.sleep(0.05)
+    # Only a hung sweep reaches HUNG_S: 180 s was reached once by a sweep that was working, starting
+    # Ray and two trials on 2 cores beside three kitchen runs (round 11's full suite).
+    wait_until(ready, what, child=child, why=err.read_text)
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(3 * HUNG_SWEEP_S)  # its own waits give up at HUNG_SWEEP_S each
+@pytest.mark.timeout(3 * HUNG_S)  # its own waits give up at HUNG_S each
 def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
     ray_session, tmp_path: Path
 ) -> None:  # noqa: ANN001
@@ -623,7 +615,7 @@ def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
         )
         os.kill(held, signal.SIGCONT)  # now the driver's gentle cancel reaches it mid-run
         held = None
-        driver.wait(timeout=HUNG_SWEEP_S)
+        driver.wait(timeout=HUNG_S)
     finally:
         if held is not None:
             os.kill(held, signal.SIGCONT)

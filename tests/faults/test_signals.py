@@ -29,6 +29,7 @@ from seal.run.loop import PhaseLoop
 from seal.run.rundir import RunDir
 from seal.run.runner import run_seed
 from tests.faults.point_protocol import point_protocol
+from tests.waiting import wait_until
 
 # The children here are whole seal runs; on a loaded machine one takes minutes. Every wait is for an
 # event (a file, a row, the child's exit), never a duration: this limit only catches a hang.
@@ -122,9 +123,8 @@ def _start(
 
 
 def _wait_for(child: subprocess.Popen[str], ready: Callable[[], bool]) -> None:
-    while not ready():
-        assert child.poll() is None, f"the child ended first: {child.communicate()[1]}"
-        time.sleep(0.005)
+    # Polled often: the paced moments signal within 2 * PACE_S of the event.
+    wait_until(ready, "the moment to signal", child=child, poll_s=0.005)
 
 
 def _epochs_out(out: Path) -> int:

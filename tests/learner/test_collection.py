@@ -13,6 +13,7 @@ from seal.errors import SealError, UnknownNameError
 from seal.learner import env_backends
 from seal.learner.collection import Collector
 from seal.learner.env_backends import instance_seed
+from tests.waiting import wait_until
 
 # Per task: the step at which info["success"] is 1 (only that step), and the step that terminates.
 SUCCESS_AT = {"a": 2, "b": None, "c": 4, "stop": None}
@@ -408,7 +409,6 @@ def test_a_killed_collector_leaves_no_worker_behind() -> None:
     import signal
     import subprocess
     import sys
-    import time
 
     holder = subprocess.Popen([sys.executable, "-c", HOLDER], stdout=subprocess.PIPE, text=True)
     try:
@@ -418,12 +418,8 @@ def test_a_killed_collector_leaves_no_worker_behind() -> None:
             os.kill(pid, 0)  # alive
         holder.send_signal(signal.SIGKILL)
         holder.wait()
-        # Waits for the event, not for a duration: a worker that outlives its parent keeps this
-        # loop going until pytest-timeout fails the test (a hang at this line).
-        alive = list(pids)
-        while alive:
-            alive = [p for p in alive if _running(p)]
-            time.sleep(0.1)
+        # Waits for the event, not for a duration: a worker that outlives its parent is a hang.
+        wait_until(lambda: not any(_running(p) for p in pids), "every worker ended", poll_s=0.1)
     finally:
         holder.kill()
 

@@ -16,6 +16,7 @@ import pytest
 
 from seal.protocols import load_protocol
 from seal.run.runner import run_seed
+from tests.waiting import wait_until
 
 PROTOCOL = """
 [protocol]
@@ -86,17 +87,9 @@ def test_sigkill_then_resume_matches_uninterrupted_run(tmp_path: Path) -> None:
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
-    deadline = time.monotonic() + 600  # generous: only a hung child should reach it
-    run_dir = None
-    while time.monotonic() < deadline and child.poll() is None:
-        found = list(out.glob("killme/*/seed-0/checkpoints/ckpt-0000006.pt"))
-        if found:
-            run_dir = found[0].parents[1]
-            break
-        time.sleep(0.05)
-    assert run_dir is not None, (
-        f"child never reached its second checkpoint: {child.stderr.read().decode() if child.poll() is not None else 'timeout'}"
-    )
+    second = "killme/*/seed-0/checkpoints/ckpt-0000006.pt"
+    wait_until(lambda: any(out.glob(second)), "its second checkpoint", child=child)
+    run_dir = next(out.glob(second)).parents[1]
     # The kill delay is drawn from a fixed seed and printed, so a failure names the delay that
     # caused it (rerun with SEAL_KILL_SEED=<seed> to try another point).
     seed = int(os.environ.get("SEAL_KILL_SEED", "0"))
