@@ -27,6 +27,7 @@ from seal.experiments.kitchen import (
     end_mean_q,
     end_q_ratio,
     format_result,
+    learner_key,
     learner_test,
     pinned_version,
     reward_test,
@@ -605,16 +606,15 @@ def test_the_learner_test_applies_issue_54s_rule_and_the_reward_test_pairs_by_le
     runs["slide_cabinet_critic_ln"]["per_seed"][2]["final_success"] = 1.0
     assert learner_test(runs, "_bronet", "_critic_ln")["default"] == "critic LN"
     # Rows as the bench prints them: the comparison named, each side by its learner's name.
-    result = {"learner_test_bronet_vs_critic_ln": learner_test(runs, "_bronet", "_critic_ln")}
+    assert learner_key("_bronet", "_critic_ln") == "learner_test_bronet_vs_critic_ln"
     labels = {name: name for name in runs}
-    (line,) = [
-        line
-        for line in _format_learner_test(
-            result["learner_test_bronet_vs_critic_ln"], labels, "_bronet", "_critic_ln"
-        )
-        if "seeds 0-2" in line
-    ]
-    assert line.startswith("learner test (BroNet against critic LN), BroNet against critic LN,")
+    test = learner_test(runs, "_bronet", "_critic_ln")
+    lines = _format_learner_test(test, labels, "_bronet", "_critic_ln")
+    assert lines[0].startswith(
+        "learner test (BroNet), slide_cabinet_bronet against slide_cabinet_critic_ln, seeds 0, 1, 2:"
+    )
+    (line,) = [line for line in lines if "seeds 0-2" in line]
+    assert line.startswith("learner test (BroNet), BroNet against critic LN,")
     assert "crossed 90% in 8 of 15 runs made against 8 of 15, ended >= 90% in 3 against 3" in line
     assert line.endswith("critic LN (no run left to make can change it)")
 

@@ -551,12 +551,6 @@ def test_resume_of_a_missing_sweep_dir_is_a_user_error(tmp_path: Path) -> None:
         sweep(resume=tmp_path)
 
 
-def _wait_until(ready, child: subprocess.Popen[str], what: str, err: Path) -> None:  # noqa: ANN001
-    # Only a hung sweep reaches HUNG_S: 180 s was reached once by a sweep that was working, starting
-    # Ray and two trials on 2 cores beside three kitchen runs (round 11's full suite).
-    wait_until(ready, what, child=child, why=err.read_text)
-
-
 @pytest.mark.slow
 @pytest.mark.timeout(3 * HUNG_S)  # its own waits give up at HUNG_S each
 def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
@@ -597,10 +591,10 @@ def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
     # the sweep, so its 40 epochs cannot finish first (issue 55: they did on a loaded machine).
     held = None
     try:
-        _wait_until(lambda: evaluated(0), driver, "seed 0 evaluated", stderr)
+        wait_until(lambda: evaluated(0), "seed 0 evaluated", child=driver, why=stderr.read_text)
         held = worker(0)
         os.kill(held, signal.SIGSTOP)
-        _wait_until(lambda: evaluated(1), driver, "seed 1 evaluated", stderr)
+        wait_until(lambda: evaluated(1), "seed 1 evaluated", child=driver, why=stderr.read_text)
         (group,) = runs.iterdir()
         os.kill(worker(1), signal.SIGTERM)  # a trial's worker gets the signal itself
 
@@ -608,10 +602,15 @@ def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
             trials = json.loads((group / "sweep.json").read_text())["trials"]
             return trials[1]["status"] == "preempted"
 
-        _wait_until(seed_1_preempted, driver, "seed 1 was recorded preempted", stderr)
+        wait_until(
+            seed_1_preempted, "seed 1 was recorded preempted", child=driver, why=stderr.read_text
+        )
         driver.send_signal(signal.SIGTERM)
-        _wait_until(
-            lambda: "SIGTERM: stopping" in stderr.read_text(), driver, "the driver stopping", stderr
+        wait_until(
+            lambda: "SIGTERM: stopping" in stderr.read_text(),
+            "the driver stopping",
+            child=driver,
+            why=stderr.read_text,
         )
         os.kill(held, signal.SIGCONT)  # now the driver's gentle cancel reaches it mid-run
         held = None

@@ -11,7 +11,8 @@ from collections.abc import Callable
 
 HUNG_S = 900.0
 """How long a wait goes on before it calls the step it waits for hung: far beyond any working
-step, on 2 loaded cores included."""
+step (a working sweep once took 180 s to start Ray and two trials, on 2 cores beside three kitchen
+runs)."""
 
 
 def wait_until(
@@ -28,7 +29,7 @@ def wait_until(
     after `limit_s`."""
     deadline = time.monotonic() + limit_s
     while not ready():
-        if child is not None and child.poll() is not None:
+        if child is not None and child.poll() is not None and not ready():  # ready, then exited
             said = why() if why is not None else _stderr(child)
             raise AssertionError(f"the child ended (exit {child.returncode}) before {what}: {said}")
         assert time.monotonic() < deadline, f"never {what} (waited {limit_s:.0f} s)"

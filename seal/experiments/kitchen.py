@@ -333,7 +333,7 @@ def reward_test(result_arms: Mapping[str, Any], learner: str = "") -> dict[str, 
 def learner_key(suffix: str, against: str = "") -> str:
     """The bench result's key of a learner test: "learner_test" for critic LN against the plain
     critic (the records' readers know it by that name), "learner_test<suffix>" for another change
-    against it, and "learner_test<suffix>_vs<against>" against another learner."""
+    against it; with a learner to set it against (suffix `against`), "_vs<against>" follows."""
     new = "" if suffix == COLLAPSE_TEST_SUFFIX else suffix
     return f"learner_test{new}" + (f"_vs{against}" if against else "")
 
@@ -381,8 +381,7 @@ def _format_learner_test(
         return []
     name, old = _side(suffix), _side(against)
     rule = f"{name} if it ends >= 90% in more runs and crosses in at least as many"
-    tag = f"{name} against {old}" if against else ("" if suffix == COLLAPSE_TEST_SUFFIX else name)
-    what = "learner test" + (f" ({tag})" if tag else "")
+    what = "learner test" + ("" if suffix == COLLAPSE_TEST_SUFFIX else f" ({name})")
     return format_rule_test(test, labels, what, against or "_plain", (name, old), rule)
 
 

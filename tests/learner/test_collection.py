@@ -419,7 +419,13 @@ def test_a_killed_collector_leaves_no_worker_behind() -> None:
         holder.send_signal(signal.SIGKILL)
         holder.wait()
         # Waits for the event, not for a duration: a worker that outlives its parent is a hang.
-        wait_until(lambda: not any(_running(p) for p in pids), "every worker ended", poll_s=0.1)
+        alive = list(pids)
+
+        def all_ended() -> bool:
+            alive[:] = [p for p in alive if _running(p)]  # a pid seen dead is not asked again
+            return not alive
+
+        wait_until(all_ended, "every worker ended", poll_s=0.1)
     finally:
         holder.kill()
 
