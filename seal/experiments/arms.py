@@ -48,6 +48,25 @@ class Arm:
         return self.directory / f"{self.name}.toml"
 
 
+def arms_in(directory: Path, named: Sequence[tuple[str, str]]) -> tuple[Arm, ...]:
+    """Arms set against no alone arm, one a (name, label), their protocols in `directory`."""
+    return tuple(Arm(name, label, None, directory=directory) for name, label in named)
+
+
+def chosen(
+    every: Sequence[Arm], only: Sequence[str] | None, what: str, also: Sequence[str] = ()
+) -> list[Arm]:
+    """`every` arm, or the ones `only` names and `also`'s, in `every`'s order; a name not among
+    them is an `UnknownNameError` that calls it a `what`."""
+    if not only:
+        return list(every)
+    by_name = {a.name: a for a in every}
+    for name in only:
+        if name not in by_name:
+            raise UnknownNameError(what, name, list(by_name))
+    return [a for a in every if a.name in {*only, *also}]
+
+
 ARMS: tuple[Arm, ...] = (
     Arm("alone", "Single Env", None),
     Arm("high_source", "High Src", "alone"),

@@ -9,8 +9,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from seal.errors import SealWarning, UnknownNameError
-from seal.experiments.arms import Arm
+from seal.errors import SealWarning
+from seal.experiments.arms import Arm, arms_in, chosen
 from seal.protocols import load_protocol
 
 if TYPE_CHECKING:
@@ -22,39 +22,38 @@ LEARNER_KEYS = ("critic_layer_norm", "critic_block")
 """The agent keys that tell the kitchen arms' learners apart (`LEARNERS`)."""
 
 
-def _arm(name: str, label: str) -> Arm:
-    return Arm(name, label, None, directory=KITCHEN_LEARN)
-
-
-ARMS: tuple[Arm, ...] = (
-    _arm("slide_cabinet", "slide-cabinet"),
-    _arm("slide_cabinet_demos", "slide-cabinet + demos"),
-    _arm("light_switch", "light-switch"),
-    _arm("light_switch_demos", "light-switch + demos"),
-    _arm("bottom_left_burner", "bottom-left-burner"),
-    _arm("bottom_left_burner_demos", "bottom-left-burner + demos"),
-    _arm("microwave", "microwave"),
-    _arm("bottom_right_burner", "bottom-right-burner"),
-    _arm("slide_cabinet_v4", "slide-cabinet v4"),
-    _arm("light_switch_v4", "light-switch v4"),
-    _arm("bottom_left_burner_v4", "bottom-left-burner v4"),
-    _arm("microwave_v4", "microwave v4"),
-    _arm("bottom_right_burner_v4", "bottom-right-burner v4"),
-    _arm("light_switch_v4_critic_ln", "light-switch v4 + critic LN"),
-    _arm("microwave_v4_critic_ln", "microwave v4 + critic LN"),
-    _arm("slide_cabinet_v4_critic_ln", "slide-cabinet v4 + critic LN"),
-    _arm("bottom_left_burner_v4_critic_ln", "bottom-left-burner v4 + critic LN"),
-    _arm("bottom_right_burner_v4_critic_ln", "bottom-right-burner v4 + critic LN"),
-    _arm("slide_cabinet_critic_ln", "slide-cabinet + critic LN"),
-    _arm("light_switch_critic_ln", "light-switch + critic LN"),
-    _arm("bottom_left_burner_critic_ln", "bottom-left-burner + critic LN"),
-    _arm("microwave_critic_ln", "microwave + critic LN"),
-    _arm("bottom_right_burner_critic_ln", "bottom-right-burner + critic LN"),
-    _arm("slide_cabinet_bronet", "slide-cabinet + BroNet critic"),
-    _arm("light_switch_bronet", "light-switch + BroNet critic"),
-    _arm("bottom_left_burner_bronet", "bottom-left-burner + BroNet critic"),
-    _arm("microwave_bronet", "microwave + BroNet critic"),
-    _arm("bottom_right_burner_bronet", "bottom-right-burner + BroNet critic"),
+ARMS: tuple[Arm, ...] = arms_in(
+    KITCHEN_LEARN,
+    (
+        ("slide_cabinet", "slide-cabinet"),
+        ("slide_cabinet_demos", "slide-cabinet + demos"),
+        ("light_switch", "light-switch"),
+        ("light_switch_demos", "light-switch + demos"),
+        ("bottom_left_burner", "bottom-left-burner"),
+        ("bottom_left_burner_demos", "bottom-left-burner + demos"),
+        ("microwave", "microwave"),
+        ("bottom_right_burner", "bottom-right-burner"),
+        ("slide_cabinet_v4", "slide-cabinet v4"),
+        ("light_switch_v4", "light-switch v4"),
+        ("bottom_left_burner_v4", "bottom-left-burner v4"),
+        ("microwave_v4", "microwave v4"),
+        ("bottom_right_burner_v4", "bottom-right-burner v4"),
+        ("light_switch_v4_critic_ln", "light-switch v4 + critic LN"),
+        ("microwave_v4_critic_ln", "microwave v4 + critic LN"),
+        ("slide_cabinet_v4_critic_ln", "slide-cabinet v4 + critic LN"),
+        ("bottom_left_burner_v4_critic_ln", "bottom-left-burner v4 + critic LN"),
+        ("bottom_right_burner_v4_critic_ln", "bottom-right-burner v4 + critic LN"),
+        ("slide_cabinet_critic_ln", "slide-cabinet + critic LN"),
+        ("light_switch_critic_ln", "light-switch + critic LN"),
+        ("bottom_left_burner_critic_ln", "bottom-left-burner + critic LN"),
+        ("microwave_critic_ln", "microwave + critic LN"),
+        ("bottom_right_burner_critic_ln", "bottom-right-burner + critic LN"),
+        ("slide_cabinet_bronet", "slide-cabinet + BroNet critic"),
+        ("light_switch_bronet", "light-switch + BroNet critic"),
+        ("bottom_left_burner_bronet", "bottom-left-burner + BroNet critic"),
+        ("microwave_bronet", "microwave + BroNet critic"),
+        ("bottom_right_burner_bronet", "bottom-right-burner + BroNet critic"),
+    ),
 )
 """The arms, each pinned to a reward version by its protocol's `options.reward_version`: v3, and
 v4 for the `*_v4` arms (which run all 535 epochs: `evaluation.stop_when_reached = false`)
@@ -91,13 +90,7 @@ def pinned_version(arm: Arm) -> str | None:
 
 def arms(only: Sequence[str] | None = None) -> list[Arm]:
     """All arms, or the named ones."""
-    if not only:
-        return list(ARMS)
-    by_name = {a.name: a for a in ARMS}
-    for name in only:
-        if name not in by_name:
-            raise UnknownNameError("kitchen arm", name, list(by_name))
-    return [a for a in ARMS if a.name in only]
+    return chosen(ARMS, only, "kitchen arm")
 
 
 def v4_arms() -> list[str]:

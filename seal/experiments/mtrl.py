@@ -21,8 +21,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from seal.errors import SealError, UnknownNameError
-from seal.experiments.arms import Arm
+from seal.errors import SealError
+from seal.experiments.arms import Arm, arms_in, chosen
 from seal.experiments.launcher import bench_context, run_or_reuse
 from seal.experiments.records import code_versions, finished_runs, versions_note
 from seal.metrics import DEFAULT_THRESHOLD, first_reach
@@ -33,30 +33,23 @@ REFERENCE = "sac_mt_mh"
 """The arm whose updates/s the others are set against (MTMHSAC)."""
 
 
-def _arm(name: str, label: str) -> Arm:
-    return Arm(name, label, None, directory=MTRL_LEARN)
-
-
-ARMS: tuple[Arm, ...] = (
-    _arm("sac_mt_mh", "SAC-MT-MH"),
-    _arm("sac_mt", "SAC-MT"),
-    _arm("pcgrad", "PCGrad"),
-    _arm("paco", "PaCo"),
-    _arm("moore", "MOORE"),
-    _arm("care", "CARE"),
-    _arm("soft_modular", "Soft Modular"),
+ARMS: tuple[Arm, ...] = arms_in(
+    MTRL_LEARN,
+    (
+        ("sac_mt_mh", "SAC-MT-MH"),
+        ("sac_mt", "SAC-MT"),
+        ("pcgrad", "PCGrad"),
+        ("paco", "PaCo"),
+        ("moore", "MOORE"),
+        ("care", "CARE"),
+        ("soft_modular", "Soft Modular"),
+    ),
 )
 
 
 def arms(only: Sequence[str] | None = None) -> list[Arm]:
     """All arms, or the named ones and the reference."""
-    if not only:
-        return list(ARMS)
-    by_name = {a.name: a for a in ARMS}
-    for name in only:
-        if name not in by_name:
-            raise UnknownNameError("mtrl arm", name, list(by_name))
-    return [a for a in ARMS if a.name in {*only, REFERENCE}]
+    return chosen(ARMS, only, "mtrl arm", also=(REFERENCE,))
 
 
 def crossings(run_dirs: Mapping[int, Path]) -> dict[int, dict[str, int | None]]:

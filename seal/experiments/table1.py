@@ -21,8 +21,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from seal.errors import SealError, UnknownNameError
-from seal.experiments.arms import Arm
+from seal.errors import SealError
+from seal.experiments.arms import Arm, arms_in, chosen
 from seal.experiments.launcher import bench_context, run_or_reuse
 from seal.experiments.records import code_versions, versions_note
 
@@ -38,20 +38,19 @@ TABLES = ("update_counts.md", "update_changes.md")
 """The report's tables the bench prints, in order."""
 
 
-def _arm(name: str, label: str) -> Arm:
-    return Arm(name, label, None, directory=TABLE1)
-
-
-ARMS: tuple[Arm, ...] = (
-    _arm("single_mw", "Single Env (MW)"),
-    _arm("single_fk", "Single Env (FK)"),
-    _arm("joint_50_50", "50/50"),
-    _arm("high_fk", "High FK"),
-    _arm("high_mw", "High MW"),
-    _arm("high_fk_mw_alone", "Single Env (High FK batch), MW"),
-    _arm("high_fk_fk_alone", "Single Env (High FK batch), FK"),
-    _arm("high_mw_mw_alone", "Single Env (High MW batch), MW"),
-    _arm("high_mw_fk_alone", "Single Env (High MW batch), FK"),
+ARMS: tuple[Arm, ...] = arms_in(
+    TABLE1,
+    (
+        ("single_mw", "Single Env (MW)"),
+        ("single_fk", "Single Env (FK)"),
+        ("joint_50_50", "50/50"),
+        ("high_fk", "High FK"),
+        ("high_mw", "High MW"),
+        ("high_fk_mw_alone", "Single Env (High FK batch), MW"),
+        ("high_fk_fk_alone", "Single Env (High FK batch), FK"),
+        ("high_mw_mw_alone", "Single Env (High MW batch), MW"),
+        ("high_mw_fk_alone", "Single Env (High MW batch), FK"),
+    ),
 )
 """Every arm. 50/50 has no alone arm of its own: with one task per env, 50/50 gives each task
 128 per step, Single Env's batch, so Single Env is its batch-matched alone arm too."""
@@ -66,14 +65,8 @@ REFERENCES: dict[str, tuple[str, ...]] = {
 
 def arms(only: Sequence[str] | None = None) -> list[Arm]:
     """All arms, or the named ones with the arms they are set against."""
-    if not only:
-        return list(ARMS)
-    by_name = {a.name: a for a in ARMS}
-    for name in only:
-        if name not in by_name:
-            raise UnknownNameError("table1 arm", name, list(by_name))
-    wanted = set(only).union(*(REFERENCES.get(n, ()) for n in only))
-    return [a for a in ARMS if a.name in wanted]
+    also = [ref for name in only or () for ref in REFERENCES.get(name, ())]
+    return chosen(ARMS, only, "table1 arm", also)
 
 
 def _cells(counts: pd.DataFrame) -> list[dict[str, Any]]:
