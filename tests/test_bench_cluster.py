@@ -42,7 +42,7 @@ pytest.importorskip("ray")
 ARMS = ["alone", "pretrain_source"]
 """Two runs of one seed, independent of each other: one CPU each, so one on each node."""
 OVERRIDES = ["protocol.epochs=30", "checkpoint.interval=2", *SMALL]
-"""tests/test_bench_transfer.py's TINY, for 30 epochs (about 20 s) with a checkpoint every 2
+"""tests/testbed_tiny.py's SMALL, for 30 epochs (about 20 s) with a checkpoint every 2
 (the kill's event)."""
 WORKER_RESOURCE = "seal_test_worker"
 """A custom resource only the worker node has: how the test tells its node id."""

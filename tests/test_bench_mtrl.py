@@ -11,7 +11,7 @@ from seal.errors import SealError
 from seal.experiments.mtrl import ARMS, arms, crossings, format_result, run_mtrl_bench
 from seal.experiments.records import finished_runs
 from seal.protocols import load_protocol
-from tests.test_reports import HEADER
+from tests.report_groups import HEADER
 
 TINY = [
     "protocol.epochs=2",

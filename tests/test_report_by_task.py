@@ -10,7 +10,7 @@ from pathlib import Path
 import pandas as pd
 
 from seal.reports import report
-from tests.test_reports import HEADER, _run
+from tests.report_groups import HEADER, run_data
 
 # Two learners on Meta-World with two tasks, two seeds each, three epochs; the table reads epoch 3.
 #   PaCo:   drawer-close 1.0, 0.8 -> 90.0 ± 14.1; reach 0.4, 0.0 -> 20.0 ± 28.3;
@@ -48,9 +48,9 @@ def test_a_protocols_column_names_its_baseline_and_not_a_finetunes_phases() -> N
     from seal.reports import column_label
 
     named = '[protocol]\nname="p"\nkind="baseline"\ncolumn="PaCo"'
-    assert column_label(_run(named), "train", "mw") == "PaCo"
+    assert column_label(run_data(named), "train", "mw") == "PaCo"
     finetune = '[protocol]\nname="f"\nkind="finetune"\ncolumn="X"\n[envs.mw]\nadapter="metaworld"'
-    assert column_label(_run(finetune), "pretrain", "mw") == "Pre-train on MW"
+    assert column_label(run_data(finetune), "pretrain", "mw") == "Pre-train on MW"
 
 
 def test_two_learners_give_smt_table1s_layout(tmp_path: Path) -> None:

@@ -10,7 +10,7 @@ import pandas as pd
 
 from seal.reports.groups import _gather, _labelled
 from seal.reports.plots import plot_success, success_curves
-from tests.test_reports import TRAIN_HEADER, _write_group
+from tests.report_groups import TRAIN_HEADER, write_group
 
 # Two seeds, three evaluations of drawer-close; seed 0's task stopped early at epoch 2 (6 of 50
 # episodes, 0/6), seed 1's at epoch 2 ran every episode (its flag is 0).
@@ -26,7 +26,7 @@ DECIDED = {0: 1.0, 1: 0.0}
 
 
 def _metrics(tmp_path: Path, decided: bool = True) -> pd.DataFrame:
-    group = _write_group(tmp_path, "baseline_mw", METRICS)
+    group = write_group(tmp_path, "baseline_mw", METRICS)
     for seed, flag in DECIDED.items():
         episodes = 6 if flag else 50
         rows = (
