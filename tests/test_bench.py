@@ -229,3 +229,17 @@ def test_paco_update_speedup_times_two_agents_that_compute_the_same_update() -> 
     assert d["paco_update_speedup"] == pytest.approx(d["sets_update_s"] / d["per_task_update_s"])
     table = _table_of("paco_update_speedup", {"paco_update_speedup": 2.5}, paco_update=d)
     assert "paco_update_speedup" in table and ">=2.0" in table and "K 5" in table
+
+
+def test_bench_help_names_every_speed_key_and_every_learning_bench() -> None:
+    """`seal bench --help` lists each key of the default run and the opt-in ones, and gives each
+    `--learn` bench its own line: a bench added without a line in the help fails here."""
+    from seal.bench.suite import OPT_IN_KEYS, SPEED_KEYS
+    from seal.cli.bench_cmd import DESCRIPTION, LEARN_SETS
+
+    words = set(DESCRIPTION.replace(",", " ").split())
+    assert set(SPEED_KEYS + OPT_IN_KEYS) <= words
+    lines = DESCRIPTION.splitlines()
+    for name in LEARN_SETS:
+        assert any(line.startswith(f"  {name} ") for line in lines), name
+    assert all(len(line) <= 100 for line in lines)

@@ -92,6 +92,20 @@ class BenchSettings:
         )
 
 
+SPEED_KEYS = (
+    "sac_vs_sb3",
+    "mt10_update_flops_fraction",
+    "small_update_flops_fraction",
+    "collect_mt10_speedup",
+    "collect_fk_speedup",
+    "ratio_lever",
+    "paco_update_speedup",
+)
+"""The default run's keys, in the order they run."""
+OPT_IN_KEYS = ("paper_update_rate", "e2e_vs_sb3")
+"""Keys run only when `--only` names them: minutes on a CPU."""
+
+
 def run_bench(
     settings: BenchSettings,
     only: Sequence[str] | None = None,
@@ -99,16 +113,7 @@ def run_bench(
     log: Callable[[str], None] = lambda _: None,
 ) -> dict[str, Any]:
     """Run the benchmarks (all, or the keys in `only`) and return one JSON-able dict."""
-    keys = (
-        "sac_vs_sb3",
-        "mt10_update_flops_fraction",
-        "small_update_flops_fraction",
-        "collect_mt10_speedup",
-        "collect_fk_speedup",
-        "ratio_lever",
-        "paco_update_speedup",
-    )
-    opt_in = ("paper_update_rate", "e2e_vs_sb3")  # minutes on a CPU: only when asked for
+    keys, opt_in = SPEED_KEYS, OPT_IN_KEYS
     chosen = list(only or keys)
     unknown = [k for k in chosen if k not in keys + opt_in]
     if unknown:

@@ -1,4 +1,4 @@
-"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1|quickstart|reach_sb3|mtrl] [--full | --fpr | --ladder] [--seeds-until-mde T --max-seeds N]]`: learner and collection speed as ratios, learning evidence."""
+"""`seal bench [--json] [--quick] [--learn [transfer|kitchen|table1|quickstart|reach_sb3|mtrl|learner] [--full | --fpr | --ladder] [--seeds-until-mde T --max-seeds N]]`: learner and collection speed as ratios, learning evidence."""
 
 from __future__ import annotations
 
@@ -8,53 +8,50 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
+DESCRIPTION = """\
+Speed as ratios against a reference timed side by side in one run, and learning evidence.
+
+Speed (the default run; a table, or one JSON object with --json):
+  sac_vs_sb3, mt10_update_flops_fraction, small_update_flops_fraction, collect_mt10_speedup,
+  collect_fk_speedup, ratio_lever, paco_update_speedup
+  --only paper_update_rate  the paper-scale SEAL update (MT10 + 10 kitchens, batch 2,560), eager
+                            and compiled, CUDA graphs on a GPU (slow on a CPU, so not in the
+                            default run)
+  --only e2e_vs_sb3         the same learning work under stable-baselines3's SAC.learn and seal
+                            run's loop on reach-v3 and slide-cabinet (--e2e-steps env steps each)
+  --protocol FILE           --epochs epochs of a protocol measured, its wall time a seed projected
+
+Learning evidence (--learn; slow, not for CI; docs/benchmarks.md):
+  (no name)   the speed benches, then MTMHSAC learning point (with and without one-hot) and
+              reach-v3
+  transfer    the cross-environment transfer testbed (protocols/testbed, docs/transfer_testbed.md):
+              every arm against its alone arm, steps_saved and transfer_updates_saved with 95% t
+              CIs; --full, --ladder, --fpr and --seeds-until-mde choose other arms or rules
+  kitchen     the kitchen runs (protocols/kitchen_learn): per run the first crossing, final
+              success, held_90 and the end ratio of the critic's Q to what was earned; the goals,
+              collapse_test, reward_test[_critic_ln] and learner_test[_bronet[_vs_critic_ln]]
+              (docs/hyperparameters.md)
+  table1      paper Table 1 at laptop scale (protocols/table1_small): `seal report`'s table
+  quickstart  README command 1's protocol, seeds 0-9: the README's table, curve and k-of-10 (docs/)
+  reach_sb3   reach-v3 under seal run and under SB3's SAC.learn, seeds 0-2, k of 3 a side
+  mtrl        SMT Table 1's learners (protocols/mtrl_learn) on two easy MT10 tasks: k of 3, each
+              task's first crossing, updates/s against MTMHSAC's timed side by side
+  learner     with --set agent.KEY=VALUE: whether a learner change is no slower on Meta-World
+              (issue 54's rule: the quickstart, table1's single_mw and reach, seed-paired)
+
+Every --learn run is a Ray task (the ray extra: pip install 'seal[ray]') that runs its protocol
+as `seal run` does, on a private local Ray of --jobs CPUs or, with --address, on a Ray cluster
+whose nodes all see --out at the same path (a shared filesystem).
+"""
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `bench` subcommand."""
     parser = subparsers.add_parser(
         "bench",
         help="benchmark the learner and collection against references (ratios)",
-        description=(
-            "Measures sac_vs_sb3, mt10_update_flops_fraction, small_update_flops_fraction, "
-            "collect_mt10_speedup, collect_fk_speedup, ratio_lever and paco_update_speedup, each "
-            "side by side in one run and prints a table (or one JSON object with --json). "
-            "--only paper_update_rate (not in the default run: slow on a CPU) times the paper-scale "
-            "SEAL update (MT10 + 10 kitchens, batch 2,560) eager and compiled, CUDA graphs on a GPU. "
-            "--only e2e_vs_sb3 (not in the default run: minutes per env) times the same learning work "
-            "under stable-baselines3's SAC.learn and seal run's loop on reach-v3 and slide-cabinet "
-            "(--e2e-steps env steps each). "
-            "--learn adds the slow learning checks (point with/without one-hot, reach-v3); "
-            "--learn transfer runs only the cross-environment transfer testbed (protocols/testbed, "
-            "docs/transfer_testbed.md): every arm, the positive controls included, against its alone arm, "
-            "with steps_saved and transfer_updates_saved, their 95% Student's t CIs and the steps x "
-            "per-step-batch decomposition; "
-            "--learn kitchen runs only the kitchen learning protocols (protocols/kitchen_learn: "
-            "slide-cabinet, light-switch and bottom-left-burner with and without demonstrations, "
-            "microwave and bottom-right-burner without, all on reward v3; the five without "
-            "demonstrations again on reward v4 (<task>_v4, all 535 epochs run; goal.v4), "
-            "and all ten again with LayerNorm in the critics (<task>_critic_ln, <task>_v4_critic_ln; "
-            "collapse_test, seed for seed against the arm without it); reward_test sets each v4 arm "
-            "against its v3 arm seed for seed when both ran with stopping off and applies the rule "
-            "that decides the default reward, reward_test_critic_ln the same with LayerNorm, and "
-            "learner_test applies issue 54's rule for the default critic on v3 (learner_test_bronet "
-            "applies it to BroNet's arms, <task>_bronet, against the plain critic, "
-            "learner_test_bronet_vs_critic_ln against LayerNorm); per run the end "
-            "ratio of the critic's Q at the evaluation episodes' first states to what they earned); "
-            "--learn table1 runs paper Table 1 at laptop scale (protocols/table1_small: drawer-close-v3 without and "
-            "slide-cabinet with demonstrations under Single Env, 50/50, High FK and High MW with batch-matched alone arms) and "
-            "prints `seal report`'s table of it with 95% CIs and its wall time; "
-            "--learn quickstart runs README command 1's protocol for seeds 0-9 (one at a time) and "
-            "writes the README's table, kitchen curve and k-of-10 line into docs/; "
-            "--learn reach_sb3 runs reach-v3 (protocols/learn/reach.toml) under seal run and under "
-            "stable-baselines3's SAC.learn, seeds 0-2 each, both evaluated by SEAL's evaluation every "
-            "2,000 env steps and stopped at the first >= 90%, and prints k of 3 per side; "
-            "--learn mtrl runs SMT Table 1's learners (protocols/mtrl_learn) on two easy MT10 "
-            "tasks, seeds 0-2, and prints per learner k of 3 seeds with every task >= 90%, each "
-            "task's first crossing and its updates/s against MTMHSAC's, timed side by side. "
-            "Every --learn run is a Ray task (the ray extra: pip install 'seal[ray]') that runs its "
-            "protocol as `seal run` does, on a private local Ray of --jobs CPUs or, with --address, "
-            "on a Ray cluster whose nodes all see --out at the same path (a shared filesystem)."
-        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=DESCRIPTION,
     )
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object instead of the table"
@@ -68,7 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         const="evidence",
         default=None,
         metavar="transfer|kitchen|table1|quickstart|reach_sb3|mtrl|learner",
-        help="also run the learning evidence (slow; not for CI); --learn transfer: only the transfer testbed; --learn kitchen: only the kitchen learning runs; --learn table1: only paper Table 1 at laptop scale (protocols/table1_small, docs/table1_small.md); --learn quickstart: README command 1 over seeds 0-9; --learn reach_sb3: reach-v3 learned under seal run and under SB3's SAC.learn; --learn mtrl: SMT Table 1's learners on two easy MT10 tasks (protocols/mtrl_learn), with their updates/s against MTMHSAC's; --learn learner --set agent.KEY=VALUE: whether a learner change is no slower on Meta-World (issue 54's rule: the quickstart, table1's single_mw and reach, seed-paired)",
+        help="a learning bench listed above, run instead of the speed benches; with no name, the speed benches and then the learning checks of point and reach-v3 (slow; not for CI)",
     )
     parser.add_argument(
         "--full",
