@@ -1,12 +1,12 @@
 """Where one update's CPU time goes: torch.profiler over `--updates` updates of each protocol's
 agent, on random batches of the protocol's shapes, on one thread.
 
-    python scripts/update_profile.py protocols/mtrl_learn/*.toml [--updates 10] [--top 3]
+    python scripts/update_profile.py protocols/mtrl_learn/*.toml [--updates 40] [--top 3]
 
 Prints a line a protocol: the self-CPU milliseconds an update, the matmuls' share (bmm, baddbmm,
-addmm, mm) and the next `--top` ops by self-CPU time. The shares are of the process's own CPU
-time, so they change little when other work shares the machine; the milliseconds do not hold
-under load (time speed with `seal bench`, as a ratio).
+addmm, mm) and the next `--top` ops by self-CPU time. The profiler's times are wall time inside
+each op, so an op the scheduler paused looks longer: on a busy machine profile more updates and
+read the shares, not the milliseconds (time speed with `seal bench`, as a ratio).
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ def format_profile(name: str, profiled: dict[str, Any], top: int) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("protocols", nargs="+", type=Path, metavar="PROTOCOL")
-    parser.add_argument("--updates", type=int, default=10, help="updates profiled (default 10)")
+    parser.add_argument("--updates", type=int, default=40, help="updates profiled (default 40)")
     parser.add_argument("--top", type=int, default=3, help="ops named after the matmuls")
     args = parser.parse_args(argv)
     if args.updates < 1 or args.top < 0:

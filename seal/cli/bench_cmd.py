@@ -86,7 +86,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--seeds",
         type=int,
         default=None,
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: seeds per arm (default 5 for transfer, 2 for kitchen, 5 for table1, 10 for quickstart, 3 for reach_sb3 and mtrl)",
+        help="with a --learn bench: seeds per arm (default 5 for transfer, 2 for kitchen, 5 for table1, 10 for quickstart and learner, 3 for reach_sb3 and mtrl)",
     )
     parser.add_argument(
         "--seeds-until-mde",
@@ -112,7 +112,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--reuse",
         action="store_true",
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: take finished runs under --out whose resolved config is today's instead of running them again, and (except reach_sb3) resume unfinished ones from their last checkpoint where it holds the replay (checkpoint.save_replay; the others run again)",
+        help="with a --learn bench: take finished runs under --out whose resolved config is today's instead of running them again, and (except reach_sb3) resume unfinished ones from their last checkpoint where it holds the replay (checkpoint.save_replay; the others run again)",
     )
     parser.add_argument(
         "--no-run",
@@ -123,19 +123,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--jobs",
         type=int,
         default=None,
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: CPUs of the private local Ray the runs share (default 2). A run reserves the CPUs its protocol.threads resolves to, one for every shipped bench protocol, so --jobs 2 runs two at a time; a quickstart run reserves them all, so its seeds run one at a time. Not with --address",
+        help="with a --learn bench: CPUs of the private local Ray the runs share (default 2). A run reserves the CPUs its protocol.threads resolves to, one for every shipped bench protocol, so --jobs 2 runs two at a time; a quickstart run reserves them all, so its seeds run one at a time. Not with --address",
     )
     parser.add_argument(
         "--address",
         default=None,
         metavar="auto|HOST:PORT",
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: run on the Ray cluster at this address (auto: the one `ray start` began on this machine) instead of a private local Ray; every node must see --out at the same path (a shared filesystem), which is checked before the first run",
+        help="with a --learn bench: run on the Ray cluster at this address (auto: the one `ray start` began on this machine) instead of a private local Ray; every node must see --out at the same path (a shared filesystem), which is checked before the first run",
     )
     parser.add_argument(
         "--out",
         default=None,
         metavar="DIR",
-        help="with --learn transfer|kitchen|table1|quickstart|reach_sb3|mtrl: reports root of the runs (default reports/bench_transfer, reports/bench_kitchen, reports/bench_table1, reports/bench_quickstart, reports/bench_reach_sb3 or reports/bench_mtrl)",
+        help="with a --learn bench: reports root of the runs (default reports/bench_<bench>, e.g. reports/bench_kitchen)",
     )
     parser.add_argument(
         "--only", nargs="+", metavar="KEY", help="run only these keys, e.g. --only sac_vs_sb3"
