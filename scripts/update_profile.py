@@ -3,8 +3,8 @@ agent, on random batches of the protocol's shapes, on one thread.
 
     python scripts/update_profile.py protocols/mtrl_learn/*.toml [--updates 40] [--top 3]
 
-Prints a line a protocol: the self-CPU milliseconds an update, the matmuls' share (bmm, baddbmm,
-addmm, mm) and the next `--top` ops by self-CPU time. The profiler's times are wall time inside
+Prints a line a protocol: the milliseconds an update spends in ops, the matmuls' share (bmm,
+baddbmm, addmm, mm) and the next `--top` ops by their share. The profiler's times are wall time inside
 each op, so an op the scheduler paused looks longer: on a busy machine profile more updates and
 read the shares, not the milliseconds (time speed with `seal bench`, as a ratio).
 """
@@ -20,8 +20,8 @@ MATMULS = frozenset({"aten::bmm", "aten::baddbmm", "aten::addmm", "aten::mm"})
 
 
 def profile_update(protocol: Path, updates: int) -> dict[str, Any]:
-    """{"ms": self-CPU ms an update, "shares": {op: share of the self-CPU time}} of the protocol's
-    agent, after 3 updates that build its lazy state."""
+    """{"ms": ms an update in ops, "shares": {op: its share of them, its children excluded}} of
+    the protocol's agent, after 3 updates that build its lazy state."""
     from torch.profiler import ProfilerActivity, profile
 
     from seal.bench.flops import _agent_batches
@@ -53,7 +53,7 @@ def format_profile(name: str, profiled: dict[str, Any], top: int) -> str:
     matmul = sum(v for k, v in shares.items() if k in MATMULS)
     rest = sorted((k for k in shares if k not in MATMULS), key=lambda k: -shares[k])[:top]
     others = ", ".join(f"{k.removeprefix('aten::')} {100 * shares[k]:.1f}%" for k in rest)
-    return f"{name}: {profiled['ms']:.1f} ms an update (self CPU), matmuls {100 * matmul:.1f}%; next: {others}"
+    return f"{name}: {profiled['ms']:.1f} ms an update in ops, matmuls {100 * matmul:.1f}%; next: {others}"
 
 
 def main(argv: list[str] | None = None) -> int:

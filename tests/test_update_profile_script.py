@@ -25,7 +25,7 @@ def test_the_line_sums_the_matmuls_and_names_the_next_ops_by_share() -> None:
     }
     line = script.format_profile("x", profiled, top=2)
     # matmuls 0.3 + 0.2 + 0.05 = 55%; then mul 25%, and add and tanh tie at 10% (the first kept)
-    assert line == "x: 12.3 ms an update (self CPU), matmuls 55.0%; next: mul 25.0%, add 10.0%"
+    assert line == "x: 12.3 ms an update in ops, matmuls 55.0%; next: mul 25.0%, add 10.0%"
 
 
 def test_a_profile_of_a_point_update_has_its_matmuls_and_shares_that_sum_to_one(
