@@ -17,7 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "Merge the seeds of one or more groups (reports/<protocol>/<group-id>/) or single runs "
             "(.../seed-<n>/) into the paper's update-count table (Task x {Single Env, 50/50, High FK, "
             "High MW, Pre-train on X, Fine-tune on Y}) with the percent change against Single Env and its "
-            "95% bootstrap CI, gradient steps x per-step batch beside each count, "
+            "95% CI (Fieller's, t quantiles), gradient steps x per-step batch beside each count, "
             "a final-success table, success curves per environment and critic-loss curves. "
             "Writes <out>/tables/ (Markdown, CSV, LaTeX) and <out>/plots/ (PNG)."
         ),
