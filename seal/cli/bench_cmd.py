@@ -39,7 +39,7 @@ Learning evidence (--learn; slow, not for CI; docs/benchmarks.md):
   learner     with --set agent.KEY=VALUE: whether a learner change is no slower on Meta-World
               (issue 54's rule: the quickstart, table1's single_mw and reach, seed-paired)
 
-Every --learn run is a Ray task (the ray extra: pip install 'seal[ray]') that runs its protocol
+Every named --learn bench runs each run as a Ray task (the ray extra: pip install 'seal[ray]') that runs its protocol
 as `seal run` does, on a private local Ray of --jobs CPUs or, with --address, on a Ray cluster
 whose nodes all see --out at the same path (a shared filesystem).
 """
@@ -86,7 +86,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--seeds",
         type=int,
         default=None,
-        help="with a --learn bench: seeds per arm (default 5 for transfer, 2 for kitchen, 5 for table1, 10 for quickstart and learner, 3 for reach_sb3 and mtrl)",
+        metavar="N",
+        help="with a --learn bench: seeds 0..N-1 per arm (default 5 for transfer, 2 for kitchen, 5 for table1, 10 for quickstart and learner, 3 for reach_sb3 and mtrl)",
     )
     parser.add_argument(
         "--seeds-until-mde",

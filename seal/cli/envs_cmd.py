@@ -11,18 +11,32 @@ from typing import Any
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add `seal envs [--json]` and `seal envs check NAME [--tasks ...] [--seed N] [--option K=V] [--json]`."""
-    parser = subparsers.add_parser("envs", help="list environment adapters, or check one")
+    parser = subparsers.add_parser(
+        "envs",
+        help="list environment adapters, or check one",
+        description="List the built-in environment adapters with their observation and action sizes, "
+        "episode length and tasks (or check one: seal envs check NAME).",
+    )
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
     parser.set_defaults(func=list_adapters)
     sub = parser.add_subparsers(dest="envs_command", metavar="SUBCOMMAND")
-    check = sub.add_parser("check", help="check an adapter's API conformance and reward semantics")
+    check = sub.add_parser(
+        "check",
+        help="check an adapter's API conformance and reward semantics",
+        description="Check an adapter, in the style of stable-baselines3's check_env: the interface's "
+        "promises on every task (spaces, seeding, episodes), then the adapter's own reward and "
+        "success checks. Prints a line a task with its figures and ok or FAIL, then the verdict; "
+        "exits 1 when a task fails.",
+    )
     check.add_argument(
         "name", help="a built-in adapter name or an import path package.module:Class"
     )
     check.add_argument(
         "--tasks", nargs="+", help="task names or task-set names (default: the adapter's tasks)"
     )
-    check.add_argument("--seed", type=int, default=0, help="seed for envs and random actions")
+    check.add_argument(
+        "--seed", type=int, default=0, help="seed for envs and random actions (default: 0)"
+    )
     check.add_argument(
         "--option",
         action="append",

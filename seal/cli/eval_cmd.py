@@ -39,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--json",
         action="store_true",
-        help='print one JSON line {"checkpoint", "phase", "epoch", "success": {env: {task: s}}, "return": {...}}',
+        help='print one JSON line {"checkpoint", "phase", "epoch", "episodes", "success": {env: {task: s}}, "return": {...}, "videos": [paths]}',
     )
     p.set_defaults(func=run)
 

@@ -11,7 +11,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = subparsers.add_parser("protocol", help="inspect protocol files", description=__doc__)
     sub = p.add_subparsers(dest="protocol_command", metavar="SUBCOMMAND", required=True)
-    explain = sub.add_parser("explain", help="print every resolved value with its documentation")
+    explain = sub.add_parser(
+        "explain",
+        help="print every resolved value with its documentation",
+        description="Print the resolved protocol (every key, defaults included) with each key's "
+        "documentation, then the networks, the estimated memory and the update threads it would "
+        "use (or, with --toml, the resolved TOML alone).",
+    )
     add_protocol_arguments(explain)
     explain.add_argument(
         "--toml",
@@ -20,7 +26,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     explain.set_defaults(func=run_explain)
     check = sub.add_parser(
-        "check", help="validate a protocol file; exit 2 with the offending key if it is invalid"
+        "check",
+        help="validate a protocol file; exit 2 with the offending key if it is invalid",
+        description="Validate a protocol file as `seal run` would load it: print one ok line (its name, "
+        "kind and envs) and exit 0, or one line naming the file, the key, the value and what is "
+        "valid, and exit 2.",
     )
     add_protocol_arguments(check)
     check.set_defaults(func=run_check)

@@ -35,7 +35,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--threshold",
         type=float,
         default=None,
-        help="success rate a task must reach for the update-count metric (default: the runs' [evaluation].threshold, else 0.9)",
+        help="success rate a task must reach for the update-count metric (default: the runs' [evaluation].threshold when they all agree, else 0.9)",
+        metavar="T",
     )
     parser.add_argument(
         "--consecutive",

@@ -52,9 +52,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--resume",
         default=None,
         metavar="RUN_DIR",
-        help="continue this seed directory from its last checkpoint (uses the config saved in it)",
+        help="continue this seed directory from its last checkpoint, with the config saved in it; FILE must be the protocol it ran, and --set, --scale, --seeds and --out are ignored",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress bar, and no final table or 'runs written to' line",
+    )
     p.add_argument(
         "--json",
         action="store_true",

@@ -22,7 +22,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "configs from the protocol's [search] table (seeded) and run them (ASHA early stopping with "
             'scheduler = "asha"), then write a ranked table and best.toml. A [resources] table '
             "(cpus, gpus) sets what each trial reserves. Without --address a local Ray starts "
-            "inside this process; --address auto or HOST:PORT joins a running cluster."
+            "inside this process; --address auto or HOST:PORT joins a running cluster. Exits 1 when a "
+            "trial failed or is unfinished (the table says which)."
         ),
     )
     parser.add_argument(
@@ -66,7 +67,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--out",
         default="reports",
         metavar="DIR",
-        help="reports root: runs go to DIR/<protocol>/<group>/seed-<n> (default: reports)",
+        help="reports root (default: reports): runs go to DIR/<protocol>/<group>/seed-<n>, the sweep's own files to that group for one protocol or to DIR/sweeps/<id> for several; with --search, DIR/<protocol>/search-<id>/sample-<k>/seed-<n>",
     )
     parser.add_argument(
         "--resume",
