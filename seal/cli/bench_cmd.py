@@ -39,9 +39,9 @@ Learning evidence (--learn; slow, not for CI; docs/benchmarks.md):
   learner     with --set agent.KEY=VALUE: whether a learner change is no slower on Meta-World
               (issue 54's rule: the quickstart, table1's single_mw and reach, seed-paired)
 
-Every named --learn bench runs each run as a Ray task (the ray extra: pip install 'seal[ray]') that runs its protocol
-as `seal run` does, on a private local Ray of --jobs CPUs or, with --address, on a Ray cluster
-whose nodes all see --out at the same path (a shared filesystem).
+Every named --learn bench runs each run as a Ray task (the ray extra: pip install 'seal[ray]')
+that runs its protocol as `seal run` does, on a private local Ray of --jobs CPUs or, with
+--address, on a Ray cluster whose nodes all see --out at the same path (a shared filesystem).
 """
 
 
