@@ -243,3 +243,24 @@ def test_bench_help_names_every_speed_key_and_every_learning_bench() -> None:
     for name in LEARN_SETS:
         assert any(line.startswith(f"  {name} ") for line in lines), name
     assert all(len(line) <= 100 for line in lines)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--learn", "kitchen", "--quick"], "--quick only applies to the speed benches"),
+        (["--protocol", "p.toml", "--only", "sac_vs_sb3"], "--only only applies to the speed"),
+        (["--learn", "mtrl", "--repeats", "3"], "--repeats only applies to the speed benches"),
+        (["--seeds", "3"], "--seeds only applies to a named --learn bench"),
+        (["--learn", "--reuse"], "--reuse only applies to a named --learn bench"),
+        (["--out", "d"], "--out only applies to a named --learn bench"),
+    ],
+)
+def test_an_option_the_chosen_bench_would_ignore_is_a_one_line_error(
+    argv: list[str], message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from seal.cli.main import main
+
+    assert main(["bench", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1

@@ -166,7 +166,9 @@ def test_jobs_and_address_mistakes_are_one_line_errors(capsys: pytest.CaptureFix
     assert main(["bench", "--learn", "transfer", "--jobs", "2", "--address", "auto"]) == 2
     assert "--jobs sets the CPUs of a local Ray" in capsys.readouterr().err
     assert main(["bench", "--jobs", "2"]) == 2
-    assert "--jobs and --address only apply to --learn transfer" in capsys.readouterr().err
+    assert (
+        "--jobs only applies to a named --learn bench (transfer, kitchen" in capsys.readouterr().err
+    )
     assert main(["bench", "--learn", "transfer", "--address", "127.0.0.1:1"]) == 2
     assert "no Ray cluster answers there" in capsys.readouterr().err
 

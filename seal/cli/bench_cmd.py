@@ -273,11 +273,27 @@ def run(args: argparse.Namespace) -> int:
             "--no-run only applies to --learn kitchen, learner, mtrl and transfer, without --fpr "
             "and --seeds-until-mde"
         )
-    if (args.address is not None or args.jobs is not None) and args.learn not in LEARN_SETS:
-        raise SealError(
-            "--jobs and --address only apply to --learn transfer, kitchen, table1, quickstart, "
-            "reach_sb3 and mtrl"
-        )
+    named = ", ".join(LEARN_SETS)
+    for flag, given in (
+        ("--jobs", args.jobs is not None),
+        ("--address", args.address is not None),
+        ("--seeds", args.seeds is not None),
+        ("--reuse", args.reuse),
+        ("--out", args.out is not None),
+    ):
+        if given and args.learn not in LEARN_SETS:
+            raise SealError(f"{flag} only applies to a named --learn bench ({named})")
+    speed_only = {
+        "--quick": args.quick,
+        "--only": bool(args.only),
+        "--repeats": args.repeats is not None,
+        "--e2e-steps": args.e2e_steps is not None,
+    }
+    for flag, given in speed_only.items():
+        if given and (args.learn in LEARN_SETS or args.protocol is not None):
+            raise SealError(
+                f"{flag} only applies to the speed benches, not to --learn NAME or --protocol"
+            )
     if args.arms and args.learn not in LEARN_SETS:
         raise SealError(
             "--arms only applies to --learn transfer, kitchen, table1, quickstart, reach_sb3, mtrl and learner"
