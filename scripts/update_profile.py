@@ -24,18 +24,13 @@ def profile_update(protocol: Path, updates: int) -> dict[str, Any]:
     the protocol's agent, after 3 updates that build its lazy state."""
     from torch.profiler import ProfilerActivity, profile
 
-    from seal.bench.flops import _agent_batches
+    from seal.bench.flops import _agent_batches, quickstart_setup
     from seal.device import torch_threads
-    from seal.learner import Agent, EnvSpec
-    from seal.protocols import load_protocol
-    from seal.run.phase_model import build_adapters
+    from seal.learner import Agent
 
-    config = load_protocol(protocol, ["protocol.device=cpu"])  # the profile is of the CPU update
-    specs = [
-        EnvSpec(n, a.obs_dim, a.act_dim, len(a.tasks)) for n, a in build_adapters(config).items()
-    ]
-    agent = Agent(specs, config.agent, seed=0)
-    batches = _agent_batches(specs, config.training.batch_per_task, seed=0)
+    specs, agent_config, per_task = quickstart_setup(protocol, device="cpu")  # the CPU update
+    agent = Agent(specs, agent_config, seed=0)
+    batches = _agent_batches(specs, per_task, seed=0)
     with torch_threads(1):
         for _ in range(3):
             agent.update(batches)
