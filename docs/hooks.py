@@ -1,6 +1,8 @@
 """MkDocs hooks: pages generated from the sources they document, so the two cannot drift.
 
-- `kitchen.md` is `envs/franka_kitchen_dense/README.md`, the kitchen's own documentation.
+- `kitchen.md` is `envs/franka_kitchen_dense/README.md`, the kitchen's own documentation. The
+  pages link to it by its path in the repository, so the link works on GitHub too; the site's
+  links point at the generated page.
 - `<!-- include-python: PATH -->` becomes the Python file at docs/PATH as a code block (so the
   worked adapter example on the page is the file its test runs).
 - In `protocols.md`, `<!-- protocol-keys -->` becomes one table per protocol TOML table, built
@@ -23,6 +25,7 @@ KITCHEN_README = ROOT / "envs" / "franka_kitchen_dense" / "README.md"
 DOCS = ROOT / "docs"
 MARKER = "<!-- protocol-keys -->"
 INCLUDE = re.compile(r"<!-- include-python: (\S+) -->")
+KITCHEN_LINK = "](../envs/franka_kitchen_dense/README.md"
 
 
 def on_files(files: Files, config: Any) -> Files:
@@ -37,7 +40,7 @@ def on_page_markdown(markdown: str, page: Any, config: Any, files: Files) -> str
     def include(match: re.Match[str]) -> str:
         return "```python\n" + (DOCS / match.group(1)).read_text().rstrip() + "\n```"
 
-    markdown = INCLUDE.sub(include, markdown)
+    markdown = INCLUDE.sub(include, markdown).replace(KITCHEN_LINK, "](kitchen.md")
     if MARKER not in markdown:
         return markdown
     return markdown.replace(MARKER, protocol_keys_markdown())
