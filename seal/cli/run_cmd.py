@@ -1,4 +1,5 @@
-"""`seal run FILE`: run a protocol's seeds into one group (or `--resume RUN_DIR` one of them)."""
+"""`seal run FILE`: run a protocol's seeds into one group (or `seal run --resume RUN_DIR`: continue
+one of them)."""
 
 from __future__ import annotations
 
@@ -8,10 +9,14 @@ import traceback
 from pathlib import Path
 
 
-def add_protocol_arguments(parser: argparse.ArgumentParser) -> None:
-    """FILE, --set and --scale: shared by `seal run` and `seal protocol explain`."""
+def add_protocol_arguments(parser: argparse.ArgumentParser, *, file_help: str = "") -> None:
+    """FILE, --set and --scale: shared by `seal run` (where FILE may be left out with --resume,
+    said in `file_help`) and `seal protocol explain|check`."""
     parser.add_argument(
-        "file", metavar="FILE", help="protocol TOML file, e.g. protocols/quickstart.toml"
+        "file",
+        metavar="FILE",
+        nargs="?" if file_help else None,
+        help="protocol TOML file, e.g. protocols/quickstart.toml" + file_help,
     )
     parser.add_argument(
         "--set",
@@ -35,10 +40,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "run", help="run a protocol (all its seeds) and write run directories", description=__doc__
     )
-    add_protocol_arguments(p)
+    add_protocol_arguments(p, file_help="; optional with --resume, which then checks it")
     p.add_argument(
         "--out",
-        default="reports",
+        default=None,
         metavar="DIR",
         help="reports root; runs go to DIR/<protocol>/<group>/seed-<n> (default: reports)",
     )
@@ -52,7 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--resume",
         default=None,
         metavar="RUN_DIR",
-        help="continue this seed directory from its last checkpoint, with the config saved in it; FILE must be the protocol it ran, and --set, --scale, --seeds and --out are ignored",
+        help="continue this seed directory from its last checkpoint, with the config saved in it (FILE, if given, must be the protocol it ran; --set, --scale, --seeds and --out do not apply)",
     )
     p.add_argument(
         "--quiet",
@@ -90,19 +95,24 @@ def parse_seeds(text: str) -> list[int]:
 
 def run(args: argparse.Namespace) -> int:
     """Load (validating before anything is written), run every seed, report, print JSON."""
+    from seal.errors import SealError
     from seal.protocols import load_protocol
     from seal.run.preemption import Preempted
     from seal.run.results import result_json
     from seal.run.runner import new_group_dir, resume_run, run_seed
 
-    config = load_protocol(args.file, args.overrides, args.scale)
-    command = [Path(sys.argv[0]).name, *sys.argv[1:]]
     if args.resume:
-        results = [resume_run(args.resume, quiet=args.quiet, protocol_name=config.name)]
+        _check_resume_options(args)
+        name = load_protocol(args.file).name if args.file else None
+        results = [resume_run(args.resume, quiet=args.quiet, protocol_name=name)]
         group = Path(args.resume).parent
     else:
+        if args.file is None:
+            raise SealError("seal run: give a protocol FILE (or --resume RUN_DIR)")
+        config = load_protocol(args.file, args.overrides, args.scale)
+        command = [Path(sys.argv[0]).name, *sys.argv[1:]]
         seeds = parse_seeds(args.seeds) if args.seeds else config.seeds
-        group = new_group_dir(config, args.out)
+        group = new_group_dir(config, args.out or "reports")
         results = []
         for i, s in enumerate(seeds):
             try:
@@ -124,6 +134,28 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(result_json(results))
     return 0
+
+
+def _check_resume_options(args: argparse.Namespace) -> None:
+    """A resumed run keeps the config and directory it saved: options that would change them are
+    refused, not silently dropped."""
+    from seal.errors import SealError
+
+    given = [
+        flag
+        for flag, value in (
+            ("--set", args.overrides or None),
+            ("--scale", args.scale),
+            ("--seeds", args.seeds),
+            ("--out", args.out),
+        )
+        if value is not None
+    ]
+    if given:
+        raise SealError(
+            f"seal run --resume {args.resume}: {', '.join(given)} cannot change a resumed run "
+            "(it goes on with the config and directory it saved); drop them, or start a new run"
+        )
 
 
 def _report(group: Path) -> Path | None:

@@ -14,6 +14,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from seal.cli.main import main
 from seal.protocols import load_protocol
 from seal.run.runner import run_seed
 from tests.waiting import wait_until
@@ -106,7 +107,8 @@ def test_sigkill_then_resume_matches_uninterrupted_run(tmp_path: Path) -> None:
     assert killed_rows < 24 * 3, f"the child finished before the kill ({delay:.3f} s)"
 
     resumed = subprocess.run(
-        _cli("run", str(path), "--resume", str(run_dir), "--quiet", "--no-report", "--json"),
+        # FILE left out: the run resumes from its saved config alone.
+        _cli("run", "--resume", str(run_dir), "--quiet", "--no-report", "--json"),
         env=_env(),
         capture_output=True,
         text=True,
@@ -138,3 +140,33 @@ def test_resume_refuses_a_directory_that_is_not_a_run(tmp_path: Path) -> None:
         text=True,
     )
     assert bad.returncode == 2 and "--resume" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_resume_needs_no_file_and_refuses_options_it_would_drop(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "killme.toml"
+    path.write_text(PROTOCOL)
+    other = tmp_path / "other.toml"
+    other.write_text(PROTOCOL.replace('name = "killme"', 'name = "other"'))
+    out = tmp_path / "out"
+    quiet = ["--quiet", "--no-report"]
+    assert main(["run", str(path), "--out", str(out), "--set", "protocol.epochs=3", *quiet]) == 0
+    (run,) = out.glob("killme/*/seed-0")
+    before = (run / "metrics.csv").read_bytes()
+    capsys.readouterr()
+    for argv, says in [
+        (["--resume", str(run), "--set", "protocol.epochs=6"], "--set cannot change a resumed"),
+        (["--resume", str(run), "--out", "x", "--seeds", "1"], "--seeds, --out cannot change"),
+        ([str(other), "--resume", str(run)], "is of protocol 'killme', not 'other'"),
+        ([], "give a protocol FILE (or --resume RUN_DIR)"),
+    ]:
+        assert main(["run", *argv, *quiet]) == 2, argv
+        err = capsys.readouterr().err
+        assert says in err and err.count("\n") == 1, err
+    assert (run / "metrics.csv").read_bytes() == before
+    assert not (tmp_path / "x").exists()
+    # Without FILE, the run goes on from its saved config (here: it had finished, so no row is added).
+    assert main(["run", "--resume", str(run), "--json", *quiet]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["run_dir"] == str(run)
+    assert (run / "metrics.csv").read_bytes() == before
