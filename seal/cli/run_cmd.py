@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         group = Path(args.resume).parent
     else:
         if args.file is None:
-            raise SealError("seal run: give a protocol FILE (or --resume RUN_DIR)")
+            raise SealError("give a protocol FILE (or --resume RUN_DIR)")
         config = load_protocol(args.file, args.overrides, args.scale)
         command = [Path(sys.argv[0]).name, *sys.argv[1:]]
         seeds = parse_seeds(args.seeds) if args.seeds else config.seeds
@@ -153,7 +153,7 @@ def _check_resume_options(args: argparse.Namespace) -> None:
     ]
     if given:
         raise SealError(
-            f"seal run --resume {args.resume}: {', '.join(given)} cannot change a resumed run "
+            f"--resume {args.resume}: {', '.join(given)} cannot change a resumed run "
             "(it goes on with the config and directory it saved); drop them, or start a new run"
         )
 
