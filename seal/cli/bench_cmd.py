@@ -94,7 +94,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=float,
         default=None,
         metavar="TARGET",
-        help="with --learn transfer and --max-seeds: instead of --seeds, add seeds in batches of as many as runs can go at once (the local Ray's --jobs CPUs, or the cluster's, over the CPUs a run reserves) from 5 until the MDE of every named statistic (steps_saved and AUC gain of high_source, pretrained_trunk, oracle_translator and no_correspondence; arms that never reached have none) is <= TARGET, the MDE taken from the one-sided 80%% chi-square upper limit on the paired SD, or --max-seeds is reached; with --fpr: the arms' CI's false-positive rate under that rule on max(40, 2 x --max-seeds) alone seeds (docs/transfer_testbed.md)",
+        help="with --learn transfer and --max-seeds, instead of --seeds: start at 5 seeds and add "
+        "a batch at a time (as many runs as go at once) until every named statistic's MDE is "
+        "<= TARGET, or --max-seeds is reached. The statistics: steps_saved and the AUC gain "
+        "of high_source, pretrained_trunk, oracle_translator and no_correspondence. The MDE "
+        "uses the one-sided 80%% chi-square upper limit on the paired SD. With --fpr: the CI's "
+        "false-positive rate under this rule, on max(40, 2 x --max-seeds) alone seeds "
+        "(docs/transfer_testbed.md)",
     )
     parser.add_argument(
         "--max-seeds",
