@@ -165,6 +165,9 @@ def test_jobs_and_address_mistakes_are_one_line_errors(capsys: pytest.CaptureFix
 
     assert main(["bench", "--learn", "transfer", "--jobs", "2", "--address", "auto"]) == 2
     assert "--jobs sets the CPUs of a local Ray" in capsys.readouterr().err
+    # `seal sweep`'s name for it is the same option here.
+    assert main(["bench", "--learn", "transfer", "--num-cpus", "2", "--address", "auto"]) == 2
+    assert "--jobs sets the CPUs of a local Ray" in capsys.readouterr().err
     assert main(["bench", "--jobs", "2"]) == 2
     assert (
         "--jobs only applies to a named --learn bench (transfer, kitchen" in capsys.readouterr().err

@@ -194,6 +194,8 @@ def test_seal_run_and_protocols_never_import_ray() -> None:
         (["--resume", "somewhere"], "give either protocol FILEs or --resume"),
         (["--address", "nohost"], "expected auto or HOST:PORT"),
         (["--address", "127.0.0.1:1"], "no Ray cluster answers there"),
+        (["--num-cpus", "2", "--address", "auto"], "--num-cpus 2 sets the CPUs of a local Ray"),
+        (["--jobs", "2", "--address", "auto"], "--num-cpus 2 sets the CPUs of a local Ray"),
     ],
 )
 def test_cli_mistakes_are_one_line_errors(

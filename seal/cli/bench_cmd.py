@@ -128,8 +128,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--jobs",
+        "--num-cpus",  # `seal sweep`'s name for the same thing
+        dest="jobs",
         type=int,
         default=None,
+        metavar="N",
         help="with a --learn bench: CPUs of the private local Ray the runs share (default 2). A run reserves the CPUs its protocol.threads resolves to, one for every shipped bench protocol, so --jobs 2 runs two at a time; a quickstart run reserves them all, so its seeds run one at a time. Not with --address",
     )
     parser.add_argument(

@@ -58,10 +58,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--num-cpus",
+        "--jobs",  # `seal bench --learn`'s name for the same thing
+        dest="num_cpus",
         type=int,
         default=None,
         metavar="N",
-        help="CPUs of the local Ray (default: all of this machine's); ignored with --address",
+        help="CPUs of the local Ray (default: all of this machine's); not with --address",
     )
     parser.add_argument(
         "--out",
@@ -116,6 +118,11 @@ def run(args: argparse.Namespace) -> int:
     if args.resume and args.files:
         raise SealError(
             f"--resume {args.resume}: give either protocol FILEs or --resume, not both (a resume runs what the sweep directory recorded)"
+        )
+    if args.num_cpus is not None and args.address is not None:
+        raise SealError(
+            f"--num-cpus {args.num_cpus} sets the CPUs of a local Ray; with --address "
+            f"{args.address} the cluster's nodes decide (drop one of them)"
         )
     common = {
         "out": args.out,
