@@ -136,3 +136,22 @@ def check_inside(
             f"{path}: the {what} is a symlink leading out of {within} (to {real}); seal reads "
             f"and writes only inside the directory: remove the link, then try again"
         )
+
+
+def check_output_dir(path: str | os.PathLike[str], what: str = "--out") -> Path:
+    """`path` as a directory to write under (it need not exist yet), or a one-line SealError: an
+    empty name (which would write into the working directory) or a path through a file."""
+    if not str(path).strip():
+        raise SealError(f"{what} {str(path)!r}: expected a directory name")
+    out = Path(path)
+    for existing in (out, *out.parents):
+        if existing.exists():
+            if not existing.is_dir():
+                mode = existing.stat().st_mode
+                kind = "a file" if stat.S_ISREG(mode) else _kind(mode)
+                raise SealError(
+                    f"{what} {path}: {existing} is {kind}, not a directory; give a directory "
+                    "to write under"
+                )
+            break
+    return out

@@ -254,6 +254,9 @@ def test_bench_help_names_every_speed_key_and_every_learning_bench() -> None:
         (["--seeds", "3"], "--seeds only applies to a named --learn bench"),
         (["--learn", "--reuse"], "--reuse only applies to a named --learn bench"),
         (["--out", "d"], "--out only applies to a named --learn bench"),
+        (["--epochs", "3"], "--epochs only applies to --protocol FILE"),
+        (["--learn", "kitchen", "--floor-only"], "--floor-only only applies to --protocol FILE"),
+        (["--cores", "8"], "--cores only applies to --protocol FILE"),
     ],
 )
 def test_an_option_the_chosen_bench_would_ignore_is_a_one_line_error(

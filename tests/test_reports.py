@@ -406,6 +406,24 @@ def test_cli_report_bad_path_exits_2(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert err.startswith("seal report: error: ") and "missing does not exist" in err
 
 
+def test_cli_report_mistakes_leave_no_directory_and_no_lock(
+    tmp_path: Path, groups: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "a.png").write_text("a file")
+    (tmp_path / "notes").mkdir()
+    group = str(groups["baseline_mw"])
+    for argv, says in [
+        ([group, "--out", str(tmp_path / "a.png")], "a.png is a file, not a directory"),
+        ([group, "--out", str(tmp_path / "new"), "--threshold", "2"], "threshold 2.0 is not"),
+        ([str(tmp_path / "notes")], "neither a run nor a group directory"),
+    ]:
+        assert main(["report", *argv]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("seal report: error: ") and says in err, err
+    assert not (tmp_path / "new").exists()
+    assert not any((tmp_path / "notes").iterdir())  # no .seal.lock left in the user's folder
+
+
 def test_cli_report_consecutive(
     tmp_path: Path, groups: dict[str, Path], capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -175,7 +175,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--epochs",
         type=int,
-        default=5,
+        default=None,
         help="with --protocol: epochs per phase to measure (default 5)",
     )
     parser.add_argument(
@@ -303,6 +303,15 @@ def run(args: argparse.Namespace) -> int:
             raise SealError(
                 f"{flag} only applies to the speed benches, not to --learn NAME or --protocol"
             )
+    protocol_only = {
+        "--epochs": args.epochs is not None,
+        "--cores": args.cores is not None,
+        "--update-rate": args.update_rate is not None,
+        "--floor-only": args.floor_only,
+    }
+    for flag, given in protocol_only.items():
+        if given and args.protocol is None:
+            raise SealError(f"{flag} only applies to --protocol FILE")
     if args.arms and args.learn not in LEARN_SETS:
         raise SealError(
             "--arms only applies to --learn transfer, kitchen, table1, quickstart, reach_sb3, mtrl and learner"
@@ -396,7 +405,7 @@ def run(args: argparse.Namespace) -> int:
             torch.set_num_threads(max(1, args.threads))
         result = bench_protocol(
             args.protocol,
-            args.epochs,
+            5 if args.epochs is None else args.epochs,
             args.overrides,
             log=log,
             cores=args.cores,

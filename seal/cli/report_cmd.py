@@ -69,8 +69,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Build the report and print where it went (or one JSON line)."""
-    from seal.reports import report
+    from seal.reports import check_report_inputs, report
     from seal.run.dirlock import DirLock
+
+    # Refused before the lock is taken, so a mistake leaves no directory and no lock file.
+    check_report_inputs(args.paths, args.out, args.threshold)
 
     # One writer per directory: lock the run or group the tables and plots go into. A comparison
     # of several without --out takes no lock: its directory is made new and unique, so no

@@ -90,6 +90,12 @@ def parse_seeds(text: str) -> list[int]:
         ) from None
     if not seeds or min(seeds) < 0:
         raise SealError(f"--seeds {text!r}: expected N, A-B or A,B,... of non-negative ints")
+    twice = sorted({s for s in seeds if seeds.count(s) > 1})
+    if twice:
+        raise SealError(
+            f"--seeds {text!r} lists seed {', '.join(map(str, twice))} more than once; "
+            "a seed is one run directory"
+        )
     return seeds
 
 
@@ -111,8 +117,8 @@ def run(args: argparse.Namespace) -> int:
             raise SealError("give a protocol FILE (or --resume RUN_DIR)")
         config = load_protocol(args.file, args.overrides, args.scale)
         command = [Path(sys.argv[0]).name, *sys.argv[1:]]
-        seeds = parse_seeds(args.seeds) if args.seeds else config.seeds
-        group = new_group_dir(config, args.out or "reports")
+        seeds = config.seeds if args.seeds is None else parse_seeds(args.seeds)
+        group = new_group_dir(config, "reports" if args.out is None else args.out)
         results = []
         for i, s in enumerate(seeds):
             try:

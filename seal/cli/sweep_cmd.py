@@ -114,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     def say(message: str) -> None:
         print(f"seal sweep: {message}", file=sys.stderr, flush=True)
 
-    seeds = parse_seeds(args.seeds) if args.seeds else None
+    seeds = None if args.seeds is None else parse_seeds(args.seeds)
     if args.resume and args.files:
         raise SealError(
             f"--resume {args.resume}: give either protocol FILEs or --resume, not both (a resume runs what the sweep directory recorded)"

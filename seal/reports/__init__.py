@@ -28,7 +28,7 @@ from pathlib import Path
 import pandas as pd
 
 from seal.errors import SealError
-from seal.files import check_inside
+from seal.files import check_inside, check_output_dir
 from seal.metrics import (
     CENSORED_RULES,
     DEFAULT_THRESHOLD,
@@ -88,11 +88,31 @@ def _resolve_threshold(groups: Sequence[_Group], threshold: float | None) -> flo
         }
         # One protocol-configured threshold is honoured; mixed ones fall back to the paper's 0.9.
         threshold = configured.pop() if len(configured) == 1 else DEFAULT_THRESHOLD
+    return check_threshold(threshold)
+
+
+def check_threshold(threshold: object) -> float:
+    """A success threshold as a float, or a one-line SealError saying what is valid."""
     if not (isinstance(threshold, int | float) and 0.0 < threshold <= 1.0):
         raise SealError(
             f"threshold {threshold!r} is not a success rate; expected 0 < threshold <= 1 (default 0.9)"
         )
     return float(threshold)
+
+
+def check_report_inputs(
+    paths: Sequence[str | os.PathLike[str]],
+    out: str | os.PathLike[str] | None,
+    threshold: float | None,
+) -> None:
+    """What `report` would refuse, checked before anything is written or locked: the output
+    directory, each path as a run or group directory, and the threshold."""
+    if out is not None:
+        check_output_dir(out)
+    for path in paths:
+        run_dirs(path)
+    if threshold is not None:
+        check_threshold(threshold)
 
 
 def _default_out(paths: Sequence[str | os.PathLike[str]], groups: Sequence[_Group]) -> Path:
@@ -396,6 +416,7 @@ def report(
         )
     if x not in ("grad_steps", "epoch"):
         raise SealError(f"x axis {x!r} is not valid; expected 'grad_steps' or 'epoch'")
+    check_report_inputs(paths, out, threshold)
     groups = _gather(paths)
     threshold = _resolve_threshold(groups, threshold)
     metrics, train = _frames(groups)
@@ -455,6 +476,8 @@ __all__ = [
     "TRAIN_COLUMNS",
     "ReportResult",
     "RunData",
+    "check_report_inputs",
+    "check_threshold",
     "column_label",
     "load_run",
     "report",

@@ -55,6 +55,7 @@ from pathlib import Path
 from seal import provenance
 from seal.device import ThreadChoice
 from seal.errors import ConfigError, SealError
+from seal.files import check_output_dir
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.sac import Agent
 from seal.learner.transfer import transfer_from
@@ -325,8 +326,10 @@ def build(
 
 
 def new_group_dir(config: ProtocolConfig, out: str | Path = "reports") -> Path:
-    """reports/<protocol>/<timestamp>-<config hash>; not created yet."""
-    return Path(out) / config.name / new_group_id(dumps_toml(config_to_dict(config)))
+    """reports/<protocol>/<timestamp>-<config hash>; not created yet (`out` is checked: a
+    directory name, not a path through a file)."""
+    root = check_output_dir(out)
+    return root / config.name / new_group_id(dumps_toml(config_to_dict(config)))
 
 
 def run_seed(

@@ -202,6 +202,8 @@ CASES: list[tuple[str, str | bytes, list[str], str]] = [
     ),
     ("seeds-flag", BASE, ["--seeds", "one"], "--seeds 'one'"),
     ("seeds-range", BASE, ["--seeds", "3-1"], "--seeds '3-1'"),
+    ("seeds-twice", BASE, ["--seeds", "2,0-2"], "--seeds '2,0-2' lists seed 2 more than once"),
+    ("seeds-empty", BASE, ["--seeds="], "--seeds '': expected N, A-B or A,B"),
     ("scale-zero", BASE, ["--scale", "0"], "--scale 0"),
     ("scale-nan", BASE, ["--scale", "nan"], "--scale nan"),
     ("scale-word", BASE, ["--scale", "half"], "--scale"),
@@ -246,6 +248,20 @@ def test_each_defect_is_one_line_exit_2_and_nothing_written(
     if not args or args[0] == "--set":
         assert str(tmp_path / "p.toml") in err[0]  # the file is named
     assert not out.exists()
+
+
+def test_an_out_that_is_not_a_directory_is_one_line_and_nothing_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "a.pt").write_text("not a directory")
+    for out, says in [
+        (tmp_path / "a.pt", f"--out {tmp_path / 'a.pt'}: {tmp_path / 'a.pt'} is a file, not a"),
+        (tmp_path / "a.pt" / "deeper", f"{tmp_path / 'a.pt'} is a file, not a directory"),
+        ("", "--out '': expected a directory name"),  # else runs would land in the working dir
+    ]:
+        code, err, _ = _run(tmp_path, BASE, ["--out", str(out)], capsys)
+        assert code == 2 and len(err) == 1 and says in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.pt", "p.toml"]
 
 
 def test_every_collection_backend_is_a_valid_collector() -> None:
