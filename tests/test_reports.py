@@ -87,6 +87,30 @@ def test_bad_paths_name_the_path(tmp_path: Path, groups: dict[str, Path]) -> Non
         load_run(run)
 
 
+@pytest.mark.parametrize("cut", [1, 20, 60, -2])
+def test_a_row_cut_by_a_kill_is_left_out(groups: dict[str, Path], cut: int) -> None:
+    """A kill mid-write leaves the last row without its newline: it is dropped wherever it was
+    cut (in the env, the task or the numbers), and the rows before it read as they were."""
+    run = groups["high_fk"] / "seed-1"
+    whole = (run / "metrics.csv").read_text()
+    last = whole.rstrip("\n").rsplit("\n", 1)[1]
+    (run / "metrics.csv").write_text(whole + last[:cut])
+    got = load_run(run).metrics
+    (run / "metrics.csv").write_text(whole)
+    pd.testing.assert_frame_equal(got, load_run(run).metrics)
+    assert len(got) == 12
+
+
+def test_a_row_without_its_task_names_the_line(groups: dict[str, Path]) -> None:
+    run = groups["high_fk"] / "seed-1"
+    lines = (run / "metrics.csv").read_text().splitlines(keepends=True)
+    cells = lines[3].split(",")
+    cells[4] = ""  # the task
+    (run / "metrics.csv").write_text("".join([*lines[:3], ",".join(cells), *lines[4:]]))
+    with pytest.raises(SealError, match=r"seed-1/metrics.csv: line 4 has no 'task'"):
+        load_run(run)
+
+
 def test_report_lays_out_the_papers_table(tmp_path: Path, groups: dict[str, Path]) -> None:
     out = tmp_path / "out"
     result = report(list(groups.values()), out=out)

@@ -10,6 +10,7 @@ reports read that is of the wrong type, is a one-line SealError naming the file 
 
 from __future__ import annotations
 
+import io
 import math
 import os
 import re
@@ -96,11 +97,18 @@ class RunData:
         return table if isinstance(table, dict) else {}
 
 
-def _read_csv(path: Path, required: Sequence[str], text_columns: Sequence[str]) -> pd.DataFrame:
+def _read_csv(
+    path: Path, required: Sequence[str], text_columns: Sequence[str], named: Sequence[str] = ()
+) -> pd.DataFrame:
+    """The CSV with its required columns, numeric where not text, and no blank `named` cell."""
     check_inside(path, path.parent, what=path.name)  # no symlink out of the run directory
     check_regular_file(path, what=path.name)  # a FIFO would block pandas forever
     try:
-        frame = pd.read_csv(path, dtype={c: str for c in text_columns}, keep_default_na=True)
+        data = path.read_bytes()
+        # The writer ends every row with a newline, so text after the last one is a row being
+        # written now or cut by a kill: left out, as `--resume` drops it (seal.run.rundir).
+        complete = io.BytesIO(data[: data.rfind(b"\n") + 1])
+        frame = pd.read_csv(complete, dtype={c: str for c in text_columns}, keep_default_na=True)
     except pd.errors.EmptyDataError:
         raise SealError(
             f"{path}: file is empty; expected a CSV header with columns {list(required)}"
@@ -110,6 +118,12 @@ def _read_csv(path: Path, required: Sequence[str], text_columns: Sequence[str]) 
     missing = [c for c in required if c not in frame.columns]
     if missing:
         raise SealError(f"{path}: missing column(s) {missing}; expected columns {list(required)}")
+    for column in named:
+        blank = frame.index[frame[column].isna()]
+        if len(blank):
+            raise SealError(
+                f"{path}: line {blank[0] + 2} has no {column!r}; every row names its {column}"
+            )
     for column in required:
         if column in text_columns:
             continue
@@ -137,7 +151,10 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
         if not os.path.lexists(needed):
             raise SealError(f"{run}: no {needed.name}; {_EXPECTED}")
     metrics = _read_csv(
-        metrics_path, REQUIRED_METRICS_COLUMNS, text_columns=("phase", "env", "task")
+        metrics_path,
+        REQUIRED_METRICS_COLUMNS,
+        text_columns=("phase", "env", "task"),
+        named=("env", "task"),
     )
     train_path = run / "train.csv"
     if os.path.lexists(train_path):
