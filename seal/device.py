@@ -4,12 +4,25 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 
 import torch
 
 from seal.errors import SealError
+
+DEVICE_NAMES = "auto, cpu, cuda, cuda:<index>"
+"""The device names a config may give, as an error lists them."""
+
+
+def is_device_name(name: object) -> bool:
+    """Whether `name` is one of `DEVICE_NAMES` (any case, spaces around allowed); whether this
+    machine has that device is `resolve_device`'s question, asked when a run starts."""
+    return (
+        isinstance(name, str)
+        and re.fullmatch(r"auto|cpu|cuda(:\d+)?", name.strip().lower()) is not None
+    )
 
 
 def resolve_device(name: str | torch.device = "auto") -> torch.device:
@@ -26,7 +39,7 @@ def resolve_device(name: str | torch.device = "auto") -> torch.device:
     try:
         device = torch.device(text)
     except RuntimeError as exc:
-        raise SealError(f"unknown device {name!r}; valid: auto, cpu, cuda, cuda:<index>") from exc
+        raise SealError(f"unknown device {name!r}; valid: {DEVICE_NAMES}") from exc
     if device.type == "cpu":
         return torch.device("cpu")
     if device.type == "cuda":
@@ -37,7 +50,7 @@ def resolve_device(name: str | torch.device = "auto") -> torch.device:
                 f'device {name!r} requested but this machine has {count} CUDA device(s); use device = "auto" or "cpu"'
             )
         return device
-    raise SealError(f"unsupported device {name!r}; valid: auto, cpu, cuda, cuda:<index>")
+    raise SealError(f"unsupported device {name!r}; valid: {DEVICE_NAMES}")
 
 
 def apply_matmul_precision(device: torch.device, precision: str) -> None:

@@ -196,6 +196,8 @@ def test_seal_run_and_protocols_never_import_ray() -> None:
         (["--address", "127.0.0.1:1"], "no Ray cluster answers there"),
         (["--num-cpus", "2", "--address", "auto"], "--num-cpus 2 sets the CPUs of a local Ray"),
         (["--jobs", "2", "--address", "auto"], "--num-cpus 2 sets the CPUs of a local Ray"),
+        (["--num-cpus", "0"], "--num-cpus 0: expected an integer >= 1"),
+        (["--num-cpus", "-1"], "--num-cpus -1: expected an integer >= 1"),
     ],
 )
 def test_cli_mistakes_are_one_line_errors(

@@ -119,6 +119,10 @@ def run(args: argparse.Namespace) -> int:
         raise SealError(
             f"--resume {args.resume}: give either protocol FILEs or --resume, not both (a resume runs what the sweep directory recorded)"
         )
+    if args.num_cpus is not None and args.num_cpus < 1:
+        raise SealError(
+            f"--num-cpus {args.num_cpus}: expected an integer >= 1 (default: all of this machine's)"
+        )
     if args.num_cpus is not None and args.address is not None:
         raise SealError(
             f"--num-cpus {args.num_cpus} sets the CPUs of a local Ray; with --address "

@@ -228,7 +228,18 @@ def _build_agent(raw: Mapping[str, Any] | None, kind: str, device: str, file: st
         defaults["task_encoder"] = "none"
     # A preset's keys fill what the table leaves out; the table's own keys win (seal.learner.presets).
     defaults.update(preset_values(table.get("preset", ""), file))
-    return typed_config.build(AgentConfig, table, f"{file}: agent", defaults)
+    agent = typed_config.build(AgentConfig, table, f"{file}: agent", defaults)
+    _check_device_name(agent.device, "agent.device", file)
+    return agent
+
+
+def _check_device_name(name: str, key: str, file: str) -> None:
+    """A device name is checked when the protocol loads (`seal protocol check` included); whether
+    this machine has the device is checked when a run starts (`seal.device.resolve_device`)."""
+    from seal.device import DEVICE_NAMES, is_device_name
+
+    if not is_device_name(name):
+        raise ConfigError(f"{file}: {key} = {name!r} is not a device name; valid: {DEVICE_NAMES}")
 
 
 def _validate_scheduler(
@@ -273,6 +284,7 @@ def _build_protocol_table(raw: Mapping[str, Any], file: str) -> ProtocolTable:
     table = dict(raw.get("protocol", {}))
     table.setdefault("name", Path(file).stem if file != "<memory>" else "protocol")
     protocol = typed_config.build(ProtocolTable, table, f"{file}: protocol")
+    _check_device_name(protocol.device, "protocol.device", file)
     if not protocol.name or "/" in protocol.name or protocol.name.startswith("."):
         raise ConfigError(
             f"{file}: protocol.name = {protocol.name!r} must be a non-empty folder name without '/'"

@@ -202,6 +202,13 @@ CASES: list[tuple[str, str | bytes, list[str], str]] = [
     ),
     ("seeds-flag", BASE, ["--seeds", "one"], "--seeds 'one'"),
     ("seeds-range", BASE, ["--seeds", "3-1"], "--seeds '3-1'"),
+    (
+        "device-unknown",
+        BASE,
+        ["--set", 'protocol.device="tpu"'],
+        "protocol.device = 'tpu' is not a device name; valid: auto, cpu, cuda, cuda:<index>",
+    ),
+    ("agent-device", BASE, ["--set", 'agent.device="cuda:x"'], "agent.device = 'cuda:x' is not"),
     ("seeds-twice", BASE, ["--seeds", "2,0-2"], "--seeds '2,0-2' lists seed 2 more than once"),
     ("seeds-empty", BASE, ["--seeds="], "--seeds '': expected N, A-B or A,B"),
     ("scale-zero", BASE, ["--scale", "0"], "--scale 0"),
