@@ -34,6 +34,12 @@ def resume_point(
     checkpointer.clear_torn()
     latest = rundir.latest_checkpoint()
     if latest is None:
+        ended = rundir.read_provenance().get("end_time")
+        if ended:  # e.g. a run record, kept without its checkpoints: starting over would erase it
+            raise SealError(
+                f"--resume {rundir.path}: this run finished at {ended} and holds no checkpoint, "
+                "so there is nothing to continue; its rows are unchanged"
+            )
         if (rundir.path / "metrics.csv").exists():
             # Killed before the first checkpoint: start over cleanly.
             rundir.truncate_to({})

@@ -219,13 +219,19 @@ class RunDir:
     @classmethod
     def open(cls, path: Path) -> RunDir:
         """An existing run directory (for resume)."""
+        cls.check(path)
+        return cls(Path(path))
+
+    @staticmethod
+    def check(path: Path) -> None:
+        """SealError unless `path` is a run directory whose layout a writer may use; it writes
+        nothing (opening one makes the CSVs it lacks)."""
         path = Path(path)
         if not os.path.lexists(path / "config.toml"):
             raise SealError(
                 f"--resume {path}: not a run directory (no config.toml); run directories look like reports/<protocol>/<group>/seed-<n>"
             )
         check_layout(path)
-        return cls(path)
 
     # ------------------------------------------------------------ metadata
     def read_provenance(self) -> dict[str, Any]:

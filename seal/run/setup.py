@@ -117,7 +117,7 @@ def transfer_source(config: ProtocolConfig) -> AgentState | None:
 def saved_config(path: Path) -> ProtocolConfig:
     """The config a run directory saved, read as data (`seal.files`): a regular file inside it,
     at most CONFIG_LIMIT bytes, valid TOML and a valid protocol; ConfigError naming the file."""
-    RunDir.open(path)
+    RunDir.check(path)
     config_path = path / "config.toml"
     raw = read_toml(config_path, what="run config", within=path, limit=CONFIG_LIMIT)
     return config_from_dict(upgrade_saved(raw), str(config_path))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -170,3 +171,17 @@ def test_resume_needs_no_file_and_refuses_options_it_would_drop(
     assert main(["run", "--resume", str(run), "--json", *quiet]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["run_dir"] == str(run)
     assert (run / "metrics.csv").read_bytes() == before
+
+    # A finished run kept without its checkpoints (a record) is refused, not run again over its
+    # rows; a run directory whose config does not read gets no files.
+    shutil.rmtree(run / "checkpoints")
+    assert main(["run", "--resume", str(run), *quiet]) == 2
+    assert "finished at" in capsys.readouterr().err
+    assert (run / "metrics.csv").read_bytes() == before
+    assert not (run / "checkpoints").exists()
+    broken = tmp_path / "broken" / "seed-0"
+    broken.mkdir(parents=True)
+    (broken / "config.toml").write_text("[protocol\n")
+    assert main(["run", "--resume", str(broken), *quiet]) == 2
+    assert "config.toml: not valid TOML" in capsys.readouterr().err
+    assert [p.name for p in broken.iterdir()] == ["config.toml"]
