@@ -26,6 +26,7 @@ import contextlib
 import errno
 import os
 import tempfile
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -174,13 +175,24 @@ def read_checkpoint(
         )
 
     try:
-        with fh:
+        with fh, warnings.catch_warnings():
+            warnings.simplefilter(
+                "ignore", UserWarning
+            )  # torch's note on a foreign pickle protocol
             state = torch.load(fh, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - damaged bytes fail anywhere in torch's unpickler
         # (KeyError, IndexError, TypeError, AttributeError on a flipped bit); nothing ran either way.
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if "Weights only load failed" in first:  # torch's advice there is to load it unsafely
+            why = (
+                "it holds Python objects other than tensors and plain data, which seal never writes"
+            )
+        else:
+            why = f"it cannot be read as plain data ({first[:200]})"
         raise refuse(
-            "unknown", f"it cannot be read as plain data ({first[:200]}); nothing in it was run"
+            "unknown",
+            f"{why}; nothing in it was run. Expected a checkpoint seal run wrote "
+            "(<run>/checkpoints/best.pt or ckpt-<epoch>.pt)",
         ) from None
     if not isinstance(state, dict) or FORMAT_KEY not in state:
         raise refuse("unknown", f"no {FORMAT_KEY!r} field; it was not written by seal")

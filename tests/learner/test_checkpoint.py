@@ -202,6 +202,11 @@ def test_a_checkpoint_that_would_run_code_is_refused_and_runs_nothing(
 ) -> None:
     target = tmp_path / "pwned"
     evil = code_running_checkpoint(tmp_path / "evil.pt", target)
-    with pytest.raises(NotACheckpointError, match="cannot be read as plain data"):
+    with pytest.raises(NotACheckpointError, match="holds Python objects other than") as caught:
         read_checkpoint(evil)
     assert not target.exists()
+    # Torch's own text advises loading it with weights_only=False, which would run it.
+    assert "nothing in it was run" in str(caught.value) and "weights_only" not in str(caught.value)
+    (tmp_path / "text.pt").write_text("hello")
+    with pytest.raises(NotACheckpointError, match="cannot be read as plain data"):
+        read_checkpoint(tmp_path / "text.pt")
