@@ -176,9 +176,8 @@ def read_checkpoint(
 
     try:
         with fh, warnings.catch_warnings():
-            warnings.simplefilter(
-                "ignore", UserWarning
-            )  # torch's note on a foreign pickle protocol
+            # torch's note on a pickle protocol it does not write: the refusal below says more
+            warnings.simplefilter("ignore", UserWarning)
             state = torch.load(fh, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - damaged bytes fail anywhere in torch's unpickler
         # (KeyError, IndexError, TypeError, AttributeError on a flipped bit); nothing ran either way.
