@@ -198,6 +198,8 @@ def test_seal_run_and_protocols_never_import_ray() -> None:
         (["--jobs", "2", "--address", "auto"], "--num-cpus 2 sets the CPUs of a local Ray"),
         (["--num-cpus", "0"], "--num-cpus 0: expected an integer >= 1"),
         (["--num-cpus", "-1"], "--num-cpus -1: expected an integer >= 1"),
+        # A trial would fail on it; the sweep refuses it before any directory or Ray work:
+        (["--set", 'transfer.checkpoint="gone.pt"'], "transfer.checkpoint = 'gone.pt': checkpoint"),
     ],
 )
 def test_cli_mistakes_are_one_line_errors(

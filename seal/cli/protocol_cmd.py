@@ -60,6 +60,10 @@ def run_check(args: argparse.Namespace) -> int:
     from seal.protocols import load_protocol
 
     config = load_protocol(args.file, args.overrides, args.scale)
+    if config.transfer is not None:
+        from seal.run.setup import transfer_source
+
+        transfer_source(config)  # a missing or foreign checkpoint fails here, as `seal run` would
     print(
         f"{args.file}: ok (protocol {config.name!r}, kind {config.kind}, envs {', '.join(config.envs)})"
     )

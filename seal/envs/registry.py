@@ -4,7 +4,7 @@ env maps that positive controls start from (`env_map`)."""
 from __future__ import annotations
 
 import importlib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from seal.envs.base import EnvAdapter, EnvMap
@@ -22,29 +22,11 @@ BUILTIN_ADAPTERS: dict[str, str] = {
 
 def adapter_class(name_or_path: str) -> type[EnvAdapter]:
     """The adapter class for a built-in name or an import path "package.module:Class"."""
-    path = BUILTIN_ADAPTERS.get(name_or_path, name_or_path)
-    if ":" not in path:
-        raise UnknownNameError("adapter", name_or_path, [*BUILTIN_ADAPTERS, "package.module:Class"])
-    module_name, _, attr = path.partition(":")
-    valid = f"valid: {', '.join(BUILTIN_ADAPTERS)} or an absolute import path package.module:Class"
-    if not all(part.isidentifier() for part in module_name.split(".")):
-        # importlib would raise TypeError (".x": a relative import) or ValueError (""), not ImportError.
-        raise SealError(
-            f"adapter {name_or_path!r}: module {module_name!r} is not an absolute import path; {valid}"
-        )
-    if not attr.isidentifier():
-        raise SealError(f"adapter {name_or_path!r}: {attr!r} is not a class name; {valid}")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise SealError(
-            f"adapter {name_or_path!r}: cannot import module {module_name!r} ({exc}); {valid}"
-        ) from None
-    cls = getattr(module, attr, None)
+    cls = _resolve("adapter", name_or_path, BUILTIN_ADAPTERS, "Class")
     if not (isinstance(cls, type) and issubclass(cls, EnvAdapter)):
         raise SealError(
-            f"adapter {name_or_path!r}: {module_name}.{attr} is not a seal.envs.EnvAdapter subclass; "
-            f"built-in adapters: {', '.join(BUILTIN_ADAPTERS)}"
+            f"adapter {name_or_path!r}: {_path(name_or_path, BUILTIN_ADAPTERS)} is not a "
+            f"seal.envs.EnvAdapter subclass; built-in adapters: {', '.join(BUILTIN_ADAPTERS)}"
         )
     return cls
 
@@ -64,21 +46,40 @@ BUILTIN_ENV_MAPS: dict[str, str] = {
 
 def env_map(name_or_path: str) -> EnvMap:
     """The `EnvMap` of a built-in name or an import path "package.module:NAME"."""
-    path = BUILTIN_ENV_MAPS.get(name_or_path, name_or_path)
+    found = _resolve("env map", name_or_path, BUILTIN_ENV_MAPS, "NAME")
+    if not isinstance(found, EnvMap):
+        raise SealError(
+            f"env map {name_or_path!r}: {_path(name_or_path, BUILTIN_ENV_MAPS)} is not a "
+            f"seal.envs.base.EnvMap; built-in env maps: {', '.join(BUILTIN_ENV_MAPS)}"
+        )
+    return found
+
+
+def _path(name_or_path: str, builtins: Mapping[str, str]) -> str:
+    """ "package.module.ATTR" of a built-in name or an import path."""
+    return builtins.get(name_or_path, name_or_path).replace(":", ".")
+
+
+def _resolve(kind: str, name_or_path: str, builtins: Mapping[str, str], attr_word: str) -> object:
+    """The object a built-in name or an absolute import path "package.module:ATTR" names (None
+    when the module lacks ATTR); SealError naming `name_or_path` and the valid names otherwise."""
+    path = builtins.get(name_or_path, name_or_path)
+    placeholder = f"package.module:{attr_word}"
     if ":" not in path:
-        raise UnknownNameError("env map", name_or_path, [*BUILTIN_ENV_MAPS, "package.module:NAME"])
+        raise UnknownNameError(kind, name_or_path, [*builtins, placeholder])
     module_name, _, attr = path.partition(":")
+    valid = f"valid: {', '.join(builtins)} or an absolute import path {placeholder}"
+    if not all(part.isidentifier() for part in module_name.split(".")):
+        # importlib would raise TypeError (".x": a relative import) or ValueError (""), not ImportError.
+        raise SealError(
+            f"{kind} {name_or_path!r}: module {module_name!r} is not an absolute import path; {valid}"
+        )
+    if not attr.isidentifier():
+        raise SealError(f"{kind} {name_or_path!r}: {attr!r} is not a name; {valid}")
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise SealError(
-            f"env map {name_or_path!r}: cannot import module {module_name!r} ({exc}); "
-            f"valid: {', '.join(BUILTIN_ENV_MAPS)} or an importable package.module:NAME"
+            f"{kind} {name_or_path!r}: cannot import module {module_name!r} ({exc}); {valid}"
         ) from None
-    found = getattr(module, attr, None)
-    if not isinstance(found, EnvMap):
-        raise SealError(
-            f"env map {name_or_path!r}: {module_name}.{attr} is not a seal.envs.base.EnvMap; "
-            f"built-in env maps: {', '.join(BUILTIN_ENV_MAPS)}"
-        )
-    return found
+    return getattr(module, attr, None)

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Field, with_config
 
+from seal.errors import SealError
 from seal.typed_config import SCHEMA
 
 if TYPE_CHECKING:  # the learner (and torch) load only when an agent is built
@@ -267,7 +268,10 @@ class TransferConfig:
         if self.map:
             from seal.envs import env_map
 
-            env_map(self.map)  # an unknown name fails at load, naming the valid ones
+            try:
+                env_map(self.map)  # an unknown name fails at load, naming the valid ones
+            except SealError as exc:
+                raise SealError(f"map: {exc}") from None
 
     @property
     def pieces(self) -> tuple[str, ...]:

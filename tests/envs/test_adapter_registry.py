@@ -57,3 +57,24 @@ def test_bad_tasks_and_options() -> None:
         make_adapter("point", frame_skip=2)
     with pytest.raises(SealError, match="episode_length must be >= 1, got 0"):
         make_adapter("point", episode_length=0)
+
+
+def test_env_maps_resolve_and_refuse_like_adapters() -> None:
+    from seal.envs import env_map
+    from seal.envs.testbed import ORACLE_MAP
+
+    assert env_map("testbed_oracle") is ORACLE_MAP
+    assert env_map("seal.envs.testbed:ORACLE_MAP") is ORACLE_MAP  # the same, by import path
+    for bad, says in [
+        (":X", "env map ':X': module '' is not an absolute import path; valid: testbed_oracle"),
+        (".x:X", "env map '.x:X': module '.x' is not an absolute import path"),
+        ("seal.envs.testbed:", "env map 'seal.envs.testbed:': '' is not a name"),
+        (
+            "seal.envs.point:PointAdapter",
+            "seal.envs.point.PointAdapter is not a seal.envs.base.EnvMap",
+        ),
+        ("nowhere:MAP", "env map 'nowhere:MAP': cannot import module 'nowhere'"),
+    ]:
+        with pytest.raises(SealError) as info:
+            env_map(bad)
+        assert says in str(info.value)

@@ -150,6 +150,12 @@ CASES: list[tuple[str, str | bytes, list[str], str]] = [
         [],
         "transfer.checkpoint = 'missing.pt'",
     ),
+    (
+        "transfer-map",
+        BASE + '[transfer]\ncheckpoint = "x.pt"\nmap = ":X"\n',
+        [],
+        "transfer: map: env map ':X': module '' is not an absolute import path; valid: testbed_oracle",
+    ),
     # Would fail only when fine-tuning starts, after the whole pre-training:
     (
         "finetune-lr",
@@ -255,6 +261,29 @@ def test_each_defect_is_one_line_exit_2_and_nothing_written(
     if not args or args[0] == "--set":
         assert str(tmp_path / "p.toml") in err[0]  # the file is named
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("text", "args", "expected"),
+    [c[1:] for c in CASES if not c[2] or c[2][0] in ("--set", "--scale")],
+    ids=[c[0] for c in CASES if not c[2] or c[2][0] in ("--set", "--scale")],
+)
+def test_protocol_check_refuses_what_seal_run_refuses(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    text: str | bytes,
+    args: list[str],
+    expected: str,
+) -> None:
+    path = tmp_path / "p.toml"
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    capsys.readouterr()
+    try:
+        code = main(["protocol", "check", str(path), *args])
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and expected in err[0], err
 
 
 def test_an_out_that_is_not_a_directory_is_one_line_and_nothing_written(
