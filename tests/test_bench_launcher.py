@@ -226,6 +226,26 @@ def test_a_ray_initialised_otherwise_is_an_error_for_the_bench(
     assert ray_session.is_initialized()
 
 
+def test_address_auto_never_joins_a_private_ray(
+    ray_session, monkeypatch: pytest.MonkeyPatch
+) -> None:  # noqa: ANN001
+    # This module's private Ray runs on this machine; Ray's own "auto" would join it (or any
+    # other seal command's). seal's "auto" joins only RAY_ADDRESS or what `ray start` left here.
+    from ray._private import services
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr(services, "find_bootstrap_address", lambda temp_dir: None)
+    assert services.canonicalize_bootstrap_address("auto") is not None  # Ray's fallback
+    assert ray_session_module._auto_address() is None
+    with pytest.raises(SealError, match=r"--address auto: no Ray cluster to join"):
+        ray_session_module.check_address("auto")
+    monkeypatch.setattr(services, "find_bootstrap_address", lambda temp_dir: "127.0.0.1:1")
+    with pytest.raises(SealError, match=r"--address 127.0.0.1:1: no Ray cluster answers there"):
+        ray_session_module.check_address("auto")  # a `ray start` cluster since stopped
+    monkeypatch.setenv("RAY_ADDRESS", "10.0.0.7:6379")
+    assert ray_session_module._auto_address() == "10.0.0.7:6379"
+
+
 def test_the_shared_filesystem_check(
     ray_session, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:  # noqa: ANN001

@@ -61,7 +61,11 @@ class RaySession:
             # alone was still running after 8 min beside two learning runs on 2 cores; 23 s at 0).
             kwargs["_system_config"] = {"worker_niceness": 0}
         else:
-            kwargs["address"] = self.address
+            # "auto" is resolved here, not by Ray: Ray's own "auto" falls back to any Ray process
+            # it finds on the machine, such as the private Ray of a running `seal bench --learn`.
+            kwargs["address"] = _auto_address() if self.address == "auto" else self.address
+            if kwargs["address"] is None:
+                raise SealError(_NO_AUTO)
         try:
             ray.init(**kwargs)
         except (ConnectionError, RuntimeError, ValueError) as exc:
@@ -121,15 +125,27 @@ class RaySession:
 
 
 def _auto_address() -> str | None:
-    """The HOST:PORT that --address auto resolves to on this machine (RAY_ADDRESS, else the
-    cluster `ray start` left here), or None when there is none. Ray has no public call for this;
-    its own resolution (`ray._private.services`) is used so that both agree."""
-    try:
-        from ray._private.services import canonicalize_bootstrap_address
+    """The address --address auto joins: RAY_ADDRESS, else the cluster the last `ray start` on this
+    machine left (Ray's record of it), else None. Unlike Ray's own "auto" it never falls back to
+    any Ray process running here: those include the private Rays of other seal commands."""
+    import os
 
-        return canonicalize_bootstrap_address("auto")
-    except Exception:  # noqa: BLE001 - a private API that may move: then "auto" matches nothing
+    env = os.environ.get("RAY_ADDRESS", "")
+    if env not in ("", "auto"):
+        return env
+    try:
+        from ray._private.services import find_bootstrap_address
+
+        return find_bootstrap_address(None)
+    except Exception:  # noqa: BLE001 - a private API that may move: then only RAY_ADDRESS counts
         return None
+
+
+_NO_AUTO = (
+    "--address auto: no Ray cluster to join: RAY_ADDRESS is unset and no `ray start` left one on "
+    "this machine (a private Ray that another seal command started is never joined); start one "
+    "with `ray start --head`, give --address HOST:PORT, or drop --address to use a local Ray"
+)
 
 
 def alive_cpu_nodes(ray: ModuleType) -> list[dict[str, Any]]:
@@ -152,9 +168,17 @@ def check_feasible(ray: ModuleType, config: ProtocolConfig, res: Resources) -> N
 def check_address(address: str | None, timeout_s: float = 5.0) -> None:
     """SealError unless something listens at a HOST:PORT --address (Ray itself would retry for minutes).
 
-    None (local Ray), "auto", "local" and "ray://" client addresses are left to Ray.
+    "auto" must resolve to a cluster (`_auto_address`), which is then checked; None (local
+    Ray), "local" and "ray://" client addresses are left to Ray.
     """
-    if address is None or address in ("auto", "local") or "://" in address:
+    if address == "auto":
+        resolved = _auto_address()
+        if resolved is None:
+            raise SealError(_NO_AUTO)
+        if "://" not in resolved:
+            check_address(resolved, timeout_s)
+        return
+    if address is None or address == "local" or "://" in address:
         return
     host, sep, port = address.rpartition(":")
     if not sep or not host or not port.isdigit():
