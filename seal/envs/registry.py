@@ -4,6 +4,7 @@ env maps that positive controls start from (`env_map`)."""
 from __future__ import annotations
 
 import importlib
+import sys
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -76,6 +77,13 @@ def _resolve(kind: str, name_or_path: str, builtins: Mapping[str, str], attr_wor
         )
     if not attr.isidentifier():
         raise SealError(f"{kind} {name_or_path!r}: {attr!r} is not a name; {valid}")
+    if module_name.partition(".")[0] in sys.stdlib_module_names:
+        # Holds no adapter, and some of it acts on import (antigravity opens a web browser): a
+        # protocol or checkpoint from elsewhere must not make `seal` import it.
+        raise SealError(
+            f"{kind} {name_or_path!r}: module {module_name!r} is Python's standard library, not "
+            f"an adapter's; {valid}"
+        )
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import pytest
 
 from seal.envs import BUILTIN_ADAPTERS, adapter_class, make_adapter
@@ -48,6 +50,11 @@ def test_bad_import_paths() -> None:
         SealError, match=r"seal.envs.point.PointEnv is not a seal.envs.EnvAdapter subclass"
     ):
         adapter_class("seal.envs.point:PointEnv")  # a class, but not an adapter
+    # A module that acts on import is never imported for a name read from a file:
+    for path in ("antigravity:X", "os.path:X", "this:X"):
+        with pytest.raises(SealError, match=r"is Python's standard library, not an adapter's"):
+            adapter_class(path)
+    assert "antigravity" not in sys.modules and "this" not in sys.modules
 
 
 def test_bad_tasks_and_options() -> None:
