@@ -61,9 +61,9 @@ def run_check(args: argparse.Namespace) -> int:
 
     config = load_protocol(args.file, args.overrides, args.scale)
     if config.transfer is not None:
-        from seal.run.setup import transfer_source
+        from seal.run.setup import check_transfer_source
 
-        transfer_source(config)  # a missing or foreign checkpoint fails here, as `seal run` would
+        check_transfer_source(config)  # a checkpoint that is missing or does not fit fails here
     print(
         f"{args.file}: ok (protocol {config.name!r}, kind {config.kind}, envs {', '.join(config.envs)})"
     )

@@ -54,7 +54,7 @@ from pathlib import Path
 
 from seal import provenance
 from seal.device import ThreadChoice
-from seal.errors import ConfigError, SealError
+from seal.errors import SealError
 from seal.files import check_output_dir
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.sac import Agent
@@ -67,7 +67,6 @@ from seal.run.checkpointing import Checkpointer
 from seal.run.dirlock import DirLock
 from seal.run.loggers import ScalarLogger, open_loggers
 from seal.run.loop import LoopCallback, PhaseLoop, ProgressBar
-from seal.run.mapped_start import mapped_start
 from seal.run.phase_model import Phase, PhaseModel
 from seal.run.preemption import Preempted, SignalStop
 from seal.run.results import RunResult, run_result, time_line, time_shares
@@ -75,7 +74,9 @@ from seal.run.resume import resume_point
 from seal.run.rundir import RunDir, new_group_id, parse_seed_dir, seed_dir
 from seal.run.setup import (
     RunPlan,
+    apply_transfer,
     check_resources,
+    check_transfer,
     load_policy,
     plan_run,
     saved_config,
@@ -117,9 +118,9 @@ class Run:
         # [transfer]: read the source checkpoint now, so a bad path fails before anything is written
         # (a resumed run restores its own agent and does not need the source any more).
         self.transfer_state = None if resume else transfer_source(self.config)
-        # [transfer] map: which env starts from which, checked against the checkpoint now too.
+        # [transfer]: the checkpoint applied to a throwaway agent now too (its widths, its map).
         if self.transfer_state is not None:
-            mapped_start(self.config, self.adapters, self.transfer_state)
+            check_transfer(plan, self.transfer_state)
         self._open(path, resume, command)
         self.results: dict[str, PhaseState] = {}
         self.loggers: list[ScalarLogger] = []
@@ -264,16 +265,7 @@ class Run:
             if state is None:
                 state = transfer_source(self.config)
                 assert state is not None  # None only without [transfer]
-            try:
-                transfer_from(agent, state, reinit_critic=transfer.reinit_critic)
-                mapped = mapped_start(self.config, self.adapters, state)
-                if mapped is not None:
-                    mapped.apply(agent, state)
-            except SealError as exc:
-                raise ConfigError(
-                    f"{self.config.path}: transfer.checkpoint = {transfer.checkpoint!r}: {exc}"
-                ) from None
-            agent.set_lr_factor(transfer.lr_factor)
+            apply_transfer(self.config, self.adapters, agent, state)
         if phase.name == "finetune":
             ft = self.config.finetune
             assert ft is not None

@@ -12,7 +12,9 @@ plans a run's config the same way.
 
 from __future__ import annotations
 
+import dataclasses
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -25,11 +27,13 @@ from seal.errors import ConfigError, SealError
 from seal.learner.agent_state import AgentState
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.sac import Agent
+from seal.learner.transfer import transfer_from
 from seal.protocols.config import ProtocolConfig
 from seal.protocols.loader import config_from_dict, upgrade_saved
 from seal.protocols.toml_io import read_toml
 from seal.run import resources
 from seal.run.checkpoint_fields import RunCheckpoint, check_run_checkpoint, saved_config_table
+from seal.run.mapped_start import mapped_start
 from seal.run.phase_model import (
     Phase,
     PhaseModel,
@@ -112,6 +116,46 @@ def transfer_source(config: ProtocolConfig) -> AgentState | None:
     except SealError as exc:
         raise ConfigError(f"{where} = {transfer.checkpoint!r}: {exc}") from None
     return data["agent"]
+
+
+def apply_transfer(
+    config: ProtocolConfig, adapters: Mapping[str, EnvAdapter], agent: Agent, state: AgentState
+) -> None:
+    """Start `agent` from the [transfer] checkpoint's agent `state`: pad-and-fine-tune's copy,
+    then transfer.map's, then the lowered learning rates; ConfigError naming transfer.checkpoint
+    when the state does not fit the agent."""
+    transfer = config.transfer
+    assert transfer is not None
+    try:
+        transfer_from(agent, state, reinit_critic=transfer.reinit_critic)
+        mapped = mapped_start(config, adapters, state)
+        if mapped is not None:
+            mapped.apply(agent, state)
+    except SealError as exc:
+        raise ConfigError(
+            f"{config.path}: transfer.checkpoint = {transfer.checkpoint!r}: {exc}"
+        ) from None
+    agent.set_lr_factor(transfer.lr_factor)
+
+
+def check_transfer(plan: RunPlan, state: AgentState) -> None:
+    """Apply the transfer to a throwaway CPU agent of the phase it starts (\"train\"), so that a
+    checkpoint that does not fit this protocol's agent (other widths, another architecture)
+    fails before anything is written; the run applies it again to its own agent."""
+    model = plan.models.get("train")
+    if model is None:
+        return
+    cpu = dataclasses.replace(plan.agent_cfg, device="cpu", compile=False)
+    with torch.random.fork_rng(devices=[]):  # the global RNG as if this never ran
+        apply_transfer(plan.config, plan.adapters, Agent(model.specs, cpu, 0), state)
+
+
+def check_transfer_source(config: ProtocolConfig) -> None:
+    """What a run checks of [transfer] before it writes anything (`transfer_source`, then
+    `check_transfer`), for `seal protocol check` and `seal sweep`; nothing without [transfer]."""
+    state = transfer_source(config)
+    if state is not None:
+        check_transfer(plan_run(config), state)
 
 
 def saved_config(path: Path) -> ProtocolConfig:

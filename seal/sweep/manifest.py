@@ -122,9 +122,10 @@ def _load_configs(
     for config in configs:
         parse_resources(config)  # a bad [resources] table fails before Ray starts
         if config.transfer is not None:
-            from seal.run.setup import transfer_source
+            from seal.run.setup import check_transfer_source
 
-            transfer_source(config)  # so does a missing [transfer] checkpoint, before any directory
+            # so does a [transfer] checkpoint that is missing or does not fit, before any directory
+            check_transfer_source(config)
     return configs
 
 

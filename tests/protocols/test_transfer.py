@@ -104,3 +104,32 @@ def test_missing_transfer_checkpoint_is_a_config_error_before_any_run_dir(tmp_pa
     assert not group.exists()
     with pytest.raises(ConfigError, match=r"transfer\.lr_factor = 0\.0"):
         load_protocol(path, ["transfer.lr_factor=0.0"])
+
+
+def test_a_checkpoint_that_does_not_fit_fails_before_anything_is_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Hidden widths 8 saved, 16 asked: seal run, protocol check and sweep each refuse it in
+    one line naming transfer.checkpoint, and none leaves a directory behind."""
+    from seal.cli.main import main
+
+    source = run_seed(load_protocol(write(tmp_path, "src", '["east"]', 1, 0)), 0, tmp_path / "s")
+    best = source.run_dir / "checkpoints" / "best.pt"
+    path = write(tmp_path, "wide", '["east", "north"]', epochs=1, warmup=0)
+    path.write_text(path.read_text().replace("hidden = [8, 8]", "hidden = [16, 16]"))
+    says = "transfer.checkpoint = '%s': cannot transfer input layer: saved shape (1, 5, 8) vs (1, 6, 16) here; hidden widths must match"
+    config = load_protocol(path, [f"transfer.checkpoint={best}"])
+    with pytest.raises(ConfigError) as info:
+        run_seed(config, 0, tmp_path / "r" / "wide" / "g")
+    assert says % best in str(info.value)
+    capsys.readouterr()
+    out = tmp_path / "r"
+    for command in (
+        ["run", "--out", str(out)],
+        ["protocol", "check"],
+        ["sweep", "--out", str(out)],
+    ):
+        code = main([*command, str(path), "--set", f"transfer.checkpoint={best}"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and says % best in err[0], (command, err)
+    assert not out.exists()
