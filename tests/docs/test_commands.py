@@ -1,0 +1,71 @@
+"""Every `seal` command in the repository's Markdown code blocks parses with today's `seal` (its
+subcommand and flags exist, its values have their types) and names protocol files that exist,
+so a reader who copies one does not meet an option a later change renamed or removed.
+
+A synopsis is read as its first choice: `[--x]` groups are dropped, `a|b` is `a`, `<name>` is
+`name`, and `...` is dropped. The commands are only parsed, never run."""
+
+from __future__ import annotations
+
+import re
+import shlex
+
+import pytest
+
+from seal.cli.main import build_parser
+from tests.docs.test_links import ROOT, markdown_files
+
+FENCED = re.compile(r"^```[^\n]*\n(.*?)^```", re.S | re.M)
+INDENTED = re.compile(r"(?:^(?: {4}|\t)[^\n]*\n)+", re.M)
+COMMAND = re.compile(
+    r"^(?:\$ )?(?:[A-Z_]+=\S* )*(?:cd \S+ && )?(?:[\w./~-]*/)?seal (?=[a-z]+(?:\s|$))(.*)$"
+)
+
+
+def documented_commands() -> list[tuple[str, str]]:
+    """(where, the command's arguments) of every `seal ...` line in a code block, with its
+    continuation lines joined and its trailing comment dropped."""
+    found = []
+    for path in markdown_files():
+        text = path.read_text()
+        blocks = FENCED.findall(text) + [m.group(0) for m in INDENTED.finditer(text)]
+        for block in blocks:
+            joined = re.sub(r"\\\n\s*", " ", block)
+            for line in joined.splitlines():
+                match = COMMAND.match(line.strip())
+                if match:
+                    found.append((f"{path.relative_to(ROOT)}: {line.strip()}", match.group(1)))
+    return found
+
+
+def first_choice(args: str) -> list[str]:
+    """The argument list a synopsis stands for, read as its first choice."""
+    args = re.sub(r"\s+#(?=\s).*$", "", args)  # a trailing comment
+    while re.search(r"\[[^\[\]'\"]*\]", args):  # optional groups, innermost first; not TOML lists
+        args = re.sub(r"\s*\[(?!['\"])[^\[\]'\"]*\]", "", args)
+    args = re.split(r"\s(?:&&?|;|\|\|?|[12]?>>?)(?:\s|$)", args + " ")[0]  # the shell's part
+    args = re.sub(r"<([^<>]+)>", lambda m: re.sub(r"\W+", "_", m.group(1)), args)
+    words = [w for w in shlex.split(args) if w != "..." and w != "…"]
+    return [w.split("|")[0] if "|" in w and " " not in w else w for w in words]
+
+
+COMMANDS = documented_commands()
+
+
+def test_the_docs_hold_commands() -> None:
+    assert len(COMMANDS) >= 40  # the README's and docs' examples (52 when this was written)
+
+
+@pytest.mark.parametrize(("where", "args"), COMMANDS, ids=[w for w, _ in COMMANDS])
+def test_each_documented_command_parses(
+    where: str, args: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = first_choice(args)
+    try:
+        parsed = build_parser().parse_args(argv)
+    except SystemExit as exc:
+        pytest.fail(f"{where}\n  parsed as {argv}: {capsys.readouterr().err.strip()} ({exc.code})")
+    for value in vars(parsed).values():
+        for item in value if isinstance(value, list) else [value]:
+            if isinstance(item, str) and re.fullmatch(r"protocols/[\w/.-]+\.toml", item):
+                assert (ROOT / item).is_file(), f"{where}: {item} does not exist"
