@@ -87,7 +87,13 @@ def _resolve(kind: str, name_or_path: str, builtins: Mapping[str, str], attr_wor
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
+        top = module_name.partition(".")[0]
+        hint = (
+            f" (is {top} installed, or the folder that holds {top} on PYTHONPATH?)"
+            if isinstance(exc, ModuleNotFoundError) and exc.name == top
+            else ""
+        )
         raise SealError(
-            f"{kind} {name_or_path!r}: cannot import module {module_name!r} ({exc}); {valid}"
+            f"{kind} {name_or_path!r}: cannot import module {module_name!r} ({exc}){hint}; {valid}"
         ) from None
     return getattr(module, attr, None)
