@@ -239,11 +239,24 @@ def test_address_auto_never_joins_a_private_ray(
     assert ray_session_module._auto_address() is None
     with pytest.raises(SealError, match=r"--address auto: no Ray cluster to join"):
         ray_session_module.check_address("auto")
+    monkeypatch.setenv("RAY_ADDRESS", "local")  # would start a Ray, not join one
+    assert ray_session_module._auto_address() is None
     monkeypatch.setattr(services, "find_bootstrap_address", lambda temp_dir: "127.0.0.1:1")
-    with pytest.raises(SealError, match=r"--address 127.0.0.1:1: no Ray cluster answers there"):
+    with pytest.raises(
+        SealError,
+        match=r"--address auto, from the cluster `ray start` last left on this machine: "
+        r"--address [\d.]+:1: no Ray cluster answers there",
+    ):
         ray_session_module.check_address("auto")  # a `ray start` cluster since stopped
     monkeypatch.setenv("RAY_ADDRESS", "10.0.0.7:6379")
     assert ray_session_module._auto_address() == "10.0.0.7:6379"
+    monkeypatch.setenv("RAY_ADDRESS", "localhost:6379")  # as Ray reads it: this node's IP
+    assert ray_session_module._auto_address() == services.canonicalize_bootstrap_address(
+        "localhost:6379"
+    )
+    monkeypatch.setenv("RAY_ADDRESS", "myhost")
+    with pytest.raises(SealError, match=r"--address auto, from RAY_ADDRESS=myhost: --address"):
+        ray_session_module.check_address("auto")
 
 
 def test_the_shared_filesystem_check(

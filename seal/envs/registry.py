@@ -76,24 +76,26 @@ def _resolve(kind: str, name_or_path: str, builtins: Mapping[str, str], attr_wor
             f"{kind} {name_or_path!r}: module {module_name!r} is not an absolute import path; {valid}"
         )
     if not attr.isidentifier():
-        raise SealError(f"{kind} {name_or_path!r}: {attr!r} is not a name; {valid}")
-    if module_name.partition(".")[0] in sys.stdlib_module_names:
-        # Holds no adapter, and some of it acts on import (antigravity opens a web browser): a
-        # protocol or checkpoint from elsewhere must not make `seal` import it.
         raise SealError(
-            f"{kind} {name_or_path!r}: module {module_name!r} is Python's standard library, not "
-            f"an adapter's; {valid}"
+            f"{kind} {name_or_path!r}: {attr!r} after the ':' is not a Python name; {valid}"
+        )
+    if module_name.partition(".")[0] in sys.stdlib_module_names:
+        # Holds no adapter or map, and some of it acts on import (antigravity opens a web
+        # browser): a protocol or checkpoint from elsewhere must not make `seal` import it.
+        raise SealError(
+            f"{kind} {name_or_path!r}: module {module_name!r} is in Python's standard library, "
+            f"which holds no {kind}; {valid}"
         )
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
         top = module_name.partition(".")[0]
         hint = (
-            f" (is {top} installed, or the folder that holds {top} on PYTHONPATH?)"
+            f"; is {top} installed, or the folder that holds {top} on PYTHONPATH?"
             if isinstance(exc, ModuleNotFoundError) and exc.name == top
             else ""
         )
         raise SealError(
-            f"{kind} {name_or_path!r}: cannot import module {module_name!r} ({exc}){hint}; {valid}"
+            f"{kind} {name_or_path!r}: cannot import module {module_name!r} ({exc}{hint}); {valid}"
         ) from None
     return getattr(module, attr, None)

@@ -126,9 +126,9 @@ def apply_transfer(
     when the state does not fit the agent."""
     transfer = config.transfer
     assert transfer is not None
+    mapped = mapped_start(config, adapters, state)  # its own errors name transfer.map
     try:
         transfer_from(agent, state, reinit_critic=transfer.reinit_critic)
-        mapped = mapped_start(config, adapters, state)
         if mapped is not None:
             mapped.apply(agent, state)
     except SealError as exc:
@@ -143,8 +143,7 @@ def check_transfer(plan: RunPlan, state: AgentState) -> None:
     checkpoint that does not fit this protocol's agent (other widths, another architecture)
     fails before anything is written; the run applies it again to its own agent."""
     model = plan.models.get("train")
-    if model is None:
-        return
+    assert model is not None, "[transfer] starts a baseline's or joint run's train phase"
     cpu = dataclasses.replace(plan.agent_cfg, device="cpu", compile=False)
     with torch.random.fork_rng(devices=[]):  # the global RNG as if this never ran
         apply_transfer(plan.config, plan.adapters, Agent(model.specs, cpu, 0), state)
@@ -154,8 +153,8 @@ def check_transfer_source(config: ProtocolConfig) -> None:
     """What a run checks of [transfer] before it writes anything (`transfer_source`, then
     `check_transfer`), for `seal protocol check` and `seal sweep`; nothing without [transfer]."""
     state = transfer_source(config)
-    if state is not None:
-        check_transfer(plan_run(config), state)
+    if state is not None:  # on CPU: the machine that checks need not have the run's GPU
+        check_transfer(plan_run(config, device="cpu"), state)
 
 
 def saved_config(path: Path) -> ProtocolConfig:

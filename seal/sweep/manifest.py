@@ -108,7 +108,11 @@ def read_manifest(sweep_dir: str | Path) -> dict[str, Any]:
 
 
 def _load_configs(
-    paths: Sequence[str | Path], overrides: Sequence[str], scale: float | None
+    paths: Sequence[str | Path],
+    overrides: Sequence[str],
+    scale: float | None,
+    *,
+    search: bool = False,
 ) -> list[ProtocolConfig]:
     if not paths:
         raise SealError("seal sweep: give at least one protocol FILE (or --resume SWEEP_DIR)")
@@ -121,12 +125,18 @@ def _load_configs(
         )
     for config in configs:
         parse_resources(config)  # a bad [resources] table fails before Ray starts
-        if config.transfer is not None:
+        # So does a [transfer] checkpoint that is missing or does not fit, before any directory;
+        # a search whose draws change what it must fit leaves that to each trial's own check.
+        drawn = config.search if search else {}
+        if config.transfer is not None and not any(k.startswith(FITTED) for k in drawn):
             from seal.run.setup import check_transfer_source
 
-            # so does a [transfer] checkpoint that is missing or does not fit, before any directory
             check_transfer_source(config)
     return configs
+
+
+FITTED = ("transfer.", "agent.", "envs.")
+"""The [search] keys that change whether a [transfer] checkpoint fits a trial's agent."""
 
 
 def _now() -> str:

@@ -125,20 +125,40 @@ class RaySession:
 
 
 def _auto_address() -> str | None:
-    """The address --address auto joins: RAY_ADDRESS, else the cluster the last `ray start` on this
-    machine left (Ray's record of it), else None. Unlike Ray's own "auto" it never falls back to
-    any Ray process running here: those include the private Rays of other seal commands."""
+    """The address --address auto joins (`_auto_source`'s), or None."""
+    found = _auto_source()
+    return None if found is None else found[0]
+
+
+def _auto_source() -> tuple[str, str] | None:
+    """(address, where it came from) that --address auto joins: RAY_ADDRESS, else the cluster the
+    last `ray start` on this machine left (Ray's record of it), else None. Unlike Ray's own
+    "auto" it never falls back to any Ray process running here: those include the private Rays
+    of other seal commands. HOST:PORT is canonicalised as Ray does (localhost -> this node's IP),
+    so that it compares equal to a joined cluster's GCS address."""
     import os
 
     env = os.environ.get("RAY_ADDRESS", "")
-    if env not in ("", "auto"):
-        return env
     try:
-        from ray._private.services import find_bootstrap_address
-
-        return find_bootstrap_address(None)
-    except Exception:  # noqa: BLE001 - a private API that may move: then only RAY_ADDRESS counts
-        return None
+        from ray._private import services
+    except ImportError:
+        services = None  # type: ignore[assignment]
+    if env not in ("", "auto", "local"):  # "local" would start a Ray, not join one
+        found = (env, f"RAY_ADDRESS={env}")
+    else:
+        try:
+            started = services.find_bootstrap_address(None) if services else None
+        except Exception:  # noqa: BLE001 - a private API that may move: then only RAY_ADDRESS counts
+            started = None
+        if started is None:
+            return None
+        found = (started, "the cluster `ray start` last left on this machine")
+    if services is not None and "://" not in found[0]:
+        try:
+            return services.canonicalize_bootstrap_address(found[0]), found[1]
+        except Exception:  # noqa: BLE001 - a malformed address is reported by check_address
+            pass
+    return found
 
 
 _NO_AUTO = (
@@ -172,11 +192,14 @@ def check_address(address: str | None, timeout_s: float = 5.0) -> None:
     Ray), "local" and "ray://" client addresses are left to Ray.
     """
     if address == "auto":
-        resolved = _auto_address()
-        if resolved is None:
+        found = _auto_source()
+        if found is None:
             raise SealError(_NO_AUTO)
-        if "://" not in resolved:
-            check_address(resolved, timeout_s)
+        if "://" not in found[0]:
+            try:
+                check_address(found[0], timeout_s)
+            except SealError as exc:
+                raise SealError(f"--address auto, from {found[1]}: {exc}") from None
         return
     if address is None or address == "local" or "://" in address:
         return

@@ -227,7 +227,7 @@ def _new_search(
     command: Sequence[str],
 ) -> tuple[Path, dict[str, Any], ProtocolConfig]:
     """(search directory, manifest, base config) of a new search, its directory created."""
-    (base,) = _load_configs([path], overrides, scale)
+    (base,) = _load_configs([path], overrides, scale, search=True)
     spec = parse_search(base, num_samples)
     search_dir = (
         Path(out).resolve() / base.name / f"search-{new_group_id(dumps_toml(config_to_dict(base)))}"

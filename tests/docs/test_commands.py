@@ -7,6 +7,7 @@ A synopsis is read as its first choice: `[--x]` groups are dropped, `a|b` is `a`
 
 from __future__ import annotations
 
+import argparse
 import re
 import shlex
 
@@ -39,15 +40,30 @@ def documented_commands() -> list[tuple[str, str]]:
     return found
 
 
-def first_choice(args: str) -> list[str]:
-    """The argument list a synopsis stands for, read as its first choice."""
+def first_choice(args: str, groups: bool = False) -> list[str]:
+    """The argument list a synopsis stands for, read as its first choice, its optional groups
+    left out (or, with `groups`, kept)."""
     args = re.sub(r"\s+#(?=\s).*$", "", args)  # a trailing comment
-    while re.search(r"\[[^\[\]'\"]*\]", args):  # optional groups, innermost first; not TOML lists
-        args = re.sub(r"\s*\[(?!['\"])[^\[\]'\"]*\]", "", args)
+    group = re.compile(r"\s*\[(?!['\"])([^\[\]'\"]*)\]")  # innermost first; not TOML lists
+    while group.search(args):
+        args = group.sub(lambda m: " " + m.group(1).split(" | ")[0] if groups else "", args)
     args = re.split(r"\s(?:&&?|;|\|\|?|[12]?>>?)(?:\s|$)", args + " ")[0]  # the shell's part
     args = re.sub(r"<([^<>]+)>", lambda m: re.sub(r"\W+", "_", m.group(1)), args)
     words = [w for w in shlex.split(args) if w != "..." and w != "…"]
     return [w.split("|")[0] if "|" in w and " " not in w else w for w in words]
+
+
+def strict_parser() -> argparse.ArgumentParser:
+    """`seal`'s parser without abbreviations, so that a renamed option's old prefix fails."""
+    parser = build_parser()
+    stack = [parser]
+    while stack:
+        p = stack.pop()
+        p.allow_abbrev = False
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                stack.extend(action.choices.values())
+    return parser
 
 
 def inline_commands() -> list[tuple[str, str]]:
@@ -76,15 +92,16 @@ def test_the_docs_hold_commands() -> None:
 def test_each_documented_command_parses(
     where: str, args: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    argv = first_choice(args)
-    try:
-        parsed = build_parser().parse_args(argv)
-    except SystemExit as exc:
-        pytest.fail(f"{where}\n  parsed as {argv}: {capsys.readouterr().err.strip()} ({exc.code})")
-    for value in vars(parsed).values():
-        for item in value if isinstance(value, list) else [value]:
-            if isinstance(item, str) and re.fullmatch(r"protocols/[\w/.-]+\.toml", item):
-                assert (ROOT / item).is_file(), f"{where}: {item} does not exist"
+    for argv in dict.fromkeys(tuple(first_choice(args, groups)) for groups in (False, True)):
+        try:
+            parsed = strict_parser().parse_args(list(argv))
+        except SystemExit as exc:
+            err = capsys.readouterr().err.strip()
+            pytest.fail(f"{where}\n  parsed as {list(argv)}: {err} ({exc.code})")
+        for value in vars(parsed).values():
+            for item in value if isinstance(value, list) else [value]:
+                if isinstance(item, str) and re.fullmatch(r"protocols/[\w/.-]+\.toml", item):
+                    assert (ROOT / item).is_file(), f"{where}: {item} does not exist"
 
 
 @pytest.mark.parametrize(("where", "args"), INLINE_COMMANDS, ids=[w for w, _ in INLINE_COMMANDS])
@@ -94,7 +111,7 @@ def test_each_option_named_in_prose_exists(
     """Prose names a command by its options alone ("`seal report --censored zero`"), so only
     an option or choice that does not exist fails here, not a value left out."""
     try:
-        build_parser().parse_args(first_choice(args))
+        strict_parser().parse_args(first_choice(args))
     except SystemExit:
         err = capsys.readouterr().err
         assert not re.search(r"unrecognized arguments|invalid choice|ambiguous option", err), (

@@ -133,3 +133,17 @@ def test_a_checkpoint_that_does_not_fit_fails_before_anything_is_written(
         err = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(err) == 1 and says % best in err[0], (command, err)
     assert not out.exists()
+    # The check runs on CPU, so a protocol for a GPU checks on a machine without one, and a
+    # search that draws the widths leaves the fit to each trial (whose own run checks it).
+    narrow = ["--set", f"transfer.checkpoint={best}", "--set", "agent.hidden=[8, 8]"]
+    assert main(["protocol", "check", str(path), *narrow, "--set", 'protocol.device="cuda"']) == 0
+    from seal.sweep.manifest import _load_configs
+
+    drawn = path.with_name("drawn.toml")
+    grid = '[search]\n"agent.hidden" = {dist = "grid", values = [[8, 8]]}\n'
+    drawn.write_text(path.read_text() + grid)
+    overrides = [f"transfer.checkpoint={best}"]
+    (config,) = _load_configs([drawn], overrides, None, search=True)
+    assert config.agent.hidden == (16, 16)
+    with pytest.raises(ConfigError, match="hidden widths must match"):
+        _load_configs([drawn], overrides, None)  # a grid sweep runs the base config
