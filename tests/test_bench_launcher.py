@@ -70,7 +70,8 @@ def alive(pid: int) -> bool:
 
 @contextlib.contextmanager
 def in_background(steps: Callable[[], None]) -> Iterator[None]:
-    """Run `steps` in a thread while the test's body runs; re-raise its failure after."""
+    """Run `steps` in a thread while the test's body runs; re-raise its failure after, also when
+    the body raised (as the tests expect Preempted to), so no failure of `steps` is lost."""
     failed: list[BaseException] = []
 
     def target() -> None:
@@ -81,10 +82,13 @@ def in_background(steps: Callable[[], None]) -> Iterator[None]:
 
     thread = threading.Thread(target=target, daemon=True)
     thread.start()
-    yield
-    thread.join(HUNG_S)
-    if failed:
-        raise failed[0]
+    try:
+        yield
+    finally:
+        thread.join(HUNG_S)
+        assert not thread.is_alive(), f"the background steps still run after {HUNG_S} s"
+        if failed:
+            raise failed[0]
 
 
 # ---------------------------------------------------------------- without a Ray

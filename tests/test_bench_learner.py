@@ -6,8 +6,10 @@ import math
 import re
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
+import scipy.stats
 
 import seal.experiments.learner as learner
 from seal.cli.main import main
@@ -93,7 +95,12 @@ def test_both_learners_run_seed_for_seed_and_no_run_reads_them_back(
             assert run["env_steps"] in set(steps["env_steps"])
     diffs = [check["new"][s]["env_steps"] - check["old"][s]["env_steps"] for s in ("0", "1")]
     assert check["change"]["differences"] == diffs
-    assert result["complete"] and result["no_slower"] in (True, False)
+    # The rule by hand: no slower when the 95% t CI's low end, mean - t(0.975, 1) SD / sqrt(2),
+    # is <= 0.
+    low = np.mean(diffs) - scipy.stats.t.ppf(0.975, 1) * np.std(diffs, ddof=1) / np.sqrt(2)
+    assert check["change"]["ci95"][0] == pytest.approx(low)
+    assert check["change"]["no_slower"] == bool(low <= 0)
+    assert result["complete"] and result["no_slower"] == check["change"]["no_slower"]
     again = learner.run_learner_bench(
         seeds=5, out=str(out), overrides=change, run=False, baseline=plain
     )
