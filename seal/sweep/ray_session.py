@@ -162,7 +162,7 @@ def _auto_source() -> tuple[str, str] | None:
 
 
 _NO_AUTO = (
-    "--address auto: no Ray cluster to join: RAY_ADDRESS is unset and no `ray start` left one on "
+    "--address auto: no Ray cluster to join: RAY_ADDRESS names none and no `ray start` left one on "
     "this machine (a private Ray that another seal command started is never joined); start one "
     "with `ray start --head`, give --address HOST:PORT, or drop --address to use a local Ray"
 )
