@@ -200,6 +200,12 @@ def _check_kind(config: ProtocolConfig, file: str) -> None:
             raise ConfigError(
                 f'{file}: kind = "finetune" uses exactly two [envs] tables (source and target), got {", ".join(envs)}'
             )
+        if config.agent.task_encoder == "smt_gru":
+            # Its task encoding is of one env's episodes; the aligned observation is of both.
+            raise ConfigError(
+                f'{file}: agent.task_encoder = "smt_gru" does not run through a pad-and-fine-tune '
+                'alignment (kind = "finetune"); use "one_hot" or "none"'
+            )
     elif config.finetune is not None:
         raise ConfigError(
             f'{file}: finetune is only valid with kind = "finetune" (this protocol\'s kind is {kind!r})'

@@ -56,6 +56,10 @@ def _edit(old: str, new: str) -> str:
 
 
 # (id, protocol text or bytes, extra CLI args, text the one-line error must contain)
+FINETUNE = BASE.replace('kind = "baseline"', 'kind = "finetune"') + (
+    '[envs.pd]\nadapter = "point_diagonal"\n[finetune]\nsource = "pt"\ntarget = "pd"\n'
+)
+
 CASES: list[tuple[str, str | bytes, list[str], str]] = [
     (
         "not-utf8",
@@ -155,6 +159,13 @@ CASES: list[tuple[str, str | bytes, list[str], str]] = [
         BASE + '[transfer]\ncheckpoint = "x.pt"\nmap = ":X"\n',
         [],
         "transfer: map: env map ':X': module '' is not an absolute import path; valid: testbed_oracle",
+    ),
+    # Would fail only when the first evaluation builds its policy, after the run directory:
+    (
+        "finetune-smt-gru",
+        FINETUNE,
+        ["--set", 'agent.task_encoder="smt_gru"'],
+        'agent.task_encoder = "smt_gru" does not run through a pad-and-fine-tune alignment',
     ),
     # Would fail only when fine-tuning starts, after the whole pre-training:
     (
