@@ -144,6 +144,12 @@ def check_output_dir(path: str | os.PathLike[str], what: str = "--out") -> Path:
     if not str(path).strip():
         raise SealError(f"{what} {str(path)!r}: expected a directory name")
     out = Path(path)
+    too_long = [p for p in out.parts if len(os.fsencode(p)) > 255]  # NAME_MAX of common filesystems
+    if too_long:
+        raise SealError(
+            f"{what} {path}: the name {too_long[0][:40]}... is {len(os.fsencode(too_long[0]))} "
+            "bytes long; a file or folder name holds at most 255"
+        )
     for existing in (out, *out.parents):
         if existing.exists():
             if not existing.is_dir():

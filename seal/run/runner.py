@@ -138,7 +138,15 @@ class Run:
             RunDir.open(path)  # not a run directory: refuse before creating a lock file in it
         missing = [p for p in (Path(path), *Path(path).parents) if not p.exists()]
         created = missing[-1] if missing else None  # the top folder this run makes
-        self.lock.acquire(command)
+        try:
+            self.lock.acquire(command)
+        except OSError as exc:  # a folder that cannot be made there: /proc, no permission, a long name
+            if created is not None:
+                shutil.rmtree(created, ignore_errors=True)
+            raise SealError(
+                f"{path}: cannot create the run directory ({exc.strerror or exc}: "
+                f"{exc.filename or path}); give --out a folder you can write to"
+            ) from None
         try:
             self._open_rundir(self.config, path, resume, command)
         except OSError as exc:

@@ -305,6 +305,8 @@ def test_an_out_that_is_not_a_directory_is_one_line_and_nothing_written(
         (tmp_path / "a.pt", f"--out {tmp_path / 'a.pt'}: {tmp_path / 'a.pt'} is a file, not a"),
         (tmp_path / "a.pt" / "deeper", f"{tmp_path / 'a.pt'} is a file, not a directory"),
         ("", "--out '': expected a directory name"),  # else runs would land in the working dir
+        (tmp_path / ("x" * 300), "is 300 bytes long; a file or folder name holds at most 255"),
+        ("/proc/seal-out", "cannot create the run directory (No such file or directory"),
     ]:
         code, err, _ = _run(tmp_path, BASE, ["--out", str(out)], capsys)
         assert code == 2 and len(err) == 1 and says in err[0], err
