@@ -52,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.episodes is not None and args.episodes < 1:
         raise SealError(f"--episodes {args.episodes}: must be >= 1")
+    if args.seed < 0:
+        raise SealError(f"--seed {args.seed}: must be >= 0")
     if args.video and "MUJOCO_GL" not in os.environ:
         # MuJoCo's default (GLFW) needs a display; pick a headless backend that works here
         # before anything imports mujoco.

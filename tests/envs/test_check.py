@@ -248,6 +248,13 @@ def test_cli_bad_input_exits_2_with_one_line(
     assert "valid:" in err or "built-in adapters:" in err
 
 
+def test_a_negative_seed_is_refused_not_blamed_on_the_tasks(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["envs", "check", "point", "--seed", "-1"]) == 2  # not "NOT ok" on every task
+    assert capsys.readouterr().err == "seal envs: error: --seed -1: must be >= 0\n"
+
+
 def test_cli_bad_input_has_no_traceback_from_the_shell() -> None:
     done = subprocess.run(
         [sys.executable, "-m", "seal.cli.main", "envs", "check", "nope.mod:X"],

@@ -264,6 +264,9 @@ def test_eval_video_says_why_it_cannot(tmp_path: Path, capsys: pytest.CaptureFix
     assert main(["eval", str(run / "checkpoints" / "best.pt"), "--video", str(tmp_path / "v")]) == 2
     assert "--video" in capsys.readouterr().err
     assert main(["eval", str(tmp_path / "nope.pt")]) == 2
+    capsys.readouterr()
+    assert main(["eval", str(run / "checkpoints" / "best.pt"), "--seed", "-5"]) == 2
+    assert capsys.readouterr().err == "seal eval: error: --seed -5: must be >= 0\n"
 
 
 SMT_ENVS = """
