@@ -78,12 +78,14 @@ def list_adapters(args: argparse.Namespace) -> int:
 def check_command(args: argparse.Namespace) -> int:
     """Run `check_adapter`; exit 0 when every task is ok, 1 otherwise (bad names exit 2 via SealError)."""
     from seal.envs.check import check_adapter
-    from seal.envs.registry import make_adapter
+    from seal.envs.registry import check_options, make_adapter
     from seal.errors import SealError
 
     if args.seed < 0:  # gymnasium's seeding refuses it, which would read as every task failing
         raise SealError(f"--seed {args.seed}: must be >= 0")
-    adapter = make_adapter(args.name, tasks=args.tasks, **_options(args.option))
+    options = _options(args.option)
+    check_options(options)  # make_adapter takes episode_length as a keyword; --option may not
+    adapter = make_adapter(args.name, tasks=args.tasks, **options)
     as_json = getattr(args, "json", False)
     progress = None if as_json else (lambda line: print(line, file=sys.stderr, flush=True))
     report = check_adapter(adapter, seed=args.seed, progress=progress)

@@ -117,6 +117,12 @@ class EnvAdapter(abc.ABC):
                 )
         if len(set(self.tasks)) != len(self.tasks):
             raise SealError(f"adapter {self.name!r}: task list {list(self.tasks)} repeats a task")
+        if episode_length is not None and (
+            isinstance(episode_length, bool) or not isinstance(episode_length, int | np.integer)
+        ):
+            raise SealError(
+                f"adapter {self.name!r}: episode_length must be an integer, got {episode_length!r}"
+            )
         length = self.default_episode_length if episode_length is None else int(episode_length)
         if length < 1:
             raise SealError(f"adapter {self.name!r}: episode_length must be >= 1, got {length}")

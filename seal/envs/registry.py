@@ -36,7 +36,21 @@ def make_adapter(
     name_or_path: str, tasks: Sequence[str] | str | None = None, **options: Any
 ) -> EnvAdapter:
     """Build an adapter by name or import path, with its task list and options."""
+    check_options({k: v for k, v in options.items() if k != "episode_length"})
     return adapter_class(name_or_path)(tasks=tasks, **options)
+
+
+def check_options(options: Mapping[str, Any]) -> None:
+    """SealError for an adapter option that repeats one of every adapter's own arguments (tasks,
+    episode_length), which the env sets by its own keys; Python would raise a bare TypeError."""
+    repeated = sorted(set(options) & {"tasks", "episode_length"})
+    if repeated:
+        key = repeated[0]
+        raise SealError(
+            f"option {key!r} is not an adapter option: it is the env's own key, "
+            f"[envs.<name>] {key} = ... in a protocol"
+            + ("; --tasks in seal envs check" if key == "tasks" else "")
+        )
 
 
 BUILTIN_ENV_MAPS: dict[str, str] = {

@@ -83,6 +83,7 @@ def scale_config(config: ProtocolConfig, factor: float) -> ProtocolConfig:
 
 def _build_envs(raw: object, file: str) -> dict[str, EnvConfig]:
     from seal.envs import adapter_class
+    from seal.envs.registry import check_options
 
     if not isinstance(raw, dict) or not raw:
         raise ConfigError(
@@ -104,6 +105,7 @@ def _build_envs(raw: object, file: str) -> dict[str, EnvConfig]:
         except SealError as exc:
             raise ConfigError(f"{where}.adapter: {exc}") from None
         try:
+            check_options(env.options)
             adapter = cls(
                 tasks=list(env.tasks) or None,
                 episode_length=env.episode_length or None,

@@ -9,6 +9,7 @@ import pytest
 from seal.envs import BUILTIN_ADAPTERS, adapter_class, make_adapter
 from seal.envs.metaworld import MetaWorldAdapter
 from seal.envs.point import PointAdapter
+from seal.envs.registry import check_options
 from seal.errors import SealError, UnknownNameError
 
 
@@ -67,6 +68,11 @@ def test_bad_tasks_and_options() -> None:
         make_adapter("point", frame_skip=2)
     with pytest.raises(SealError, match="episode_length must be >= 1, got 0"):
         make_adapter("point", episode_length=0)
+    for bad in ("x", True, 2.5):  # --option values parse as TOML: any type can arrive
+        with pytest.raises(SealError, match="episode_length must be an integer, got"):
+            make_adapter("point", episode_length=bad)
+    with pytest.raises(SealError, match="option 'tasks' is not an adapter option"):
+        check_options({"tasks": ["east"], "goal_scale": 2})  # Python: "got multiple values"
 
 
 def test_env_maps_resolve_and_refuse_like_adapters() -> None:

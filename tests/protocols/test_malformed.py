@@ -160,6 +160,12 @@ CASES: list[tuple[str, str | bytes, list[str], str]] = [
         [],
         "transfer: map: env map ':X': module '' is not an absolute import path; valid: testbed_oracle",
     ),
+    (
+        "env-option-repeats",
+        BASE,
+        ["--set", 'envs.pt.options={tasks=["west"]}'],
+        "envs.pt.options: option 'tasks' is not an adapter option: it is the env's own key",
+    ),
     # Would fail only when the first evaluation builds its policy, after the run directory:
     (
         "finetune-smt-gru",
