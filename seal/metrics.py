@@ -62,6 +62,15 @@ def _require_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> 
         raise SealError(f"{what} lacks column(s) {missing}; it has {list(frame.columns)}")
 
 
+def check_consecutive(consecutive: object) -> None:
+    """SealError unless `consecutive` (K successive evaluations >= threshold) is a whole number >= 1."""
+    if isinstance(consecutive, bool) or not isinstance(consecutive, int) or consecutive < 1:
+        raise SealError(
+            f"consecutive = {consecutive!r}: expected a whole number of evaluations >= 1 "
+            f"(1 = the paper's first evaluation >= threshold)"
+        )
+
+
 def first_reach(
     metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD, consecutive: int = 1
 ) -> pd.DataFrame:
@@ -81,11 +90,7 @@ def first_reach(
     (in training order) are all >= threshold, and the row reported is the first of those K, so a
     single lucky evaluation does not count. K = 1 is the paper's criterion.
     """
-    if isinstance(consecutive, bool) or not isinstance(consecutive, int) or consecutive < 1:
-        raise SealError(
-            f"consecutive = {consecutive!r}: expected a whole number of evaluations >= 1 "
-            f"(1 = the paper's first evaluation >= threshold)"
-        )
+    check_consecutive(consecutive)
     _require_columns(metrics, REQUIRED_METRICS_COLUMNS, "metrics table")
     keys = ["seed", "phase", "env", "task"]
     values = ["epoch", "updates", "grad_steps", "env_steps", "paper_updates"]

@@ -436,16 +436,24 @@ def test_cli_report_mistakes_leave_no_directory_and_no_lock(
     (tmp_path / "a.png").write_text("a file")
     (tmp_path / "notes").mkdir()
     group = str(groups["baseline_mw"])
+    before = sorted(p.name for p in groups["baseline_mw"].iterdir())
     for argv, says in [
         ([group, "--out", str(tmp_path / "a.png")], "a.png is a file, not a directory"),
         ([group, "--out", str(tmp_path / "new"), "--threshold", "2"], "threshold 2.0 is not"),
         ([str(tmp_path / "notes")], "neither a run nor a group directory"),
+        ([group, "--consecutive", "0"], "consecutive = 0: expected a whole number"),
     ]:
         assert main(["report", *argv]) == 2
         err = capsys.readouterr().err
         assert err.startswith("seal report: error: ") and says in err, err
     assert not (tmp_path / "new").exists()
     assert not any((tmp_path / "notes").iterdir())  # no .seal.lock left in the user's folder
+    assert sorted(p.name for p in groups["baseline_mw"].iterdir()) == before  # no plots/ tables/
+    # Refused while the runs are read, after the lock: the --out it made is removed again.
+    twin = write_group(tmp_path / "reports", "baseline_mw", BASELINE_MW, group="g2")
+    assert main(["report", group, str(twin), "--out", str(tmp_path / "both")]) == 2
+    assert "several baseline groups" in capsys.readouterr().err
+    assert not (tmp_path / "both").exists()
 
 
 def test_cli_report_consecutive(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 from pathlib import Path
 
@@ -67,13 +68,38 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+def _entries(target: str | None) -> set[str] | None:
+    """The names in the report's target directory, or None when it does not exist yet."""
+    path = Path(target) if target is not None else None
+    return None if path is None or not path.is_dir() else {p.name for p in path.iterdir()}
+
+
+def _remove_new(target: str | None, before: set[str] | None) -> None:
+    """Remove what a refused report made in `target`: all of it when it made the directory,
+    else its lock file and the empty folders (plots/, tables/) that were not there before."""
+    if target is None:
+        return
+    path = Path(target)
+    if before is None:
+        shutil.rmtree(path, ignore_errors=True)
+        return
+    for entry in path.iterdir():
+        if entry.name in before:
+            continue
+        if entry.name == ".seal.lock" and entry.is_file():
+            entry.unlink()
+        elif entry.is_dir() and not any(entry.iterdir()):
+            entry.rmdir()
+
+
 def run(args: argparse.Namespace) -> int:
     """Build the report and print where it went (or one JSON line)."""
+    from seal.errors import SealError
     from seal.reports import check_report_inputs, report
     from seal.run.dirlock import DirLock
 
     # Refused before the lock is taken, so a mistake leaves no directory and no lock file.
-    check_report_inputs(args.paths, args.out, args.threshold)
+    check_report_inputs(args.paths, args.out, args.threshold, args.consecutive)
 
     # One writer per directory: lock the run or group the tables and plots go into. A comparison
     # of several without --out takes no lock: its directory is made new and unique, so no
@@ -81,20 +107,25 @@ def run(args: argparse.Namespace) -> int:
     single = args.paths[0] if len(args.paths) == 1 and Path(args.paths[0]).is_dir() else None
     target = args.out or single
     lock = DirLock(Path(target)) if target is not None else None
+    before = _entries(target)
     if lock is not None:
         lock.acquire()
     try:
-        result = report(
-            args.paths,
-            out=args.out,
-            threshold=args.threshold,
-            x=args.x,
-            consecutive=args.consecutive,
-            censored=args.censored,
-        )
-    finally:
-        if lock is not None:
-            lock.release()
+        try:
+            result = report(
+                args.paths,
+                out=args.out,
+                threshold=args.threshold,
+                x=args.x,
+                consecutive=args.consecutive,
+                censored=args.censored,
+            )
+        finally:
+            if lock is not None:
+                lock.release()
+    except SealError:  # refused while reading the runs: leave the target as it was
+        _remove_new(target, before)
+        raise
     for note in result.skipped:
         print(f"seal report: note: {note}", file=sys.stderr)
     for warning in result.warnings:

@@ -35,6 +35,7 @@ from seal.metrics import (
     CensoredRule,
     add_percent_change,
     aggregate_seeds,
+    check_consecutive,
     decompose_first_reach,
     env_totals,
     first_reach,
@@ -104,9 +105,11 @@ def check_report_inputs(
     paths: Sequence[str | os.PathLike[str]],
     out: str | os.PathLike[str] | None,
     threshold: float | None,
+    consecutive: int = 1,
 ) -> None:
     """What `report` would refuse, checked before anything is written or locked: the output
-    directory, each path as a run or group directory, and the threshold."""
+    directory, each path as a run or group directory, the threshold and `consecutive`."""
+    check_consecutive(consecutive)
     if out is not None:
         check_output_dir(out)
     for path in paths:
