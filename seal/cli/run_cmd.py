@@ -40,7 +40,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "run", help="run a protocol (all its seeds) and write run directories", description=__doc__
     )
-    add_protocol_arguments(p, file_help="; optional with --resume, which then checks it")
+    add_protocol_arguments(
+        p,
+        file_help="; optional with --resume, which then checks its name and warns where it differs",
+    )
     p.add_argument(
         "--out",
         default=None,
@@ -109,8 +112,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.resume:
         _check_resume_options(args)
-        name = load_protocol(args.file).name if args.file else None
-        results = [resume_run(args.resume, quiet=args.quiet, protocol_name=name)]
+        given = load_protocol(args.file) if args.file else None
+        results = [resume_run(args.resume, quiet=args.quiet, protocol=given)]
         group = Path(args.resume).parent
     else:
         if args.file is None:

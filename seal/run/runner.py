@@ -49,12 +49,13 @@ import errno
 import shutil
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
 from seal import provenance
 from seal.device import ThreadChoice
-from seal.errors import SealError
+from seal.errors import SealError, SealWarning
 from seal.files import check_output_dir
 from seal.learner.checkpoint import read_checkpoint
 from seal.learner.sac import Agent
@@ -364,10 +365,31 @@ def run_seed(
     return run.run()
 
 
+def _warn_differences(path: Path, saved: ProtocolConfig, given: ProtocolConfig) -> None:
+    """A SealWarning naming the keys where the FILE given with --resume differs from the saved
+    config (an edit made after the run started, or the run's own --set), which the run keeps."""
+    from seal.sweep.config_tables import flatten
+
+    mine, theirs = (flatten(config_to_dict(c)) for c in (saved, given))
+    keys = sorted(k for k in mine.keys() | theirs.keys() if mine.get(k) != theirs.get(k))
+    if keys:
+        shown = ", ".join(f"{k} ({mine.get(k)!r} saved, {theirs.get(k)!r} in it)" for k in keys[:4])
+        more = f" and {len(keys) - 4} more" if len(keys) > 4 else ""
+        warnings.warn(
+            SealWarning(
+                f"--resume {path}: {given.path} differs from the run's saved config in {shown}"
+                f"{more}; the run goes on with its saved config (start a new run to use the file's)"
+            ),
+            stacklevel=2,
+        )
+
+
 def resume_run(
-    run_dir: str | Path, *, quiet: bool = True, protocol_name: str | None = None
+    run_dir: str | Path, *, quiet: bool = True, protocol: ProtocolConfig | None = None
 ) -> RunResult:
-    """Continue a run directory from its last checkpoint, with the config it saved."""
+    """Continue a run directory from its last checkpoint, with the config it saved; `protocol`
+    (the FILE given with --resume) must be of the same protocol, and a SealWarning names the
+    keys where it differs from the saved config, which the run keeps."""
     path = Path(run_dir)
     seed = parse_seed_dir(path)
     if seed is None:
@@ -375,9 +397,11 @@ def resume_run(
             f"--resume {path}: expected a seed directory named seed-<n> (reports/<protocol>/<group>/seed-<n>)"
         )
     config = saved_config(path)
-    if protocol_name is not None and config.name != protocol_name:
-        raise SealError(
-            f"--resume {path}: this run is of protocol {config.name!r}, not {protocol_name!r}"
-        )
+    if protocol is not None:
+        if config.name != protocol.name:
+            raise SealError(
+                f"--resume {path}: this run is of protocol {config.name!r}, not {protocol.name!r}"
+            )
+        _warn_differences(path, config, protocol)
     plan = plan_run(config, seed)
     return build(plan, check_resources(plan), path, quiet=quiet, resume=True).run()

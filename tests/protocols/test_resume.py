@@ -171,6 +171,14 @@ def test_resume_needs_no_file_and_refuses_options_it_would_drop(
     assert main(["run", "--resume", str(run), "--json", *quiet]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["run_dir"] == str(run)
     assert (run / "metrics.csv").read_bytes() == before
+    # With FILE, what differs from the saved config is named (here the run's own --set), and the
+    # run still goes on with its saved config.
+    assert main(["run", str(path), "--resume", str(run), *quiet]) == 0
+    assert capsys.readouterr().err.startswith(
+        f"seal: warning: --resume {run}: {path} differs from the run's saved config in "
+        "protocol.epochs (3 saved, 24 in it); the run goes on with its saved config"
+    )
+    assert (run / "metrics.csv").read_bytes() == before
 
     # A finished run kept without its checkpoints (a record) is refused, not run again over its
     # rows; a run directory whose config does not read gets no files.
