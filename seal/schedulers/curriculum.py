@@ -427,9 +427,13 @@ def difficulty_order(
     if config.order:
         order = [resolve_task(n, env_tasks, "scheduler.order") for n in config.order]
         missing = [f"{e}/{t}" for e, t in keys if (e, t) not in order]
-        if missing or len(set(order)) != len(order):
+        twice = sorted({f"{e}/{t}" for e, t in order if order.count((e, t)) > 1})
+        if missing or twice:
+            found = [f"missing: {missing}"] * bool(missing) + [f"listed twice: {twice}"] * bool(
+                twice
+            )
             raise ConfigError(
-                f"scheduler.order must list every task of the protocol once; missing: {missing}"
+                f"scheduler.order must list every task of the protocol once; {'; '.join(found)}"
             )
         return order
     if all(t in METAWORLD_ORDER for _, t in keys):

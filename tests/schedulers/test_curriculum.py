@@ -204,6 +204,14 @@ def test_v2_mixed_splits_unknown_tasks_into_seven_groups() -> None:
         ["t2", "t0"],
         ["t2", "t0", "t1"],
     ]
+    for order, says in [
+        (("t2", "t0"), r"once; missing: \['point/t1'\]$"),
+        (("t2", "t0", "t0", "t1"), r"once; listed twice: \['point/t0'\]$"),
+    ]:
+        with pytest.raises(ConfigError, match=says):
+            build_scheduler(
+                CurriculumV2Config(preset="mixed", order=order), {"point": ("t0", "t1", "t2")}
+            )
 
 
 def test_v2_state_round_trip() -> None:
