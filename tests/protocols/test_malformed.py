@@ -241,14 +241,19 @@ CASES: list[tuple[str, str | bytes, list[str], str]] = [
 
 
 def _run(
-    tmp_path: Path, text: str | bytes, args: list[str], capsys: pytest.CaptureFixture[str]
+    tmp_path: Path,
+    text: str | bytes,
+    args: list[str],
+    capsys: pytest.CaptureFixture[str],
+    check: bool = False,
 ) -> tuple[int, list[str], Path]:
     path = tmp_path / "p.toml"
     path.write_bytes(text if isinstance(text, bytes) else text.encode())
     out = tmp_path / "reports"
     capsys.readouterr()
+    run = ["run", str(path), "--out", str(out), "--quiet", "--no-report"]
     try:
-        code = main(["run", str(path), "--out", str(out), "--quiet", "--no-report", *args])
+        code = main(["protocol", "check", str(path), *args] if check else [*run, *args])
     except SystemExit as exc:  # argparse rejects a flag's type itself
         code = int(exc.code or 0)
     return code, capsys.readouterr().err.strip().splitlines(), out
@@ -260,17 +265,28 @@ def test_the_base_file_runs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert len(list(out.glob("p/*/seed-0/metrics.csv"))) == 1
 
 
+def _checkable(case: tuple[str, str | bytes, list[str], str]) -> bool:
+    """`seal protocol check` takes the file, --set and --scale (not --seeds or --out)."""
+    return not case[2] or case[2][0] in ("--set", "--scale")
+
+
 @pytest.mark.parametrize(
-    ("text", "args", "expected"), [c[1:] for c in CASES], ids=[c[0] for c in CASES]
+    ("command", "text", "args", "expected"),
+    [(cmd, *c[1:]) for c in CASES for cmd in ("run", "check") if cmd == "run" or _checkable(c)],
+    ids=[
+        f"{cmd}-{c[0]}" for c in CASES for cmd in ("run", "check") if cmd == "run" or _checkable(c)
+    ],
 )
 def test_each_defect_is_one_line_exit_2_and_nothing_written(
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
+    command: str,
     text: str | bytes,
     args: list[str],
     expected: str,
 ) -> None:
-    code, err, out = _run(tmp_path, text, args, capsys)
+    """`seal run` refuses each defect before writing; `seal protocol check` refuses it too."""
+    code, err, out = _run(tmp_path, text, args, capsys, check=command == "check")
     assert code == 2
     assert len(err) == 1, err
     assert expected in err[0], err[0]
@@ -278,29 +294,6 @@ def test_each_defect_is_one_line_exit_2_and_nothing_written(
     if not args or args[0] == "--set":
         assert str(tmp_path / "p.toml") in err[0]  # the file is named
     assert not out.exists()
-
-
-@pytest.mark.parametrize(
-    ("text", "args", "expected"),
-    [c[1:] for c in CASES if not c[2] or c[2][0] in ("--set", "--scale")],
-    ids=[c[0] for c in CASES if not c[2] or c[2][0] in ("--set", "--scale")],
-)
-def test_protocol_check_refuses_what_seal_run_refuses(
-    tmp_path: Path,
-    capsys: pytest.CaptureFixture[str],
-    text: str | bytes,
-    args: list[str],
-    expected: str,
-) -> None:
-    path = tmp_path / "p.toml"
-    path.write_bytes(text if isinstance(text, bytes) else text.encode())
-    capsys.readouterr()
-    try:
-        code = main(["protocol", "check", str(path), *args])
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1 and expected in err[0], err
 
 
 def test_an_out_that_is_not_a_directory_is_one_line_and_nothing_written(
