@@ -36,7 +36,6 @@ def make_adapter(
     name_or_path: str, tasks: Sequence[str] | str | None = None, **options: Any
 ) -> EnvAdapter:
     """Build an adapter by name or import path, with its task list and options."""
-    check_options({k: v for k, v in options.items() if k != "episode_length"})
     return adapter_class(name_or_path)(tasks=tasks, **options)
 
 

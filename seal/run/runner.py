@@ -141,9 +141,8 @@ class Run:
         created = missing[-1] if missing else None  # the top folder this run makes
         try:
             self.lock.acquire(command)
-        except (
-            OSError
-        ) as exc:  # a folder that cannot be made there: /proc, no permission, a long name
+        except OSError as exc:
+            # A folder that cannot be made there: under /proc, no permission, a name too long.
             if created is not None:
                 shutil.rmtree(created, ignore_errors=True)
             raise SealError(
