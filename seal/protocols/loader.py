@@ -220,7 +220,7 @@ def default_architecture(kind: str) -> str:
 
 
 def _build_agent(raw: Mapping[str, Any] | None, kind: str, device: str, file: str) -> AgentConfig:
-    from seal.learner.config import RENAMED_KEYS, AgentConfig
+    from seal.learner.config import MTRL_ARCHITECTURES, RENAMED_KEYS, AgentConfig
     from seal.learner.presets import preset_values
 
     table = dict(raw or {})
@@ -236,6 +236,10 @@ def _build_agent(raw: Mapping[str, Any] | None, kind: str, device: str, file: st
         defaults["task_encoder"] = "none"
     # A preset's keys fill what the table leaves out; the table's own keys win (seal.learner.presets).
     defaults.update(preset_values(table.get("preset", ""), file))
+    if kind == "finetune" and {**defaults, **table}["architecture"] in MTRL_ARCHITECTURES:
+        # A task-conditioned network takes the task id as its own input: "one_hot" is the only
+        # task_encoder it runs with, so it is the default here too.
+        defaults["task_encoder"] = "one_hot"
     agent = typed_config.build(AgentConfig, table, f"{file}: agent", defaults)
     _check_device_name(agent.device, "agent.device", file)
     return agent

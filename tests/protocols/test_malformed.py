@@ -314,3 +314,16 @@ def test_an_out_that_is_not_a_directory_is_one_line_and_nothing_written(
 
 def test_every_collection_backend_is_a_valid_collector() -> None:
     assert set(get_args(get_type_hints(TrainingConfig)["collector"])) == set(BACKENDS)
+
+
+def test_finetune_defaults_the_task_encoder_by_architecture(tmp_path: Path) -> None:
+    from seal.errors import ConfigError
+    from seal.protocols import load_protocol
+
+    path = tmp_path / "ft.toml"
+    path.write_text(FINETUNE)
+    assert load_protocol(path).agent.task_encoder == "none"  # the aligned obs carries the id
+    paco = ['agent.architecture="paco"']
+    assert load_protocol(path, paco).agent.task_encoder == "one_hot"  # the only one it runs with
+    with pytest.raises(ConfigError, match="agent.task_encoder must be \"one_hot\", got 'none'"):
+        load_protocol(path, [*paco, 'agent.task_encoder="none"'])  # said, not defaulted
