@@ -505,3 +505,13 @@ def test_cli_report_prints_the_counts_and_the_changes(
     assert "# Millions of updates to reach 90% success" in printed
     assert "# Changes against the reference columns" in printed
     assert "**drawer-close-v3 (MW)**" in printed
+
+
+def test_a_seed_without_evaluation_rows_is_named_not_dropped_silently(tmp_path: Path) -> None:
+    group = write_group(tmp_path / "reports", "baseline_mw", {**BASELINE_MW, 2: ""})
+    result = report([group], out=tmp_path / "o")
+    assert [n for n in result.skipped if "seed-2" in n] == [
+        f"{group / 'seed-2'}: metrics.csv has no evaluation rows (a run that stopped before its "
+        "first evaluation); it is left out of the tables and plots"
+    ]
+    assert set(result.per_seed["seed"]) == set(BASELINE_MW)  # the others are counted as before

@@ -440,7 +440,14 @@ def report(
     )
 
     colours = column_colours(layout.columns)
-    skipped: list[str] = []
+    # A seed with no evaluation row (stopped before its first evaluation) counts in no table.
+    skipped = [
+        f"{run.path}: metrics.csv has no evaluation rows (a run that stopped before its first "
+        "evaluation); it is left out of the tables and plots"
+        for group in groups
+        for run in group.runs
+        if run.metrics.empty
+    ]
     plots = plot_success(metrics, x, colours, layout.labels, plots_dir, threshold)
     plots.extend(plot_changes(changes, layout.labels, plots_dir))
     loss_plot = _plot_critic_loss(train, x, colours, layout.labels, plots_dir)
