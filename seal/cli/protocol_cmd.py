@@ -57,14 +57,23 @@ def run_explain(args: argparse.Namespace) -> int:
 
 def run_check(args: argparse.Namespace) -> int:
     """Validate only."""
+    from seal.device import resolve_device
+    from seal.errors import SealError
     from seal.protocols import load_protocol
+    from seal.run.setup import check_resources, check_transfer_source, plan_run
 
     config = load_protocol(args.file, args.overrides, args.scale)
     if config.transfer is not None:
-        from seal.run.setup import check_transfer_source
-
         check_transfer_source(config)  # a checkpoint that is missing or does not fit fails here
+    try:
+        resolve_device(config.protocol.device)
+    except SealError as exc:  # a GPU protocol checked on a CPU node: its memory is the GPU's
+        memory = f"; memory not checked: {exc}"
+    else:
+        check_resources(plan_run(config))  # what `seal run` refuses before it writes anything
+        memory = ""
     print(
         f"{args.file}: ok (protocol {config.name!r}, kind {config.kind}, envs {', '.join(config.envs)})"
+        f"{memory}"
     )
     return 0

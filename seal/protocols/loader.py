@@ -173,6 +173,18 @@ def _check_discount(config: ProtocolConfig, file: str) -> None:
             )
 
 
+def _check_replay(config: ProtocolConfig, file: str) -> None:
+    """Each env's replay holds at least one transition per task (it is split evenly by task)."""
+    capacity = config.replay.capacity_per_env
+    for name, env in config.envs.items():
+        if capacity < len(env.tasks):
+            raise ConfigError(
+                f"{file}: replay.capacity_per_env = {capacity} is below the {len(env.tasks)} "
+                f"tasks of envs.{shown_key(name)}; the replay holds capacity_per_env / tasks "
+                "transitions of each task: give at least one a task"
+            )
+
+
 def _check_kind(config: ProtocolConfig, file: str) -> None:
     kind, envs = config.kind, [shown_key(e) for e in config.envs]
     if kind == "baseline" and len(envs) != 1:
@@ -357,6 +369,7 @@ def config_from_dict(raw: dict[str, Any], path: str = "<memory>") -> ProtocolCon
     _check_kind(config, file)
     _check_demos(config, file)
     _check_discount(config, file)
+    _check_replay(config, file)
     _check_kind_tables(config, file)
     _validate_scheduler(config.scheduler, envs, file)
     sweep_tables.parse_resources(config.resources, file)

@@ -166,6 +166,18 @@ CASES: list[tuple[str, str | bytes, list[str], str]] = [
         ["--set", 'envs.pt.options={tasks=["west"]}'],
         "envs.pt.options: option 'tasks' is not an adapter option: it is the env's own key",
     ),
+    (
+        "replay-below-tasks",
+        BASE,
+        ["--set", "replay.capacity_per_env=1"],
+        "replay.capacity_per_env = 1 is below the 2 tasks of envs.pt",
+    ),
+    (
+        "replay-too-big",
+        BASE,
+        ["--set", "replay.capacity_per_env=1000000000000"],
+        "replay.capacity_per_env = 1000000000000: the run needs an estimated 44,703",
+    ),
     # Would fail only when the first evaluation builds its policy, after the run directory:
     (
         "finetune-smt-gru",
@@ -327,3 +339,17 @@ def test_finetune_defaults_the_task_encoder_by_architecture(tmp_path: Path) -> N
     assert load_protocol(path, paco).agent.task_encoder == "one_hot"  # the only one it runs with
     with pytest.raises(ConfigError, match="agent.task_encoder must be \"one_hot\", got 'none'"):
         load_protocol(path, [*paco, 'agent.task_encoder="none"'])  # said, not defaulted
+
+
+def test_protocol_check_of_a_gpu_protocol_on_a_machine_without_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "p.toml"
+    path.write_text(BASE)
+    capsys.readouterr()
+    assert main(["protocol", "check", str(path), "--set", 'protocol.device="cuda:99"']) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(
+        f"{path}: ok (protocol 'p', kind baseline, envs pt); memory not checked: "
+    )
+    assert "device 'cuda:99' requested but this machine has" in out
