@@ -28,9 +28,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     check = sub.add_parser(
         "check",
         help="validate a protocol file; exit 2 with the offending key if it is invalid",
-        description="Validate a protocol file as `seal run` would load it: print one ok line (its name, "
-        "kind and envs) and exit 0, or one line naming the file, the key, the value and what is "
-        "valid, and exit 2.",
+        description="Validate a protocol file as `seal run` would load it, and run what `seal run` "
+        "checks before it writes anything ([transfer]'s checkpoint, the memory estimate on the "
+        "protocol's device when this machine has it): print one ok line (its name, kind and envs) "
+        "and exit 0, or one line naming the file, the key, the value and what is valid, and exit 2.",
     )
     add_protocol_arguments(check)
     check.set_defaults(func=run_check)
