@@ -61,18 +61,20 @@ def run_check(args: argparse.Namespace) -> int:
     from seal.device import resolve_device
     from seal.errors import SealError
     from seal.protocols import load_protocol
-    from seal.run.setup import check_resources, check_transfer_source, plan_run
+    from seal.run.setup import check_resources, check_transfer, plan_run, transfer_source
 
     config = load_protocol(args.file, args.overrides, args.scale)
-    if config.transfer is not None:
-        check_transfer_source(config)  # a checkpoint that is missing or does not fit fails here
     try:
         resolve_device(config.protocol.device)
     except SealError as exc:  # a GPU protocol checked on a CPU node: its memory is the GPU's
-        memory = f"; memory not checked: {exc}"
+        memory, plan = f"; memory not checked: {exc}", plan_run(config, device="cpu")
     else:
-        check_resources(plan_run(config))  # what `seal run` refuses before it writes anything
-        memory = ""
+        memory, plan = "", plan_run(config)
+    state = transfer_source(config)  # a checkpoint that is missing or does not fit fails here
+    if state is not None:
+        check_transfer(plan, state)
+    if not memory:
+        check_resources(plan)  # what `seal run` refuses before it writes anything
     print(
         f"{args.file}: ok (protocol {config.name!r}, kind {config.kind}, envs {', '.join(config.envs)})"
         f"{memory}"
