@@ -48,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
     """Load the checkpoint, evaluate, print a table or JSON, optionally record videos."""
     from seal.errors import SealError
     from seal.evaluation import evaluate, mean_success, record_videos, rendering_problem
+    from seal.run.resources import check_evaluation_memory
     from seal.run.setup import load_policy
 
     if args.episodes is not None and args.episodes < 1:
@@ -65,6 +66,10 @@ def run(args: argparse.Namespace) -> int:
             del os.environ["MUJOCO_GL"]
     config, model, agent, data = load_policy(args.checkpoint, args.device)
     episodes = args.episodes or config.evaluation.episodes
+    tasks = sum(len(a.tasks) for a in model.adapters.values())
+    check_evaluation_memory(
+        episodes, tasks, "--episodes" if args.episodes else "evaluation.episodes"
+    )
     policy = model.policy(agent, deterministic=True)
     if args.video:
         # Checked first: a machine that cannot render says so before minutes of evaluation.

@@ -15,6 +15,7 @@ from seal.run.phase_model import PhaseModel, build_adapters, plan_phases
 from seal.run.resources import estimate_resources
 
 POINT = Path(__file__).parents[2] / "protocols" / "learn" / "point.toml"
+SMT_GRU = POINT.with_name("point_smt_gru.toml")
 TWO_ENVS = """
 [protocol]
 name = "two"
@@ -71,13 +72,17 @@ def test_parameter_count_is_the_real_agents(
         ("agent.hidden=[1000000, 1000000]", "agent.hidden = [1000000, 1000000]"),
         ("training.batch_per_task=1000000000", "training.batch_per_task = 1000000000"),
         ("replay.capacity_per_env=100000000000", "replay.capacity_per_env = 100000000000"),
+        # These failed at the first evaluation or encoder step, after the run directory existed.
+        ("evaluation.episodes=10000000000", "evaluation.episodes = 10000000000"),
+        ("agent.encoder_episodes=1000000000", "agent.encoder_episodes = 1000000000"),
     ],
 )
 def test_too_large_for_the_machine_is_refused_in_one_line_before_the_run_directory(
     override: str, key: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "reports"
-    code = main(["run", str(POINT), "--out", str(out), "--quiet", "--set", override])
+    path = SMT_GRU if "encoder" in override else POINT
+    code = main(["run", str(path), "--out", str(out), "--quiet", "--set", override])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1, err
     assert key in err[0] and "available" in err[0] and f"lower {key.split(' ')[0]}" in err[0]
@@ -133,3 +138,49 @@ def test_explain_prints_each_learners_actor_and_critic_parameters(
     assert line == (
         f"# networks: {architecture}: actor {actor:,} parameters, critic {critic:,} (both twins)"
     )
+
+
+def test_the_task_encoders_step_is_estimated_from_what_backward_keeps() -> None:
+    """The estimate of one smt_gru encoder step covers the tensors its backward keeps (counted by
+    autograd's saved-tensor hooks, a second code path), at most 2.5 x over (measured: 1.6-1.8 x)."""
+    import torch
+
+    from seal.learner.task_encoder import Episodes, TaskEncoder, elbo
+
+    for overrides in ([], ["agent.encoder_episodes=40", "agent.encoder_decode_steps=4"]):
+        config = load_protocol(SMT_GRU, overrides)
+        adapters = build_adapters(config)
+        (phase,) = plan_phases(config)
+        model = PhaseModel(config, phase, adapters, None)
+        (spec,) = model.specs
+        b, t = config.agent.encoder_episodes, adapters[spec.name].episode_length
+        encoder = TaskEncoder(spec.obs_dim, spec.act_dim, spec.num_tasks, config.agent)
+        episodes = Episodes(
+            torch.randn(b, t, spec.obs_dim),
+            torch.randn(b, t, spec.act_dim),
+            torch.randn(b, t),
+            torch.randn(b, t, spec.obs_dim),
+            torch.full((b,), t),
+            torch.randint(0, spec.num_tasks, (b,)),
+        )
+        kept: dict[int, int] = {}
+
+        def pack(x: torch.Tensor) -> torch.Tensor:
+            kept[x.untyped_storage().data_ptr()] = x.untyped_storage().nbytes()
+            return x
+
+        with torch.autograd.graph.saved_tensors_hooks(pack, lambda x: x):
+            elbo(encoder, episodes, config.agent, torch.Generator().manual_seed(0))
+        estimate = resources_module.encoder_batch_bytes(config.agent, model)
+        assert sum(kept.values()) <= estimate <= 2.5 * sum(kept.values()), overrides
+        total = estimate_resources(config, adapters, "cpu").peak
+        assert total.encoder_batch == estimate and total.total >= total.replay + estimate
+    config = load_protocol(POINT)  # one_hot: no encoder step
+    model = PhaseModel(config, plan_phases(config)[0], build_adapters(config), None)
+    assert resources_module.encoder_batch_bytes(config.agent, model) == 0
+
+
+def test_evaluation_results_are_counted() -> None:
+    # Four float64 arrays of episodes x tasks: 4 x 8 x 50 x 4 bytes for point's 4 tasks.
+    config = load_protocol(POINT, ["evaluation.episodes=50"])
+    assert estimate_resources(config, build_adapters(config), "cpu").peak.evaluation == 6_400

@@ -267,6 +267,11 @@ def test_eval_video_says_why_it_cannot(tmp_path: Path, capsys: pytest.CaptureFix
     capsys.readouterr()
     assert main(["eval", str(run / "checkpoints" / "best.pt"), "--seed", "-5"]) == 2
     assert capsys.readouterr().err == "seal eval: error: --seed -5: must be >= 0\n"
+    # An evaluation whose results cannot fit (it was a 149 GiB numpy error once under way).
+    assert main(["eval", str(run / "checkpoints" / "best.pt"), "--episodes", "10000000000"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("seal eval: error: --episodes 10000000000: ")
+    assert "lower --episodes" in err[0]
 
 
 SMT_ENVS = """
