@@ -165,7 +165,7 @@ def test_the_task_encoders_step_is_estimated_from_what_backward_keeps() -> None:
         )
         kept: dict[int, int] = {}
 
-        def pack(x: torch.Tensor) -> torch.Tensor:
+        def pack(x: torch.Tensor, kept: dict[int, int] = kept) -> torch.Tensor:
             kept[x.untyped_storage().data_ptr()] = x.untyped_storage().nbytes()
             return x
 
