@@ -227,3 +227,33 @@ def test_a_search_space_the_schema_rejects_fails_at_load_without_ray(tmp_path: P
     with pytest.raises(ConfigError, match=r"search\.agent\.actor_lr = 0\.0\).*agent\.actor_lr"):
         search(write_protocol(tmp_path, extra=extra), out=tmp_path / "reports")
     assert not (tmp_path / "reports").exists()
+
+
+@pytest.mark.parametrize("search", [False, True])
+def test_a_run_too_large_for_the_machine_is_refused_before_ray(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], search: bool
+) -> None:
+    """seal run's memory refusal, before any directory or Ray work: for a plain sweep's protocol,
+    and for each [search] value alone (a replay of 10^12 failed inside every trial)."""
+    from seal.cli.main import main
+
+    huge = "100000000000"
+    extra = (
+        f'[search]\nnum_samples = 1\n"replay.capacity_per_env" = {{dist = "choice", values = [1000, {huge}]}}\n'
+        if search
+        else ""
+    )
+    args = ["--search"] if search else ["--set", f"replay.capacity_per_env={huge}"]
+    path = write_protocol(tmp_path, extra=extra)
+    assert main(["sweep", str(path), "--out", str(tmp_path / "reports"), *args]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and f"replay.capacity_per_env = {huge}: the run needs" in err[0], err
+    assert ("[search] value" in err[0]) == search
+    assert not (tmp_path / "reports").exists()
+    # The control: the same protocol with values that fit passes the check (and goes on to Ray,
+    # which this test does not start).
+    from seal.sweep.manifest import _check_memory
+
+    (tmp_path / "fits").mkdir()
+    fits = write_protocol(tmp_path / "fits", extra=extra.replace(f", {huge}", ""))
+    _check_memory(load_protocol(fits), search)

@@ -283,10 +283,7 @@ def _validate_search(raw: dict[str, Any], spec: sweep_tables.SearchSpec, file: s
     """Every searched `table.key` names a config value, valid at each end of its distribution."""
     base = {k: v for k, v in raw.items() if k != "search"}
     for param in spec.params:
-        values = param.values if param.dist in ("choice", "grid") else (param.low, param.high)
-        if param.dist == "int":
-            values = tuple(int(v) for v in values)  # type: ignore[arg-type]
-        for value in values:
+        for value in param.ends():
             override = f"{param.key}={toml_value(value)}"
             trial = apply_overrides(copy.deepcopy(base), [override], f"{file}: search")
             config_from_dict(trial, f"{file} (search.{param.key} = {value!r})")

@@ -96,6 +96,15 @@ class Distribution:
     high: float | None = None
     values: tuple[Any, ...] = ()
 
+    def ends(self) -> tuple[Any, ...]:
+        """The values that bound what a draw can be: every choice or grid value, else low and
+        high (integers for "int"). Each is checked alone against the protocol before a search."""
+        if self.dist in ("choice", "grid"):
+            return self.values
+        if self.dist == "int":
+            return (int(self.low or 0), int(self.high or 0))
+        return (self.low, self.high)
+
     def tune_domain(self) -> Domain | dict[str, Iterable[object]]:
         """This distribution as a Ray Tune param_space entry (a `tune.uniform` ... domain; grid: `tune.grid_search`)."""
         from ray import tune

@@ -132,7 +132,40 @@ def _load_configs(
             from seal.run.setup import check_transfer_source
 
             check_transfer_source(config)
+        _check_memory(config, search)
     return configs
+
+
+def _check_memory(config: ProtocolConfig, search: bool) -> None:
+    """`seal run`'s memory refusal before Ray starts (it came as each trial's failure): for the
+    protocol, or with `search` for each end of each [search] value set alone (`Distribution.ends`;
+    values that are too big only together are left to each trial's own check). A protocol whose
+    device this machine lacks (a GPU protocol on a CPU head node) is left to its trials."""
+    from seal.errors import ConfigError
+    from seal.provenance import resolve_device
+    from seal.run import resources
+    from seal.run.phase_model import build_adapters
+    from seal.sweep.samples import parse_search, sample_overrides, with_overrides
+
+    try:
+        device = resolve_device(config.protocol.device)
+    except SealError:
+        return
+    adapters = build_adapters(config)
+    if not search:
+        resources.check_resources(config, adapters, device)
+        return
+    for param in parse_search(config).params:
+        for value in param.ends():
+            trial = with_overrides(config, sample_overrides({param.key: value}))
+            own = build_adapters(trial) if param.key.startswith("envs.") else adapters
+            try:
+                resources.check_resources(trial, own, device)
+            except ConfigError as exc:
+                raise ConfigError(
+                    f"{exc} (with the [search] value {param.key} = {value!r}; every draw of "
+                    "[search] must fit: lower that value)"
+                ) from None
 
 
 FITTED = ("transfer.", "agent.", "envs.")
