@@ -247,6 +247,22 @@ def _check_table_keys(adapters: Sequence[EnvAdapter], table: Mapping[str, str]) 
             )
 
 
+def lone_entries(adapters: Sequence[EnvAdapter], table: Mapping[str, str]) -> list[tuple[str, str]]:
+    """The (key, group) entries of a user table that put their task in a group of its own under
+    another name: no other task maps there, so the entry does what leaving it out does (a typo
+    of a shared group's name, most likely)."""
+    members: dict[str, int] = {}
+    for adapter in adapters:
+        for task in adapter.tasks:
+            group = table.get(f"{adapter.name}:{task}", table.get(task, task))
+            members[group] = members.get(group, 0) + 1
+    return [
+        (key, group)
+        for key, group in table.items()
+        if members.get(group) == 1 and group != key.rpartition(":")[2]
+    ]
+
+
 class AlignedObservation(gym.ObservationWrapper):
     """Observations of one task's env, aligned by an `Alignment`."""
 

@@ -235,7 +235,7 @@ class FinetuneConfig:
     reinit_critic: bool = False
     """Also re-initialise the critic (Appendix D keeps it)."""
     alignment: dict[str, str] = field(default_factory=dict)
-    """Overrides of the aligned one-hot table, task -> task it shares an id with (default: the paper's Table 3)."""
+    """The aligned one-hot table in place of the paper's Table 3 (default, when empty): task (or "adapter:task") -> a group name; tasks of one group share an id, unlisted tasks get their own. An entry whose group no other task joins is warned of (a typo of a shared group, most likely)."""
 
 
 @with_config(SCHEMA)

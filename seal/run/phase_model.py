@@ -12,6 +12,8 @@ this module, which imports none of them.
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -20,7 +22,7 @@ import numpy as np
 
 from seal.envs import make_adapter
 from seal.envs.base import EnvAdapter
-from seal.errors import SealError
+from seal.errors import SealError, SealWarning
 from seal.evaluation import AgentPolicy
 from seal.protocols.config import ProtocolConfig
 from seal.seeding import derive_seed
@@ -179,15 +181,28 @@ def build_adapters(
 
 def build_alignment(config: ProtocolConfig, adapters: Mapping[str, EnvAdapter]) -> Alignment:
     """The pad-and-fine-tune alignment over source then target adapters (Table 3 unless overridden)."""
-    from seal.envs.alignment import Alignment
+    from seal.envs.alignment import Alignment, lone_entries
 
     ft = config.finetune
     assert ft is not None
     table = dict(ft.alignment) or None
+    pair = [adapters[ft.source], adapters[ft.target]]
     try:
-        return Alignment.build([adapters[ft.source], adapters[ft.target]], table)
+        alignment = Alignment.build(pair, table)
     except SealError as exc:
         raise SealError(f"{config.path}: finetune.alignment: {exc}") from None
+    for key, group in lone_entries(pair, table or {}):
+        names = {t for a in pair for t in a.tasks} | set(ft.alignment.values())
+        close = difflib.get_close_matches(group, sorted(names - {group}), n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        warnings.warn(
+            SealWarning(
+                f"{config.path}: finetune.alignment: {key!r} = {group!r} shares its id with no "
+                f"other task, which is what leaving the entry out does{hint}"
+            ),
+            stacklevel=2,
+        )
+    return alignment
 
 
 def run_agent_config(config: ProtocolConfig, device: str) -> AgentConfig:

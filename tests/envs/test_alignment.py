@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from seal.envs import EnvAdapter, ObsLayout
-from seal.envs.alignment import PAPER_TABLE, Alignment
+from seal.envs.alignment import PAPER_TABLE, Alignment, lone_entries
 from seal.envs.metaworld import MetaWorldAdapter
 from seal.envs.point import PointAdapter
 from seal.errors import SealError, UnknownNameError
@@ -158,6 +158,24 @@ def test_table_override_replaces_the_default() -> None:
     assert align.task_id("franka_kitchen_dense", "microwave") == 9  # not aligned any more
 
 
+def test_an_entry_whose_group_no_other_task_shares_is_found() -> None:
+    adapters = [MetaWorldAdapter(), FakeKitchen()]
+    # A typo of a shared group ("door-opne-v3"), and a qualified key with a made-up lone name.
+    table = {
+        "microwave": "door-opne-v3",
+        "left-hinge-door": "door-open-v3",
+        "franka_kitchen_dense:kettle": "kettles",
+    }
+    assert lone_entries(adapters, table) == [
+        ("microwave", "door-opne-v3"),
+        ("franka_kitchen_dense:kettle", "kettles"),
+    ]
+    # A shared group, even under a new name, and a task named as its own group, are not lone.
+    shared = {"microwave": "doors", "left-hinge-door": "doors", "kettle": "kettle"}
+    assert lone_entries(adapters, shared) == []
+    assert lone_entries(adapters, {k: v for k, v in PAPER_TABLE.items()}) == []
+
+
 def test_bad_tables_and_names() -> None:
     with pytest.raises(UnknownNameError, match="unknown task in alignment table 'kettel'"):
         Alignment.build([MetaWorldAdapter(), FakeKitchen()], table={"kettel": "pick-place-v3"})
@@ -208,3 +226,21 @@ def test_the_real_kitchen_aligns_like_the_fake(mw_fk: Alignment) -> None:
         real.task_ids("franka_kitchen_dense").tolist()
         == mw_fk.task_ids("franka_kitchen_dense").tolist()
     )
+
+
+def test_protocol_check_warns_of_a_lone_group_and_names_the_close_one(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from pathlib import Path
+
+    from seal.cli.main import main
+
+    path = Path(__file__).parents[2] / "protocols" / "finetune_fk_to_mw.toml"
+    table = 'finetune.alignment={microwave="door-opne-v3", kettle="pick-place-v3"}'
+    assert main(["protocol", "check", str(path), "--set", table]) == 0
+    err = capsys.readouterr().err
+    assert "finetune.alignment: 'microwave' = 'door-opne-v3' shares its id with no other task" in err
+    assert "did you mean 'door-open-v3'?" in err and "kettle" not in err
+    # The control: the same table spelled right says nothing.
+    assert main(["protocol", "check", str(path), "--set", table.replace("opne", "open")]) == 0
+    assert "warning" not in capsys.readouterr().err
