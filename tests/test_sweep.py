@@ -252,8 +252,13 @@ def test_a_run_too_large_for_the_machine_is_refused_before_ray(
     assert not (tmp_path / "reports").exists()
     # The control: the same protocol with values that fit passes the check (and goes on to Ray,
     # which this test does not start).
-    from seal.sweep.manifest import _check_memory
+    from seal.sweep.manifest import _check_memory, _load_configs
 
     (tmp_path / "fits").mkdir()
     fits = write_protocol(tmp_path / "fits", extra=extra.replace(f", {huge}", ""))
     _check_memory(load_protocol(fits), search)
+    # On a cluster (--address) the trials run on other nodes, whose memory is theirs to check.
+    sets = [] if search else [f"replay.capacity_per_env={huge}"]
+    with pytest.raises(ConfigError, match="the run needs"):
+        _load_configs([path], sets, None, search=search, local=True)
+    _load_configs([path], sets, None, search=search, local=False)

@@ -78,11 +78,13 @@ def _new_sweep(
     scale: float | None,
     out: str | Path,
     command: Sequence[str],
+    local: bool,
 ) -> tuple[Path, dict[str, Any], list[TrialRecord], dict[str, ProtocolConfig]]:
-    """(sweep directory, manifest, trials, configs by name) of a new sweep, its groups created."""
+    """(sweep directory, manifest, trials, configs by name) of a new sweep, its groups created;
+    `local`: its trials run on this machine (a local Ray), so their memory is checked here."""
     from seal.run.runner import new_group_dir
 
-    loaded = _load_configs(paths, overrides, scale)
+    loaded = _load_configs(paths, overrides, scale, local=local)
     groups = {c.name: new_group_dir(c, out).resolve() for c in loaded}
     if len(loaded) == 1:
         sweep_dir = groups[loaded[0].name]
@@ -262,7 +264,7 @@ def sweep(
         manifest, trials, configs = _resume_sweep(sweep_dir)
     else:
         sweep_dir, manifest, trials, configs = _new_sweep(
-            paths, seeds, overrides, scale, out, command
+            paths, seeds, overrides, scale, out, command, local=address in (None, "local")
         )
     extra = {k: v for k, v in manifest.items() if k not in ("kind", "trials")}
     say = progress or (lambda _msg: None)

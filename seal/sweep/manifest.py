@@ -113,6 +113,7 @@ def _load_configs(
     scale: float | None,
     *,
     search: bool = False,
+    local: bool = True,
 ) -> list[ProtocolConfig]:
     if not paths:
         raise SealError("seal sweep: give at least one protocol FILE (or --resume SWEEP_DIR)")
@@ -132,12 +133,13 @@ def _load_configs(
             from seal.run.setup import check_transfer_source
 
             check_transfer_source(config)
-        _check_memory(config, search)
+        if local:  # the trials run on this machine; a cluster's nodes check their own
+            _check_memory(config, search)
     return configs
 
 
 def _check_memory(config: ProtocolConfig, search: bool) -> None:
-    """`seal run`'s memory refusal before Ray starts (it came as each trial's failure): for the
+    """`seal run`'s memory refusal before a local Ray starts (it came as each trial's failure): for the
     protocol, or with `search` for each end of each [search] value set alone (`Distribution.ends`;
     values that are too big only together are left to each trial's own check). A protocol whose
     device this machine lacks (a GPU protocol on a CPU head node) is left to its trials."""

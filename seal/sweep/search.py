@@ -225,9 +225,11 @@ def _new_search(
     scale: float | None,
     out: str | Path,
     command: Sequence[str],
+    local: bool,
 ) -> tuple[Path, dict[str, Any], ProtocolConfig]:
-    """(search directory, manifest, base config) of a new search, its directory created."""
-    (base,) = _load_configs([path], overrides, scale, search=True)
+    """(search directory, manifest, base config) of a new search, its directory created;
+    `local`: its trials run on this machine (a local Ray), so their memory is checked here."""
+    (base,) = _load_configs([path], overrides, scale, search=True, local=local)
     spec = parse_search(base, num_samples)
     search_dir = (
         Path(out).resolve() / base.name / f"search-{new_group_id(dumps_toml(config_to_dict(base)))}"
@@ -307,7 +309,14 @@ def search(
         raise SealError("seal sweep --search: give one protocol FILE (or --resume SEARCH_DIR)")
     else:
         search_dir, manifest, base = _new_search(
-            path, seed, num_samples, overrides, scale, out, command
+            path,
+            seed,
+            num_samples,
+            overrides,
+            scale,
+            out,
+            command,
+            local=address in (None, "local"),
         )
     spec = parse_search(base, manifest["search"]["num_samples"])
     records = _search_records(search_dir, base, spec, manifest["seed"], earlier)
