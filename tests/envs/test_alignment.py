@@ -239,7 +239,9 @@ def test_protocol_check_warns_of_a_lone_group_and_names_the_close_one(
     table = 'finetune.alignment={microwave="door-opne-v3", kettle="pick-place-v3"}'
     assert main(["protocol", "check", str(path), "--set", table]) == 0
     err = capsys.readouterr().err
-    assert "finetune.alignment: 'microwave' = 'door-opne-v3' shares its id with no other task" in err
+    assert (
+        "finetune.alignment: 'microwave' = 'door-opne-v3' shares its id with no other task" in err
+    )
     assert "did you mean 'door-open-v3'?" in err and "kettle" not in err
     # The control: the same table spelled right says nothing.
     assert main(["protocol", "check", str(path), "--set", table.replace("opne", "open")]) == 0
