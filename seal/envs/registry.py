@@ -99,6 +99,13 @@ def _resolve(kind: str, name_or_path: str, builtins: Mapping[str, str], attr_wor
             f"{kind} {name_or_path!r}: module {module_name!r} is in Python's standard library, "
             f"which holds no {kind}; {valid}"
         )
+    if "__main__" in module_name.split("."):
+        # A package's __main__ is its command line: importing it runs it (PIL prints a report,
+        # certifi parses seal's arguments), and it holds no adapter or map.
+        raise SealError(
+            f"{kind} {name_or_path!r}: module {module_name!r} is a package's command line "
+            f"(__main__), which runs when imported; {valid}"
+        )
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:

@@ -14,6 +14,7 @@ import copy
 import dataclasses
 import functools
 import math
+import re
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -33,6 +34,9 @@ from seal.protocols.config import (
 from seal.protocols.toml_io import apply_overrides, check_nesting, read_toml, toml_value
 from seal.sweep import config_tables as sweep_tables  # a leaf module: no Ray, no run code
 from seal.typed_config import shown_key
+
+ENV_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
+"""What an [envs.<name>] may be called: it labels the env in metrics.csv and train.csv's columns."""
 
 if TYPE_CHECKING:
     from seal.learner.config import AgentConfig
@@ -92,6 +96,12 @@ def _build_envs(raw: object, file: str) -> dict[str, EnvConfig]:
     envs: dict[str, EnvConfig] = {}
     for name, table in raw.items():
         where = f"{file}: envs.{shown_key(name)}"
+        # The name labels the env in metrics.csv, train.csv's columns and every table.
+        if not ENV_NAME.fullmatch(name):
+            raise ConfigError(
+                f"{where}: the env name {name!r} is not valid; valid: letters, digits, '_' and "
+                "'-', starting with a letter or digit (e.g. [envs.mw])"
+            )
         if not isinstance(table, dict):
             raise ConfigError(
                 f"{where} must be a table with keys adapter, tasks, episode_length, options, demo_episodes"
@@ -303,12 +313,16 @@ def _check_tables(raw: Mapping[str, Any], file: str) -> None:
 
 def _build_protocol_table(raw: Mapping[str, Any], file: str) -> ProtocolTable:
     table = dict(raw.get("protocol", {}))
+    named = "name" in table
     table.setdefault("name", Path(file).stem if file != "<memory>" else "protocol")
     protocol = typed_config.build(ProtocolTable, table, f"{file}: protocol")
     _check_device_name(protocol.device, "protocol.device", file)
-    if not protocol.name or "/" in protocol.name or protocol.name.startswith("."):
+    name = protocol.name
+    if not name or "/" in name or "\0" in name or name.startswith(".") or len(name.encode()) > 255:
+        given = "" if named else " (from the file's name: set [protocol] name)"
         raise ConfigError(
-            f"{file}: protocol.name = {protocol.name!r} must be a non-empty folder name without '/'"
+            f"{file}: protocol.name = {name!r}{given} must be a folder name: not empty, without "
+            "'/' or NUL, not starting with '.', at most 255 bytes"
         )
     return protocol
 

@@ -59,6 +59,12 @@ def test_bad_import_paths() -> None:
         ):
             adapter_class(path)
     assert "antigravity" not in sys.modules and "this" not in sys.modules
+    # Nor a package's command line: importing PIL.__main__ prints Pillow's report, certifi's
+    # parses seal's own arguments.
+    for path in ("PIL.__main__:X", "certifi.__main__:X"):
+        with pytest.raises(SealError, match=r"is a package's command line \(__main__\)"):
+            adapter_class(path)
+        assert path.partition(":")[0] not in sys.modules
 
 
 def test_bad_tasks_and_options() -> None:

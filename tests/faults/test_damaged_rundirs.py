@@ -614,7 +614,7 @@ CASES = [
         "explain/key-with-a-newline",
         _protocol(PROTOCOL + '[envs."p\\nt"]\nadapter = "point"\n'),
         "explain",
-        '(pt, "p\\nt")',
+        "the env name 'p\\nt' is not valid",
     ),
 ]
 

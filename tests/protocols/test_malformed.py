@@ -90,6 +90,17 @@ CASES: list[tuple[str, str | bytes, list[str], str]] = [
     ),
     ("env-adapter", _edit('adapter = "point"', 'adapter = "pointt"'), [], "envs.pt.adapter"),
     ("env-task", _edit('"north"]', '"nort"]'), [], "'nort'"),
+    # An empty env name ran, then no report could read its metrics.csv.
+    ("env-name-empty", _edit("[envs.pt]", '[envs.""]'), [], "the env name '' is not valid"),
+    ("env-name-space", _edit("[envs.pt]", '[envs."p t"]'), [], "the env name 'p t' is not valid"),
+    # Both were tracebacks when the run directory was made (embedded null byte; name too long).
+    ("name-nul", _edit('kind = "baseline"', 'kind = "baseline"\nname = "a\\u0000b"'), [], "NUL"),
+    (
+        "name-long",
+        _edit('kind = "baseline"', f'kind = "baseline"\nname = "{"a" * 256}"'),
+        [],
+        "at most 255 bytes",
+    ),
     (
         "joint-one-env",
         _edit('kind = "baseline"', 'kind = "joint"'),
