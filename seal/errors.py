@@ -28,4 +28,11 @@ class UnknownNameError(SealError):
 
 
 class TrainingDivergedError(RuntimeError):
-    """A loss became NaN or inf: names the step and the last good checkpoint."""
+    """A loss became NaN or inf: names the step and the last good checkpoint.
+
+    `what` is the message without the checkpoint, for a caller that knows a better one (a run's
+    newest checkpoint, where the agent has saved none yet in this phase)."""
+
+    def __init__(self, what: str, checkpoint: str | None) -> None:
+        super().__init__(f"{what}; last good checkpoint: {checkpoint or 'none saved yet'}")
+        self.what = what

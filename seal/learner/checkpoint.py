@@ -124,8 +124,8 @@ def save_checkpoint(
     path = Path(path)
     if not agent.parameters_finite():
         raise TrainingDivergedError(
-            f"refusing to write checkpoint {path}: the agent has NaN/inf parameters at update {agent.num_updates}; "
-            f"last good checkpoint: {agent.last_checkpoint or 'none saved yet'}"
+            f"refusing to write checkpoint {path}: the agent has NaN/inf parameters at update {agent.num_updates}",
+            agent.last_checkpoint,
         )
     clash = sorted(set(fields or {}) & set(RESERVED))
     if clash:

@@ -563,14 +563,14 @@ class Agent(StateIO):
         metrics = dict(zip(names, values.tolist(), strict=True))
         bad = [k for k, v in metrics.items() if not math.isfinite(v)]
         if bad:
-            where = self.last_checkpoint or "none saved yet"
             updates = (
                 f"update {self.num_updates}"
                 if first_update + 1 >= self.num_updates
                 else f"one of updates {first_update + 1}-{self.num_updates}"
             )
             raise TrainingDivergedError(
-                f"training diverged at {updates}: {', '.join(f'{k} = {metrics[k]}' for k in bad)}; last good checkpoint: {where}"
+                f"training diverged at {updates}: {', '.join(f'{k} = {metrics[k]}' for k in bad)}",
+                self.last_checkpoint,
             )
         return metrics
 

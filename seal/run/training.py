@@ -103,7 +103,7 @@ class Training:
                 except TrainingDivergedError as exc:
                     rundir = loop.owner.rundir
                     raise SealError(
-                        f"{rundir.path}: training diverged in phase {loop.phase.name!r} by gradient step {loop.state.grad_steps} ({exc}); last good checkpoint: {rundir.latest_checkpoint() or 'none yet'}"
+                        f"{rundir.path}: training diverged in phase {loop.phase.name!r} by gradient step {loop.state.grad_steps} ({exc.what}); last good checkpoint: {rundir.latest_checkpoint() or 'none yet'}"
                     ) from None
                 for k, v in values.items():
                     loop.state.log_sums[k] = loop.state.log_sums.get(k, 0.0) + v

@@ -306,3 +306,20 @@ def test_scheduler_that_ends_early_stops_the_run_with_a_final_evaluation(tmp_pat
     assert {"epoch", "env", "task", "status"} <= set(timeline.columns)
     assert set(timeline["status"]) & {"main", "training"}
     assert (run / "checkpoints" / f"ckpt-{last:07d}.pt").is_file()
+
+
+def test_a_divergence_while_fine_tuning_names_one_last_good_checkpoint(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The fine-tune phase's new agent has saved nothing yet: the run's newest checkpoint (the
+    pre-training's) is the last good one, named once (it said "none saved yet" beside it)."""
+    monkeypatch.syspath_prepend(str(HERE))
+    path = protocol(tmp_path, FINETUNE_ENVS, kind="finetune", batch=4)
+    out = tmp_path / "out"
+    # A learning rate of 1e300 x the pre-training's makes the first fine-tune update non-finite.
+    argv = ["run", str(path), "--out", str(out), "--quiet", "--set", "finetune.lr_factor=1e300"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "training diverged in phase 'finetune'" in err, err
+    assert err.count("last good checkpoint") == 1 and "none saved yet" not in err
+    assert err.rstrip().endswith("ckpt-pretrain-0000003.pt"), err
