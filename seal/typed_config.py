@@ -130,6 +130,9 @@ def _message(error: ErrorDetails, data: Mapping[str, object], cls: type, where: 
             [f.name for f in dataclasses.fields(owner)] if dataclasses.is_dataclass(owner) else []
         )
         return f"{path} is not a valid key; valid keys: {', '.join(valid)}"
+    counted = _count_message(kind, loc, data, cls, where, ctx)
+    if counted is not None:
+        return counted
     if kind.startswith("missing"):
         return f"{path}: required key is missing"
     shown = f"{path} = {value!r}"
@@ -149,6 +152,38 @@ def _message(error: ErrorDetails, data: Mapping[str, object], cls: type, where: 
     if kind in _EXPECTED:
         return f"{shown} has the wrong type; expected {_EXPECTED[kind]}"
     return f"{shown} is not valid: {error['msg']}"
+
+
+def _count_message(
+    kind: str,
+    loc: list[str | int],
+    data: Mapping[str, object],
+    cls: type,
+    where: str,
+    ctx: Mapping[str, object],
+) -> str | None:
+    """One line for a list of the wrong length: pydantic reports too few items of a fixed-length
+    tuple as its first missing item ("decoder_weights[1]: missing"), too many as "too_long"."""
+    if kind.startswith("missing") and loc and isinstance(loc[-1], int):
+        field_loc = loc[:-1]
+    elif kind == "too_long" and loc:
+        field_loc = loc
+    else:
+        return None
+    given: object = data
+    owner: object = cls
+    for part in field_loc:
+        given = _item(given, part)
+    for part in field_loc[:-1]:
+        owner = _field_type(owner, part)
+    if not isinstance(given, list) or not isinstance(field_loc[-1], str):
+        return None
+    args = typing.get_args(_field_type(owner, field_loc[-1]))
+    expected = len(args) if args and Ellipsis not in args else f"at most {ctx.get('max_length')}"
+    path = where + "".join(
+        f"[{p}]" if isinstance(p, int) else f".{shown_key(p)}" for p in field_loc
+    )
+    return f"{path} = {given!r} has {len(given)} items; expected {expected}"
 
 
 def _union_message(
@@ -217,6 +252,16 @@ def build(
             message = _union_message(errors, data, where) or _message(errors[0], data, cls, where)
             raise ConfigError(message) from None
         cause = errors[0].get("ctx", {}).get("error") if errors else exc
-        raise ConfigError(f"{where}: {cause}") from None
+        raise ConfigError(_at(where, cause)) from None
     except (SealError, TypeError) as exc:
-        raise ConfigError(f"{where}: {exc}") from None
+        raise ConfigError(_at(where, exc)) from None
+
+
+def _at(where: str, cause: object) -> str:
+    """`cause` after `where` ("file: table"), without the table twice when the cause already
+    starts with it ("agent.hidden: ...", not "agent: agent.hidden: ...")."""
+    file, _, table = where.rpartition(": ")
+    text = str(cause)
+    if file and table and text.startswith(f"{table}."):
+        return f"{file}: {text}"
+    return f"{where}: {text}"

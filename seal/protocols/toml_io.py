@@ -124,7 +124,9 @@ def read_toml(
     except SealError as exc:
         raise ConfigError(str(exc)) from None
     try:
-        text = data.decode("utf-8")
+        # utf-8-sig: a byte-order mark, which some Windows editors write, is dropped (tomllib
+        # rejects it as "Invalid statement at line 1, column 1").
+        text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         line = data[: exc.start].count(b"\n") + 1
         raise ConfigError(

@@ -73,7 +73,15 @@ def plan_run(config: ProtocolConfig, seed: int = 0, device: str | None = None) -
     of protocol.device's)."""
     started = time.perf_counter()
     phases = plan_phases(config)
-    device = provenance.resolve_device(config.protocol.device if device is None else device)
+    if device is None:
+        try:
+            device = provenance.resolve_device(config.protocol.device)
+        except SealError as exc:
+            raise ConfigError(
+                f"{config.path}: protocol.device = {config.protocol.device!r}: {exc}"
+            ) from None
+    else:
+        device = provenance.resolve_device(device)
     adapters = build_adapters(config)
     alignment = build_alignment(config, adapters) if config.kind == "finetune" else None
     agent_cfg = run_agent_config(config, device)

@@ -257,3 +257,13 @@ def test_kind_specific_structure_errors(tmp_path: Path) -> None:
         load_protocol(tmp_path / "missing.toml")
     with pytest.raises(ConfigError, match="not valid TOML"):
         load_protocol(write(tmp_path, "[protocol\n"))
+
+
+def test_a_byte_order_mark_is_read_past(tmp_path: Path) -> None:
+    """A UTF-8 file that starts with a byte-order mark (some Windows editors write one) loads as
+    the same file without it; tomllib alone refused it as "Invalid statement" at line 1."""
+    text = (PROTOCOLS / "learn" / "point.toml").read_bytes()
+    marked = tmp_path / "point.toml"
+    marked.write_bytes(b"\xef\xbb\xbf" + text)
+    plain = load_protocol(PROTOCOLS / "learn" / "point.toml")
+    assert config_to_dict(load_protocol(marked)) == config_to_dict(plain)

@@ -323,3 +323,15 @@ def test_a_divergence_while_fine_tuning_names_one_last_good_checkpoint(
     assert "training diverged in phase 'finetune'" in err, err
     assert err.count("last good checkpoint") == 1 and "none saved yet" not in err
     assert err.rstrip().endswith("ckpt-pretrain-0000003.pt"), err
+
+
+def test_a_device_this_machine_lacks_is_named_with_its_file_and_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = protocol(tmp_path, BASELINE_ENVS, kind="baseline", epochs=1)  # no machine has 100 GPUs
+    out = tmp_path / "out"
+    argv = ["run", str(path), "--out", str(out), "--quiet", "--set", 'protocol.device="cuda:99"']
+    assert main(argv) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and f"{path}: protocol.device = 'cuda:99': " in err[0], err
+    assert not out.exists()

@@ -10,7 +10,7 @@ from seal.errors import ConfigError
 from seal.learner import AgentConfig
 from seal.protocols.config import EvaluationConfig, TrainingConfig, TransferConfig
 from seal.schedulers.curriculum import CurriculumV2Config
-from seal.typed_config import build, field_docs
+from seal.typed_config import _at, build, field_docs
 
 
 def test_an_int_field_takes_an_integral_float_and_a_float_field_an_int() -> None:
@@ -85,6 +85,18 @@ def test_an_int_field_takes_an_integral_float_and_a_float_field_an_int() -> None
             {"hidden": "400"},
             "training.hidden = '400' has the wrong type; expected a list",
         ),
+        # a fixed-length list given too few or too many items (pydantic: "decoder_weights[1]:
+        # missing", "Tuple should have at most 3 items after validation")
+        (
+            AgentConfig,
+            {"decoder_weights": [1.0]},
+            "training.decoder_weights = [1.0] has 1 items; expected 3",
+        ),
+        (
+            AgentConfig,
+            {"decoder_weights": [1.0, 1.0, 1.0, 1.0]},
+            "training.decoder_weights = [1.0, 1.0, 1.0, 1.0] has 4 items; expected 3",
+        ),
     ],
 )
 def test_every_error_is_one_line_naming_the_key_value_and_what_is_valid(
@@ -102,12 +114,16 @@ def test_defaults_fill_what_the_table_leaves_out_and_the_table_wins() -> None:
 
 
 def test_a_class_check_is_reported_at_the_table() -> None:
-    # AgentConfig.__post_init__ refuses a zero width; the engine names the file and table first.
+    # AgentConfig.__post_init__ refuses a zero width; the engine names the file first, and the
+    # table once (the check's message starts with it: "agent.critic_hidden").
     with pytest.raises(
         ConfigError,
-        match=r"^f: agent: agent.critic_hidden: expected a non-empty list of positive ints, got \(0,\)$",
+        match=r"^f: agent.critic_hidden: expected a non-empty list of positive ints, got \(0,\)$",
     ):
         build(AgentConfig, {"critic_hidden": [0]}, "f: agent")
+    # A message that does not start with the table keeps it in front.
+    assert _at("f: agent", "widths must agree") == "f: agent: widths must agree"
+    assert _at("f: agent", "agent.hidden: bad") == "f: agent.hidden: bad"
 
 
 def test_field_docs_are_the_fields_docstrings() -> None:
