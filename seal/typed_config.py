@@ -129,6 +129,8 @@ def _message(error: ErrorDetails, data: Mapping[str, object], cls: type, where: 
         valid = (
             [f.name for f in dataclasses.fields(owner)] if dataclasses.is_dataclass(owner) else []
         )
+        if not valid:  # e.g. scheduler.kind = "uniform", which has no settings
+            return f"{path} is not a valid key; this table takes no other keys"
         return f"{path} is not a valid key; valid keys: {', '.join(valid)}"
     counted = _count_message(kind, loc, data, cls, where, ctx)
     if counted is not None:

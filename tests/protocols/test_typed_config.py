@@ -10,6 +10,7 @@ from seal.errors import ConfigError
 from seal.learner import AgentConfig
 from seal.protocols.config import EvaluationConfig, TrainingConfig, TransferConfig
 from seal.schedulers.curriculum import CurriculumV2Config
+from seal.schedulers.ratio import UniformConfig
 from seal.typed_config import _at, build, field_docs
 
 
@@ -84,6 +85,12 @@ def test_an_int_field_takes_an_integral_float_and_a_float_field_an_int() -> None
             AgentConfig,
             {"hidden": "400"},
             "training.hidden = '400' has the wrong type; expected a list",
+        ),
+        # a table without settings (its valid keys were an empty list)
+        (
+            UniformConfig,
+            {"ratios": {"pt": 1.0}},
+            "training.ratios is not a valid key; this table takes no other keys",
         ),
         # a fixed-length list given too few or too many items (pydantic: "decoder_weights[1]:
         # missing", "Tuple should have at most 3 items after validation")
