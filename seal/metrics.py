@@ -71,6 +71,27 @@ def check_consecutive(consecutive: object) -> None:
         )
 
 
+def _hit_streaks(ordered: pd.DataFrame, hit: pd.Series, keys: Sequence[str]) -> np.ndarray:
+    """Per row of `ordered` (sorted by `keys`, then in training order): how many successive
+    evaluations of its (seed, phase, env, task) run hit, from this one on (0 where it misses).
+
+    One pass over the rows whatever K is asked for, so a K larger than any run's evaluations
+    costs no more than a small one: no streak reaches it.
+    """
+    flags = hit.to_numpy(dtype=bool)
+    if not len(flags):
+        return np.zeros(0, dtype=np.int64)
+    # Rows of a run are contiguous (sorted by keys); NaN keys form runs of their own.
+    run_id = ordered.groupby(list(keys), sort=False, dropna=False).ngroup().to_numpy()
+    # Walk backwards: a streak restarts at a miss and at the last row of each run.
+    backwards, ids = flags[::-1], run_id[::-1]
+    starts = np.ones(len(flags), dtype=bool)
+    starts[1:] = ids[1:] != ids[:-1]
+    segment = np.cumsum(starts | ~backwards)
+    streak = pd.Series(backwards.astype(np.int64)).groupby(segment).cumsum().to_numpy()
+    return streak[::-1]
+
+
 def first_reach(
     metrics: pd.DataFrame, threshold: float = DEFAULT_THRESHOLD, consecutive: int = 1
 ) -> pd.DataFrame:
@@ -102,13 +123,10 @@ def first_reach(
     # Evaluations in training order; "first" is the earliest epoch of the phase.
     ordered = metrics.sort_values([*keys, "epoch", "grad_steps"], kind="stable")
     hit = ordered["success"] >= threshold - SUCCESS_TOLERANCE  # as evaluation.reaches
-    # Default K = 1, the paper's criterion (Appendix B: the first evaluation at 90%).
-    run = hit
-    for ahead in range(1, consecutive):
-        # The evaluation `ahead` places later in the same task's run must hit too (none: no reach).
-        later = hit.groupby([ordered[k] for k in keys], sort=False).shift(-ahead)
-        run = run & later.fillna(False).astype(bool)
-    hits = ordered[run]
+    # Default K = 1, the paper's criterion (Appendix B: the first evaluation at 90%). For K > 1
+    # an evaluation starts a reach when it and the K - 1 after it in the same task's run all hit.
+    # No streak is longer than the rows, so a larger K is "never": clamped to fit an int64.
+    hits = ordered[_hit_streaks(ordered, hit, keys) >= min(consecutive, len(ordered) + 1)]
     first = hits.groupby(keys, sort=False).head(1)[keys + values]
     last = ordered.groupby(keys, sort=False).tail(1)[keys + ["updates", "grad_steps", "env_steps"]]
     last = last.rename(columns={c: f"run_{c}" for c in ("updates", "grad_steps", "env_steps")})

@@ -379,6 +379,70 @@ def test_consecutive_keeps_seeds_apart() -> None:
     assert not first_reach(_csv(rows), consecutive=2)["reached"].any()
 
 
+# Streaks, by run (rows shuffled below, so the training order comes from epoch, not the file):
+#   seed 0, train, a: miss, hit, hit, miss, hit, hit, hit  (epochs 1-7)
+#   seed 0, train, b: hit x 4                              (epochs 1-4)
+#   seed 0, tune,  a: hit, hit                             (epochs 1-2; phases are kept apart)
+#   seed 1, train, a: hit, miss, hit, hit                  (epochs 1-4)
+STREAKS = {
+    (0, "train", "a"): [0.1, 0.95, 0.9, 0.5, 1.0, 0.92, 0.97],
+    (0, "train", "b"): [0.9, 0.91, 0.93, 1.0],
+    (0, "tune", "a"): [1.0, 0.95],
+    (1, "train", "a"): [0.99, 0.2, 0.9, 0.96],
+}
+# The epoch each run reports for K = 1..5 (0: never reached).
+STREAK_EPOCHS = {
+    (0, "train", "a"): [2, 2, 5, 0, 0],
+    (0, "train", "b"): [1, 1, 1, 1, 0],
+    (0, "tune", "a"): [1, 1, 0, 0, 0],
+    (1, "train", "a"): [1, 3, 0, 0, 0],
+}
+
+
+def _streak_frame() -> pd.DataFrame:
+    rows = [
+        f"{seed},{phase},{epoch},mw,{task},{success},0,{100 * epoch},{100 * epoch},"
+        f"{epoch / 1000},{epoch}"
+        for (seed, phase, task), curve in STREAKS.items()
+        for epoch, success in enumerate(curve, start=1)
+    ]
+    order = np.random.default_rng(0).permutation(len(rows))
+    text = "seed,phase,epoch,env,task,success,return,grad_steps,env_steps,updates,wall_s\n"
+    return _csv(text + "\n".join(rows[i] for i in order) + "\n")
+
+
+def _epochs(reach: pd.DataFrame) -> dict[tuple[int, str, str], int]:
+    return {
+        (int(r.seed), r.phase, r.task): int(r.epoch) if r.reached else 0
+        for r in reach.itertuples(index=False)
+    }
+
+
+@pytest.mark.parametrize("consecutive", [1, 2, 3, 4, 5])
+def test_consecutive_reports_the_first_of_each_run_of_k_hits(consecutive: int) -> None:
+    reach = first_reach(_streak_frame(), consecutive=consecutive)
+    want = {run: epochs[consecutive - 1] for run, epochs in STREAK_EPOCHS.items()}
+    assert _epochs(reach) == want
+    # The row reported is that evaluation's: updates, steps of the first of the K hits.
+    for r in reach[reach["reached"]].itertuples(index=False):
+        assert (r.grad_steps, r.env_steps) == (100 * r.epoch, 100 * r.epoch)
+        assert r.updates == pytest.approx(r.epoch / 1000)
+
+
+@pytest.mark.parametrize("consecutive", [8, 100_000, 99_999_999_999_999_999_999])
+def test_a_k_longer_than_every_run_is_never_reached(consecutive: int) -> None:
+    # The longest run has 7 evaluations: no K above that can be met, however large (a K of
+    # 10^20 once looped 10^20 times over the frame); the run totals are still reported.
+    frame = _streak_frame()
+    reach = first_reach(frame, consecutive=consecutive)
+    never = first_reach(frame, threshold=1.0 + 1e-3)  # a threshold no evaluation reaches
+    assert not reach["reached"].any()
+    assert _epochs(reach) == dict.fromkeys(STREAKS, 0)
+    pd.testing.assert_frame_equal(reach, never)
+    totals = reach.set_index(["seed", "phase", "task"])["run_grad_steps"].to_dict()
+    assert totals == {run: 100 * len(curve) for run, curve in STREAKS.items()}
+
+
 @pytest.mark.parametrize("bad", [0, -1, 1.5, True])
 def test_consecutive_must_be_a_positive_count(bad: object) -> None:
     with pytest.raises(SealError, match="consecutive"):

@@ -515,3 +515,78 @@ def test_a_seed_without_evaluation_rows_is_named_not_dropped_silently(tmp_path: 
         "first evaluation); it is left out of the tables and plots"
     ]
     assert set(result.per_seed["seed"]) == set(BASELINE_MW)  # the others are counted as before
+
+
+def _with_success(rows: str, row: int, value: str) -> str:
+    """`rows` (metrics.csv without its header) with data row `row`'s success set to `value`."""
+    lines = rows.splitlines()
+    cells = lines[row].split(",")
+    cells[HEADER.split(",").index("success")] = value
+    lines[row] = ",".join(cells)
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize(
+    ("value", "shown"),
+    [
+        ("nan", "nan"),
+        ("", "nan"),
+        ("2.5", "2.5"),
+        ("-0.1", "-0.1"),
+        ("inf", "inf"),
+        ("1.01", "1.01"),
+    ],
+)
+def test_a_success_that_is_not_a_rate_is_refused_before_anything_is_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], value: str, shown: str
+) -> None:
+    # Seed 1's third evaluation row is line 4 of its metrics.csv (the header is line 1).
+    runs = {**BASELINE_MW, 1: _with_success(BASELINE_MW[1], 2, value)}
+    group = write_group(tmp_path / "reports", "baseline_mw", runs)
+    says = (
+        f"{group / 'seed-1' / 'metrics.csv'}: line 4 has success = {shown}; expected a success "
+        "rate, a finite number in [0, 1]"
+    )
+    with pytest.raises(SealError) as refused:
+        load_run(group / "seed-1")
+    assert str(refused.value) == says
+    before = sorted(p.name for p in group.iterdir())
+    for argv in ([str(group), "--out", str(tmp_path / "out")], [str(group)]):
+        assert main(["report", *argv]) == 2
+        err = capsys.readouterr().err
+        assert err == f"seal report: error: {says}\n"
+    assert not (tmp_path / "out").exists()  # no tables, plots or lock under --out
+    assert sorted(p.name for p in group.iterdir()) == before  # nor in the group
+
+
+def test_a_group_whose_runs_never_evaluated_names_their_files_and_what_to_do(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Both seeds crashed before their first evaluation: metrics.csv holds its header only.
+    group = write_group(tmp_path / "reports", "baseline_mw", {0: "", 1: ""})
+    assert main(["report", str(group), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    files = f"{group / 'seed-0' / 'metrics.csv'}, {group / 'seed-1' / 'metrics.csv'}"
+    assert err == (
+        f"seal report: error: {files}: no evaluation rows, so there is nothing to report: these "
+        "runs stopped before the first evaluation (see the log, then resume or rerun) or are "
+        "still running (report after the first evaluation)\n"
+    )
+    assert not (tmp_path / "out").exists()
+    assert sorted(p.name for p in group.iterdir()) == ["seed-0", "seed-1"]  # no lock, no tables
+    # One seed: named alone, as one run.
+    (group / "seed-1" / "metrics.csv").unlink()
+    with pytest.raises(SealError) as refused:
+        report([group], out=tmp_path / "out")
+    message = str(refused.value)
+    assert message.startswith(f"{group / 'seed-0' / 'metrics.csv'}: no evaluation rows")
+    assert ": this run stopped before the first evaluation" in message
+    assert "or is still running" in message
+    # No seed with a metrics.csv at all: the seed directories, named without list syntax.
+    (group / "seed-0" / "metrics.csv").unlink()
+    with pytest.raises(SealError) as refused:
+        report([group], out=tmp_path / "out")
+    assert str(refused.value) == (
+        f"{group}: none of its seed directories (seed-0, seed-1) has a metrics.csv; their runs "
+        "stopped before their first evaluation or are still running (report them after it)"
+    )

@@ -146,8 +146,13 @@ def _frames(groups: Sequence[_Group]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The groups' evaluation rows (labels disambiguated) and training rows, in one column space."""
     metrics = _labelled(groups, "metrics")
     if metrics.empty:
+        files = [str(run.path / "metrics.csv") for g in groups for run in g.runs]
+        shown = ", ".join(files[:5]) + (f" and {len(files) - 5} more" if len(files) > 5 else "")
+        runs, verb = ("this run", "is") if len(files) == 1 else ("these runs", "are")
         raise SealError(
-            f"{[str(g.path) for g in groups]}: the metrics.csv files have no evaluation rows yet"
+            f"{shown}: no evaluation rows, so there is nothing to report: {runs} stopped before "
+            f"the first evaluation (see the log, then resume or rerun) or {verb} still running "
+            "(report after the first evaluation)"
         )
     metrics = _disambiguate(metrics)
     train = _labelled(groups, "train")

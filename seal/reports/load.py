@@ -98,9 +98,14 @@ class RunData:
 
 
 def _read_csv(
-    path: Path, required: Sequence[str], text_columns: Sequence[str], named: Sequence[str] = ()
+    path: Path,
+    required: Sequence[str],
+    text_columns: Sequence[str],
+    named: Sequence[str] = (),
+    rates: Sequence[str] = (),
 ) -> pd.DataFrame:
-    """The CSV with its required columns, numeric where not text, and no blank `named` cell."""
+    """The CSV with its required columns, numeric where not text, no blank `named` cell, and
+    every `rates` cell a finite number in [0, 1] (a success rate)."""
     check_inside(path, path.parent, what=path.name)  # no symlink out of the run directory
     check_regular_file(path, what=path.name)  # a FIFO would block pandas forever
     try:
@@ -133,6 +138,15 @@ def _read_csv(
             raise SealError(
                 f"{path}: column {column!r} has non-numeric values; expected numbers"
             ) from None
+    for column in rates:
+        values = frame[column]
+        # NaN compares False, so a blank, nan or inf cell is refused with the out-of-range ones.
+        bad = frame.index[~((values >= 0.0) & (values <= 1.0))]
+        if len(bad):
+            raise SealError(
+                f"{path}: line {bad[0] + 2} has {column} = {float(values[bad[0]])!r}; expected a "
+                f"{column} rate, a finite number in [0, 1]"
+            )
     return frame
 
 
@@ -155,6 +169,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
         REQUIRED_METRICS_COLUMNS,
         text_columns=("phase", "env", "task"),
         named=("env", "task"),
+        rates=("success",),
     )
     train_path = run / "train.csv"
     if os.path.lexists(train_path):
@@ -270,6 +285,12 @@ def _is_run_dir(path: Path) -> bool:
     return os.path.lexists(path / "metrics.csv")
 
 
+def _seed_order(name: str) -> tuple[bool, int, str]:
+    """seed-2 before seed-10; a name whose suffix is no number after those."""
+    suffix = name.removeprefix("seed-")
+    return (not suffix.isdigit(), int(suffix) if suffix.isdigit() else 0, name)
+
+
 def run_dirs(path: str | os.PathLike[str]) -> list[Path]:
     """The run directories a path names: itself if it is a run, else its `seed-<n>/` runs, by seed.
 
@@ -288,11 +309,13 @@ def run_dirs(path: str | os.PathLike[str]) -> list[Path]:
     if runs:
         return runs
     if seeds:
+        names = ", ".join(sorted((d.name for d in seeds), key=_seed_order))
         raise SealError(
-            f"{where}: none of its seed directories {sorted(d.name for d in seeds)} has a metrics.csv yet"
+            f"{where}: none of its seed directories ({names}) has a metrics.csv; their runs "
+            "stopped before their first evaluation or are still running (report them after it)"
         )
     groups = sorted(
         str(d) for d in where.iterdir() if d.is_dir() and any(d.glob("seed-*/metrics.csv"))
     )
-    hint = f"; it holds the group directories {groups[:5]}, pass those" if groups else ""
+    hint = f"; it holds the group directories {', '.join(groups[:5])}, pass those" if groups else ""
     raise SealError(f"{where}: neither a run nor a group directory; {_EXPECTED}{hint}")

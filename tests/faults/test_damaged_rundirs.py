@@ -84,6 +84,18 @@ def _replace(name: str, make: Callable[[Path, Path], None]) -> Callable[[Path, P
     return damage
 
 
+def _success(value: str) -> Callable[[Path, Path], None]:
+    """metrics.csv with every row's success set to `value` (as written in the file)."""
+
+    def damage(run: Path, outside: Path) -> None:
+        path = run / "metrics.csv"
+        frame = pd.read_csv(path, dtype=str, keep_default_na=False)
+        frame["success"] = value
+        frame.to_csv(path, index=False)
+
+    return damage
+
+
 def _link_out(target: str, directory: bool = False) -> Callable[[Path, Path], None]:
     def make(path: Path, outside: Path) -> None:
         where = outside / target
@@ -447,6 +459,18 @@ CASES = [
         _replace("metrics.csv", _link_out("metrics.csv")),
         "report",
         "metrics.csv is a symlink leading out of",
+    ),
+    Case(
+        "report/metrics-success-all-nan",
+        _success("nan"),
+        "report",
+        "metrics.csv: line 2 has success = nan; expected a success rate, a finite number in [0, 1]",
+    ),
+    Case(
+        "report/metrics-success-above-one",
+        _success("2.5"),
+        "report",
+        "metrics.csv: line 2 has success = 2.5; expected a success rate",
     ),
     Case(
         "report/provenance-seed-a-string",
