@@ -325,7 +325,13 @@ class Scheduler(abc.ABC):
 
 
 def scale_duration(value: int, factor: float) -> int:
-    """A schedule duration multiplied by `--scale` (rounded), with a floor of 1."""
+    """A schedule duration multiplied by `--scale` (rounded), with a floor of 1.
+
+    A value <= 0 is a sentinel ("off", "no limit", e.g. SMT's `budget_stage2 = 0` or a
+    curriculum's `max_phase_env_steps = 0`), not a duration: it is kept as it is, never made 1.
+    """
+    if value <= 0:
+        return value
     return max(1, int(round(value * factor)))
 
 
@@ -335,14 +341,15 @@ class SchedulerConfig:
     """Base of the [scheduler] table's dataclasses: one subclass per `kind`.
 
     `DURATIONS` names the fields that are schedule durations (in epochs or env steps); `scale`
-    multiplies exactly those by `--scale F` with a floor of 1, never per-epoch quantities.
+    multiplies exactly those by `--scale F` with a floor of 1 (0 and other sentinels <= 0 kept),
+    never per-epoch quantities.
     """
 
     kind: ClassVar[str] = ""
     DURATIONS: ClassVar[tuple[str, ...]] = ()
 
     def scale(self, factor: float) -> Self:
-        """A copy with every schedule duration multiplied by `factor` (floor 1)."""
+        """A copy with every schedule duration multiplied by `factor` (floor 1; values <= 0 kept)."""
         changes = {name: scale_duration(getattr(self, name), factor) for name in self.DURATIONS}
         return dataclasses.replace(self, **changes)
 

@@ -201,15 +201,14 @@ class CurriculumV2Config(SchedulerConfig):
 
     def scale(self, factor: float) -> CurriculumV2Config:
         """A copy with phase step limits multiplied by `factor` (floor 1; 0 = no limit stays 0)."""
-
-        def scaled(v: int) -> int:
-            return 0 if v == 0 else scale_duration(v, factor)
-
         phases = tuple(
-            dataclasses.replace(p, max_env_steps=scaled(p.max_env_steps)) for p in self.phases
+            dataclasses.replace(p, max_env_steps=scale_duration(p.max_env_steps, factor))
+            for p in self.phases
         )
         return dataclasses.replace(
-            self, phases=phases, max_phase_env_steps=scaled(self.max_phase_env_steps)
+            self,
+            phases=phases,
+            max_phase_env_steps=scale_duration(self.max_phase_env_steps, factor),
         )
 
     def _build(
@@ -239,6 +238,22 @@ def resolve_task(name: str, env_tasks: Mapping[str, Sequence[str]], key: str) ->
             )
     valid = [f"{e}/{t}" for e, ts in env_tasks.items() for t in ts]
     raise ConfigError(f"{key}: unknown task {name!r}; the protocol's tasks are {', '.join(valid)}")
+
+
+def resolve_tasks_once(
+    names: Sequence[str], env_tasks: Mapping[str, Sequence[str]], key: str
+) -> list[TaskKey]:
+    """`resolve_task` of each name, refusing two names of one task ("east" and "pt/east")."""
+    seen: dict[TaskKey, str] = {}
+    for name in names:
+        task = resolve_task(name, env_tasks, key)
+        if task in seen:
+            raise ConfigError(
+                f"{key}: {seen[task]!r} and {name!r} both name task {task[0]}/{task[1]}; "
+                "name each task once"
+            )
+        seen[task] = name
+    return list(seen)
 
 
 def _grad_steps(value: int) -> int | None:
@@ -488,11 +503,11 @@ def build_curriculum(
             where = f"scheduler.phases[{i}]"
             if phase.env_steps < 1:
                 raise ConfigError(f"{where}.env_steps = {phase.env_steps!r}: must be >= 1")
-            weights: dict[TaskKey, float] = {}
             for name, w in phase.weights.items():
                 if float(w) < 0:
                     raise ConfigError(f"{where}.weights.{name} = {w!r}: must be >= 0")
-                weights[resolve_task(name, env_tasks, f"{where}.weights")] = float(w)
+            keys = resolve_tasks_once(list(phase.weights), env_tasks, f"{where}.weights")
+            weights = {k: float(w) for k, w in zip(keys, phase.weights.values(), strict=True)}
             if sum(weights.values()) <= 0:
                 raise ConfigError(f"{where}.weights: at least one task needs a share > 0")
             phases.append((phase.env_steps, weights))
@@ -506,6 +521,25 @@ def build_curriculum(
             )
         if not 0.0 <= config.threshold <= 1.0:
             raise ConfigError(f"scheduler.threshold = {config.threshold!r}: must be in [0, 1]")
+        if config.max_phase_env_steps < 0:
+            raise ConfigError(
+                f"scheduler.max_phase_env_steps = {config.max_phase_env_steps!r}: must be >= 0 (0 = no limit)"
+            )
+        if config.phases:
+            # The preset keys do nothing beside explicit phases: refused, not ignored.
+            defaults = CurriculumV2Config()
+            for key, per_phase in (
+                ("order", "list each phase's tasks in scheduler.phases[i].tasks"),
+                ("threshold", "set scheduler.phases[i].threshold"),
+                ("max_phase_env_steps", "set scheduler.phases[i].max_env_steps"),
+            ):
+                value = getattr(config, key)
+                if value != getattr(defaults, key):
+                    shown = list(value) if isinstance(value, tuple) else value
+                    raise ConfigError(
+                        f"scheduler.{key} = {shown!r}: applies only to a preset, not to "
+                        f"scheduler.phases; remove it and {per_phase}"
+                    )
         if config.preset:
             resolved = preset_phases(config, env_tasks)
         else:
@@ -522,9 +556,9 @@ def build_curriculum(
                     raise ConfigError(f"{where}.threshold = {phase.threshold!r}: must be in [0, 1]")
                 if phase.max_env_steps < 0:
                     raise ConfigError(
-                        f"{where}.max_env_steps = {phase.max_env_steps!r}: must be >= 0"
+                        f"{where}.max_env_steps = {phase.max_env_steps!r}: must be >= 0 (0 = no limit)"
                     )
-                tasks = tuple(resolve_task(n, env_tasks, f"{where}.tasks") for n in phase.tasks)
+                tasks = tuple(resolve_tasks_once(phase.tasks, env_tasks, f"{where}.tasks"))
                 resolved.append((tasks, phase.threshold, phase.max_env_steps))
         return CurriculumV2Scheduler(env_tasks, resolved, _grad_steps(config.grad_steps))
     raise ValueError(f"not a curriculum config: {type(config).__name__}")

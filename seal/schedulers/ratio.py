@@ -35,6 +35,9 @@ RATIO_PRESETS: dict[str, tuple[str, str]] = {
     "high_mw": (METAWORLD_ADAPTER, KITCHEN_ADAPTER),
 }
 
+MAX_ABSENT_TASKS = 1_000
+"""Largest `scheduler.absent` task count: a joint run trains all its tasks in one agent (Meta-World's largest set, MT50, has 50), and each absent task adds an entry to every epoch's batch split and batch_per_task x share to this run's per-update batch (10^12 asked 7.28 TiB)."""
+
 
 @with_config(SCHEMA)
 @dataclass(frozen=True, kw_only=True)
@@ -141,9 +144,27 @@ def _check_absent(absent: Mapping[str, int], envs: Sequence[str]) -> dict[str, i
             raise ConfigError(
                 f"scheduler.absent.{env}: {env!r} is one of the protocol's envs {list(envs)}; absent envs must not be"
             )
-        if not isinstance(tasks, int) or tasks < 1:
+        if not isinstance(tasks, int) or isinstance(tasks, bool) or tasks < 1:
             raise ConfigError(f"scheduler.absent.{env} = {tasks!r}: expected a task count >= 1")
+        if tasks > MAX_ABSENT_TASKS:
+            raise ConfigError(
+                f"scheduler.absent.{env} = {tasks!r}: expected a task count of at most "
+                f"{MAX_ABSENT_TASKS:,} (the joint run's tasks of env {env!r}; each one enlarges every update's batch)"
+            )
     return dict(absent)
+
+
+def _check_present_share(
+    fractions: Mapping[str, float], envs: Sequence[str], absent: Mapping[str, int], key: str
+) -> None:
+    """With `absent` envs the fractions may leave this run's own envs nothing: refused, since
+    no update could then draw a single transition."""
+    if absent and not any(fractions[e] > 0 for e in envs):
+        raise ConfigError(
+            f"{key} = {dict(fractions)}: no env of this run ({', '.join(envs)}) has a share > 0, "
+            f"only the absent {', '.join(absent)}, so no update would draw a batch; "
+            f"give at least one of {', '.join(envs)} a fraction > 0"
+        )
 
 
 def resolve_preset(config: SteppedRatioConfig, adapters: Mapping[str, str]) -> dict[str, float]:
@@ -280,6 +301,7 @@ def build_ratio_scheduler(
         return RatioScheduler(env_tasks, lambda epoch: fixed, "all", label="uniform")
     if isinstance(config, ConstantRatioConfig):
         fixed = _check_fractions(config.ratios, envs_all, "scheduler.ratios")
+        _check_present_share(fixed, envs, absent, "scheduler.ratios")
         return RatioScheduler(
             env_tasks, lambda epoch: fixed, config.collect, label="constant", absent=absent
         )
@@ -297,6 +319,10 @@ def build_ratio_scheduler(
                 raise ConfigError(
                     "scheduler: give either scheduler.preset or scheduler.start, not both"
                 )
+            if not 0.0 <= config.start_fraction <= 1.0:
+                raise ConfigError(
+                    f"scheduler.start_fraction = {config.start_fraction!r}: must be in [0, 1]"
+                )
             start_raw = resolve_preset(
                 config, adapters if adapters is not None else {e: e for e in envs}
             )
@@ -305,9 +331,18 @@ def build_ratio_scheduler(
                 raise ConfigError(
                     f"scheduler.start: a stepped schedule needs start fractions per env {envs} or a preset ({', '.join(RATIO_PRESETS)})"
                 )
+            if config.start_fraction != SteppedRatioConfig().start_fraction:
+                raise ConfigError(
+                    f"scheduler.start_fraction = {config.start_fraction!r}: applies only to a "
+                    "preset, not to scheduler.start; remove it and give the fractions in scheduler.start"
+                )
             start_raw = config.start
         start = _check_fractions(start_raw, envs_all, "scheduler.start")
         end = _check_fractions(config.end, envs_all, "scheduler.end")
+        # Each env moves monotonically from start to end, so this run's envs have a share > 0 at
+        # every epoch exactly when they have one at the start and at the end.
+        _check_present_share(start, envs, absent, "scheduler.start")
+        _check_present_share(end, envs, absent, "scheduler.end")
         label = config.preset or "stepped"
         return RatioScheduler(
             env_tasks,

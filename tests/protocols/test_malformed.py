@@ -260,6 +260,45 @@ CASES: list[tuple[str, str | bytes, list[str], str]] = [
     ("scale-zero", BASE, ["--scale", "0"], "--scale 0"),
     ("scale-nan", BASE, ["--scale", "nan"], "--scale nan"),
     ("scale-word", BASE, ["--scale", "half"], "--scale"),
+    # Scheduler values that passed the check and failed (or did something else) in the run:
+    (
+        "scheduler-absent-huge",
+        BASE + '[scheduler]\nkind = "constant"\nratios = {pt = 0.5, g = 0.5}\n',
+        ["--set", "scheduler.absent={g=1000000000000}"],
+        "scheduler.absent.g = 1000000000000: expected a task count of at most 1,000",
+    ),
+    (
+        "scheduler-absent-only",
+        BASE + '[scheduler]\nkind = "constant"\nratios = {pt = 0.0, g = 1.0}\nabsent = {g = 4}\n',
+        [],
+        "scheduler.ratios = {'pt': 0.0, 'g': 1.0}: no env of this run (pt) has a share > 0",
+    ),
+    (
+        "scheduler-negative-preset-limit",
+        BASE + '[scheduler]\nkind = "curriculum_v2"\npreset = "sequential"\n',
+        ["--set", "scheduler.max_phase_env_steps=-5", "--scale", "0.5"],
+        "scheduler.max_phase_env_steps = -5: must be >= 0 (0 = no limit)",
+    ),
+    (
+        "scheduler-order-beside-phases",
+        BASE + '[scheduler]\nkind = "curriculum_v2"\norder = ["bogus"]\n'
+        '[[scheduler.phases]]\ntasks = ["east"]\n',
+        [],
+        "scheduler.order = ['bogus']: applies only to a preset, not to scheduler.phases",
+    ),
+    (
+        "scheduler-start-fraction-beside-start",
+        BASE + '[scheduler]\nkind = "stepped"\nstart = {pt = 1.0}\nstart_fraction = 0.7\n',
+        [],
+        "scheduler.start_fraction = 0.7: applies only to a preset, not to scheduler.start",
+    ),
+    (
+        "scheduler-task-twice",
+        BASE + '[scheduler]\nkind = "curriculum_v1"\n[[scheduler.phases]]\nenv_steps = 100\n'
+        'weights = {"pt/east" = 1, east = 5, north = 1}\n',
+        [],
+        "scheduler.phases[0].weights: 'pt/east' and 'east' both name task pt/east",
+    ),
 ]
 
 

@@ -23,7 +23,6 @@ from seal.schedulers.base import SchedulerConfig
 TOML = """
 [scheduler]
 kind = "curriculum_v2"
-threshold = 0.6
 grad_steps = -1
 
 [[scheduler.phases]]
