@@ -31,7 +31,7 @@ def add_protocol_arguments(parser: argparse.ArgumentParser, *, file_help: str = 
         type=float,
         default=None,
         metavar="F",
-        help="multiply total epochs and every schedule duration by F (floor 1); per-epoch quantities are unchanged",
+        help="multiply total epochs and every schedule duration by F (floor 1; a 0 meaning off stays 0); per-epoch quantities are unchanged",
     )
 
 
