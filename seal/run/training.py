@@ -50,6 +50,11 @@ class Training:
             if int(np.sum(c)) > 0
         }
         self.batch_now = {e: np.asarray(c, dtype=np.int64) for e, c in counts.items()}
+        if not sample_counts:
+            # Every task of this run rounds to 0 transitions (scheduler.absent envs hold all but a
+            # sliver of the share): no update this epoch, as the matched joint run draws none of
+            # this run's transitions either.
+            return
         every = cfg.evaluation.every_grad_steps
         with loop.timed("update", count=False):
             agent.refresh_beliefs(replay)  # smt_gru with encoder_refresh_interval

@@ -43,3 +43,34 @@ def test_matched_alone_draws_the_joint_runs_batch(joint: str, env: str) -> None:
     # task. An alone run rounding its own 256 alone would draw 26 x 6 + 25 x 4 instead.
     if (joint, env) == ("high_fk", "mw"):
         assert _counts(alone, ("mw",), 0)["mw"] == [26] * 10
+
+
+def test_an_epoch_whose_share_rounds_to_nothing_runs_no_update(tmp_path: Path) -> None:
+    """An absent env holding all but a sliver of the share leaves this run 0 transitions an
+    update: the epoch runs none (the matched joint run draws none of these tasks either); it
+    was an empty-stack RuntimeError at the first update."""
+    import pandas as pd
+
+    from seal.run.runner import run_seed
+
+    sets = [
+        "protocol.epochs=2",
+        "training.warmup_steps=0",
+        "evaluation.interval=1",
+        "evaluation.episodes=1",
+        'scheduler.kind="constant"',
+        "scheduler.ratios={pt=1e-9,g=1.0}",
+        "scheduler.absent={g=4}",
+    ]
+    config = load_protocol(PROTOCOLS / "learn" / "point.toml", sets)
+    run = run_seed(config, 0, tmp_path / "g").run_dir
+    metrics = pd.read_csv(run / "metrics.csv")
+    assert sorted(metrics["epoch"].unique()) == [1, 2]
+    assert (metrics["grad_steps"] == 0).all() and (metrics["batch"] == 0).all()
+    # The control: a share that rounds to transitions updates every epoch.
+    config = load_protocol(
+        PROTOCOLS / "learn" / "point.toml",
+        [*sets[:-2], "scheduler.ratios={pt=0.5,g=0.5}", sets[-1]],
+    )
+    run = run_seed(config, 0, tmp_path / "h").run_dir
+    assert (pd.read_csv(run / "metrics.csv")["grad_steps"] > 0).all()
