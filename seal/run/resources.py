@@ -7,7 +7,8 @@ explain` prints `estimate_resources`. For each phase the estimate adds:
 - the networks: actor, twin critic and its target, built on PyTorch's "meta" device (shapes
   only, nothing allocated) and counted; each trainable parameter also has a gradient and Adam's
   two moments, so 4 floats per actor and critic parameter plus 1 for the target critic;
-- one update's activations: the batch (`training.batch_per_task` x the phase's tasks) times
+- one update's activations: the batch (`training.batch_per_task` x the phase's tasks, and x
+  `scheduler.absent`'s tasks, whose share this run's tasks draw in a matched alone run) times
   the hidden widths it passes through (the actor twice, the twin critic three times: Q(s, a),
   the target's Q(s', a'), Q(s, pi(s))), doubled for what backward keeps, plus the sampled
   batch itself and its int64 row indices;
@@ -195,6 +196,11 @@ def _phase_estimate(config: ProtocolConfig, phase: Phase, model: PhaseModel) -> 
         ) from None
     tasks = sum(s.num_tasks for s in model.replay_specs)
     batch = config.training.batch_per_task * tasks
+    # scheduler.absent's tasks are batch this run's tasks draw in their stead (a matched alone
+    # run): their memory is counted as if this run's share were 1, an upper bound (the update
+    # threads keep the plain batch, which a matched run draws about).
+    absent = sum((getattr(config.scheduler, "absent", None) or {}).values())
+    drawn = batch + config.training.batch_per_task * absent
     widest = max(2 * s.obs_dim + s.act_dim + 2 for s in model.replay_specs)
     actor_width, critic_width = _widths(config.agent, len(model.specs))
     per_sample = 2 * (2 * actor_width + 3 * 2 * critic_width) + widest
@@ -203,7 +209,7 @@ def _phase_estimate(config: ProtocolConfig, phase: Phase, model: PhaseModel) -> 
         replay=replay_bytes(model.replay_specs, config.replay.capacity_per_env),
         # The encoder and decoders (smt_gru): weights, gradients and Adam's two moments.
         networks=FLOAT * (4 * actor + 5 * critic + 4 * encoder),
-        activations=batch * (FLOAT * per_sample + 8),
+        activations=drawn * (FLOAT * per_sample + 8),
         parameters=actor + critic,
         batch=batch,
         encoder_parameters=encoder,

@@ -184,3 +184,15 @@ def test_evaluation_results_are_counted() -> None:
     # Four float64 arrays of episodes x tasks: 4 x 8 x 50 x 4 bytes for point's 4 tasks.
     config = load_protocol(POINT, ["evaluation.episodes=50"])
     assert estimate_resources(config, build_adapters(config), "cpu").peak.evaluation == 6_400
+
+
+def test_absent_tasks_count_in_the_batchs_memory_not_in_the_threads() -> None:
+    """scheduler.absent's tasks enlarge this run's own tasks' draws (up to share 1): their
+    activations count at batch_per_task each; the update threads keep the plain batch."""
+    sets = ['scheduler.kind="constant"', "scheduler.ratios={pt=0.5,g=0.5}"]
+    config = load_protocol(POINT)  # no absent env: point's 4 tasks
+    plain = estimate_resources(config, build_adapters(config), "cpu").peak
+    config = load_protocol(POINT, [*sets, "scheduler.absent={g=1000}"])
+    estimate = estimate_resources(config, build_adapters(config), "cpu")
+    assert estimate.peak.activations == plain.activations * (4 + 1000) // 4  # point's 4 tasks
+    assert estimate.update_shape() == (plain.parameters, plain.batch)
