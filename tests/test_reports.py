@@ -456,6 +456,32 @@ def test_cli_report_mistakes_leave_no_directory_and_no_lock(
     assert not (tmp_path / "both").exists()
 
 
+def test_a_report_that_fails_midway_leaves_no_new_out_and_no_lock(
+    tmp_path: Path, groups: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Not only a refused input: a bug or a Ctrl-C while the tables are written removes the new
+    --out, and the lock and empty folders a report made in a run directory."""
+    import seal.reports
+
+    def half_written(paths: list[str], out: str | None = None, **_: object) -> None:
+        target = Path(out) if out else Path(paths[0])
+        (target / "tables").mkdir(parents=True, exist_ok=True)
+        (target / "tables" / "update_counts.md").write_text("| half |")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(seal.reports, "report", half_written)
+    group = groups["baseline_mw"]
+    before = sorted(p.name for p in group.iterdir())
+    assert main(["report", str(group), "--out", str(tmp_path / "new")]) == 130  # interrupted
+    assert not (tmp_path / "new").exists()
+    monkeypatch.setattr(
+        seal.reports, "report", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("bug"))
+    )
+    with pytest.raises(RuntimeError, match="bug"):
+        main(["report", str(group)])
+    assert sorted(p.name for p in group.iterdir()) == before  # no lock, no empty plots/ tables/
+
+
 def test_cli_report_consecutive(
     tmp_path: Path, groups: dict[str, Path], capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -94,7 +94,6 @@ def _remove_new(target: str | None, before: set[str] | None) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Build the report and print where it went (or one JSON line)."""
-    from seal.errors import SealError
     from seal.reports import check_report_inputs, report
     from seal.run.dirlock import DirLock
 
@@ -123,8 +122,8 @@ def run(args: argparse.Namespace) -> int:
         finally:
             if lock is not None:
                 lock.release()
-    except SealError:  # refused while reading the runs: leave the target as it was
-        _remove_new(target, before)
+    except BaseException:  # refused while reading the runs, a bug or Ctrl-C: leave the target
+        _remove_new(target, before)  # as it was (a new --out goes whole)
         raise
     for note in result.skipped:
         print(f"seal report: note: {note}", file=sys.stderr)
