@@ -75,8 +75,9 @@ def _entries(target: str | None) -> set[str] | None:
 
 
 def _remove_new(target: str | None, before: set[str] | None) -> None:
-    """Remove what a refused report made in `target`: all of it when it made the directory,
-    else its lock file and the empty folders (plots/, tables/) that were not there before."""
+    """Remove what a failed report made in `target`: all of it when it made the directory,
+    else its lock file and the folders (plots/, tables/) that were not there before. The lock
+    kept any other writer out meanwhile, so what is new is the report's."""
     if target is None:
         return
     path = Path(target)
@@ -88,8 +89,8 @@ def _remove_new(target: str | None, before: set[str] | None) -> None:
             continue
         if entry.name == ".seal.lock" and entry.is_file():
             entry.unlink()
-        elif entry.is_dir() and not any(entry.iterdir()):
-            entry.rmdir()
+        elif entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
 
 
 def run(args: argparse.Namespace) -> int:
