@@ -351,9 +351,11 @@ def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
         f"seal sweep: SIGTERM: stopped the sweep (2 preempted); resume with: seal sweep --resume {group}"
     )
     trials = json.loads((group / "sweep.json").read_text())["trials"]
-    assert [t["status"] for t in trials] == ["preempted", "preempted"]
+    # A failure here once went unexplained (its output lost): each assert now says what it saw.
+    assert [t["status"] for t in trials] == ["preempted", "preempted"], (trials, err)
     # seed 1 got SIGTERM; seed 0 the driver's gentle ray.cancel, which a trial sees as SIGINT.
-    assert trials[0]["note"].startswith("SIGINT ") and trials[1]["note"].startswith("SIGTERM ")
+    assert trials[0]["note"].startswith("SIGINT "), (trials, err)
+    assert trials[1]["note"].startswith("SIGTERM "), (trials, err)
     stopped = {}
     for t in trials:
         run = Path(t["run_dir"])
@@ -362,11 +364,11 @@ def test_sigterm_stops_a_sweep_with_every_trial_saved_and_resume_finishes_them(
         assert (
             f"epoch {stopped[t['seed']]} " in t["note"]
             or f"epoch {stopped[t['seed']]}'s" in t["note"]
-        )
-        assert not is_finished(run)
+        ), (stopped, t, err)
+        assert not is_finished(run), (t, err)
 
     again = sweep(resume=group)
-    assert [(t.start, t.status) for t in again.trials] == [("continued", "finished")] * 2
+    assert [(t.start, t.status) for t in again.trials] == [("continued", "finished")] * 2, again
     real_close = PhaseLoop._close_epoch
     for t in again.trials:
         epoch = stopped[t.seed]
